@@ -1,0 +1,27 @@
+//! The `densefeat` command line. One file per subcommand; each parses its own arguments (clap) and
+//! returns the library's [`crate::Error`], which `main` prints and turns into exit code 1.
+
+use clap::{Parser, Subcommand};
+
+use crate::error::Result;
+
+/// Dense monocular reconstruction with learned good features to match.
+#[derive(Debug, Parser)]
+#[command(name = "densefeat", version, about)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {}
+
+/// Parse the process arguments and run the subcommand.
+///
+/// # Errors
+/// Whatever the subcommand returns.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {}
+}

@@ -1,0 +1,290 @@
+//! Posed image sequences. Every reader yields one [`Sequence`]: per-frame metadata (file paths,
+//! timestamps, camera-to-world poses) read eagerly and validated up front, pixels loaded on demand
+//! with [`Sequence::load_frame`] (a 373-frame sequence would not fit in memory as `f32`).
+
+use std::path::{Path, PathBuf};
+
+use ndarray::Array2;
+
+use crate::error::{Error, Result};
+use crate::geometry::{Camera, PinholeCamera, Pose};
+use crate::image::{self, DepthMap, RgbImage, UndistortMap};
+
+/// The on-disk layout a sequence was read from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Format {
+    /// TUM RGB-D (`rgb.txt`, `depth.txt`, `groundtruth.txt` / `associations.txt`); also ICL-NUIM's
+    /// TUM-compatible release.
+    Tum,
+    /// DeepVideoMVS / 7-Scenes style (`images/`, `depth/`, `poses.txt`, `K.txt`); also what the
+    /// synthetic renderer writes.
+    DeepVideoMvs,
+    /// A rectified stereo pair (Middlebury, ETH3D) read as a two-frame sequence.
+    Stereo,
+}
+
+impl std::fmt::Display for Format {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Format::Tum => "TUM RGB-D",
+            Format::DeepVideoMvs => "DeepVideoMVS / 7-Scenes",
+            Format::Stereo => "rectified stereo pair",
+        })
+    }
+}
+
+/// How a stored disparity map encodes disparity in pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum DisparityEncoding {
+    /// 8- or 16-bit grey PNG, `d = value / scale`; 0 = unknown.
+    ScaledPng {
+        /// Divisor (Middlebury 2001/2003: per-scene 4, 8 or 16 in `info.txt`).
+        scale: f64,
+    },
+    /// PFM float disparity; non-finite or `<= 0` = unknown.
+    Pfm,
+}
+
+/// Where a frame's ground-truth depth comes from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum DepthSource {
+    /// A 16-bit grey PNG with `z = value * metres_per_unit`; 0 (and `invalid` if given) = no depth.
+    Png16 {
+        /// The file.
+        path: PathBuf,
+        /// Metres per stored unit (TUM 1/5000, millimetre formats 1/1000).
+        metres_per_unit: f64,
+        /// An extra "no depth" value (7-Scenes: 65535).
+        invalid: Option<u16>,
+    },
+    /// A disparity map, converted with `z = focal_baseline / (d + doffs)` (`focal_baseline = f b`, in metres
+    /// times pixels, or in baseline units when uncalibrated).
+    Disparity {
+        /// The file.
+        path: PathBuf,
+        /// How the file encodes disparity.
+        encoding: DisparityEncoding,
+        /// `f · b`.
+        focal_baseline: f64,
+        /// Disparity offset added before dividing: `z = f b / (d + doffs)`.
+        doffs: f64,
+    },
+}
+
+impl DepthSource {
+    /// The file the depth is read from.
+    pub fn path(&self) -> &Path {
+        match self {
+            DepthSource::Png16 { path, .. } | DepthSource::Disparity { path, .. } => path,
+        }
+    }
+}
+
+/// One frame's metadata.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameInfo {
+    /// A short name (file stem or timestamp).
+    pub name: String,
+    /// Capture time in seconds, where the format has one.
+    pub timestamp: Option<f64>,
+    /// Camera-to-world pose `T_wc` (metres).
+    pub pose: Pose,
+    /// The colour image.
+    pub rgb: PathBuf,
+    /// Ground-truth depth, if any.
+    pub depth: Option<DepthSource>,
+}
+
+/// Stereo-specific facts of a two-frame [`Format::Stereo`] sequence (frame 0 = left, 1 = right).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StereoInfo {
+    /// Baseline, metres (1 "baseline unit" when uncalibrated).
+    pub baseline: f64,
+    /// Whether focal length and baseline come from a calibration file. When `false`, depths are in
+    /// baseline units with a nominal focal length and only disparity-space evaluation is meaningful.
+    pub calibrated: bool,
+    /// Disparity offset `doffs` (Middlebury 2014 / ETH3D `calib.txt`), pixels; `z = f b / (d + doffs)`.
+    pub doffs: f64,
+}
+
+/// A posed image sequence with one shared camera.
+#[derive(Clone, Debug)]
+pub struct Sequence {
+    /// Layout it was read from.
+    pub format: Format,
+    /// The folder it was read from.
+    pub root: PathBuf,
+    /// The camera of the images [`Sequence::load_frame`] returns (undistorted when the raw images
+    /// were distorted and undistortion is on).
+    pub camera: PinholeCamera,
+    /// The camera of the raw image files, with its distortion.
+    pub raw_camera: Camera,
+    /// Frames in capture order.
+    pub frames: Vec<FrameInfo>,
+    /// Present for stereo pairs.
+    pub stereo: Option<StereoInfo>,
+    /// What the reader decided on the user's behalf (calibration used, frames dropped, ...).
+    pub notes: Vec<String>,
+    undistort: Option<UndistortMap>,
+}
+
+/// A loaded frame.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// Index in the sequence.
+    pub index: usize,
+    /// Colour, `[H, W, 3]`, `0..=255`, in the sequence's (undistorted) camera.
+    pub rgb: RgbImage,
+    /// Depth in metres, `0` = invalid, in the same camera.
+    pub depth: Option<DepthMap>,
+    /// Camera-to-world pose `T_wc`.
+    pub pose: Pose,
+}
+
+impl Sequence {
+    /// Assemble a sequence from a reader's parts and validate it: at least one frame, every colour
+    /// and depth file present with the camera's size (read from the headers). With `undistort`,
+    /// frames are resampled into the pinhole camera when `raw_camera` has distortion.
+    ///
+    /// # Errors
+    /// [`Error::BadSequence`] for an empty sequence, [`Error::Io`] for a missing file,
+    /// [`Error::BadFile`] for an image whose size differs from the camera's.
+    pub fn from_parts(
+        format: Format,
+        root: PathBuf,
+        raw_camera: Camera,
+        frames: Vec<FrameInfo>,
+        stereo: Option<StereoInfo>,
+        notes: Vec<String>,
+        undistort: bool,
+    ) -> Result<Self> {
+        if frames.is_empty() {
+            return Err(Error::bad_sequence(&root, "the sequence has no frames"));
+        }
+        let k = raw_camera.pinhole;
+        for f in &frames {
+            let mut files = vec![f.rgb.as_path()];
+            if let Some(d) = &f.depth {
+                files.push(d.path());
+            }
+            for path in files {
+                if d_is_pfm(path) {
+                    continue; // PFM sizes are checked when loaded
+                }
+                let (w, h) = image::read_dimensions(path)?;
+                if (w, h) != (k.width, k.height) {
+                    return Err(Error::bad_file(
+                        path,
+                        format!("image is {w}x{h}, but the sequence's camera is {}x{}", k.width, k.height),
+                    ));
+                }
+            }
+        }
+        let map = match (&raw_camera.distortion, undistort) {
+            (Some(d), true) if !d.is_identity() => Some(UndistortMap::new(&k, d)),
+            _ => None,
+        };
+        Ok(Self { format, root, camera: k, raw_camera, frames, stereo, notes, undistort: map })
+    }
+
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Whether there are no frames (never true for a constructed sequence).
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// Whether frames are undistorted on load.
+    pub fn undistorts(&self) -> bool {
+        self.undistort.is_some()
+    }
+
+    /// Load frame `index`: colour, depth (if any) and pose, in [`Sequence::camera`].
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] for an index out of range; any image error naming the file.
+    pub fn load_frame(&self, index: usize) -> Result<Frame> {
+        let info = self.frames.get(index).ok_or_else(|| {
+            Error::invalid_argument(
+                "frame index",
+                format!("{index} is out of range: the sequence has {} frames", self.len()),
+            )
+        })?;
+        let rgb = image::load_rgb(&info.rgb)?;
+        self.check_size(&info.rgb, rgb.dim().0, rgb.dim().1)?;
+        let depth = match &info.depth {
+            None => None,
+            Some(src) => {
+                let d = load_depth(src)?;
+                self.check_size(src.path(), d.dim().0, d.dim().1)?;
+                Some(d)
+            }
+        };
+        let (rgb, depth) = match &self.undistort {
+            Some(map) => (map.rgb(&rgb), depth.map(|d| map.depth(&d))),
+            None => (rgb, depth),
+        };
+        Ok(Frame { index, rgb, depth, pose: info.pose })
+    }
+
+    /// Load frame `index`'s ground-truth disparity in pixels (stereo sequences only; 0 = unknown).
+    ///
+    /// # Errors
+    /// As [`Sequence::load_frame`].
+    pub fn load_disparity(&self, index: usize) -> Result<Option<Array2<f32>>> {
+        match self.frames.get(index).and_then(|f| f.depth.as_ref()) {
+            Some(DepthSource::Disparity { path, encoding, .. }) => {
+                let d = crate::sequence::disparity::load_disparity(path, *encoding)?;
+                self.check_size(path, d.dim().0, d.dim().1)?;
+                Ok(Some(d))
+            }
+            _ => Ok(None),
+        }
+    }
+
+    fn check_size(&self, path: &Path, h: usize, w: usize) -> Result<()> {
+        let k = &self.raw_camera.pinhole;
+        if (w, h) != (k.width, k.height) {
+            return Err(Error::bad_file(
+                path,
+                format!("image is {w}x{h}, but the sequence's camera is {}x{}", k.width, k.height),
+            ));
+        }
+        Ok(())
+    }
+}
+
+fn d_is_pfm(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("pfm"))
+}
+
+/// Load any depth source as metres (`0` = invalid).
+///
+/// # Errors
+/// Any image error naming the file.
+pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
+    match src {
+        DepthSource::Png16 { path, metres_per_unit, invalid } => {
+            image::load_depth_png(path, *metres_per_unit, *invalid)
+        }
+        DepthSource::Disparity { path, encoding, focal_baseline, doffs } => {
+            let d = disparity::load_disparity(path, *encoding)?;
+            Ok(d.mapv(|v| {
+                let den = v as f64 + doffs;
+                if v > 0.0 && v.is_finite() && den > 0.0 {
+                    (*focal_baseline / den) as f32
+                } else {
+                    0.0
+                }
+            }))
+        }
+    }
+}
+
+pub mod disparity;
+mod dvmvs_write;
+pub use dvmvs_write::{frame_file_name, DvmvsWriter};

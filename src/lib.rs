@@ -11,6 +11,8 @@
 //! - [`image`]: image types, PNG I/O, bilinear sampling, undistortion.
 //! - [`sequence`]: posed RGB-D sequences (TUM, ICL-NUIM, DeepVideoMVS / 7-Scenes, stereo pairs).
 //! - [`eval`]: depth metrics and the photometric warp check.
+//! - [`nn`]: the feature network's kernels (conv 3x3, transposed conv 5x5, 2x downsampling).
+//! - [`testing`]: error-budget comparisons shared by the test suites.
 //!
 //! ```
 //! use densefeat::geometry::{PinholeCamera, Pose, Warp};
@@ -31,6 +33,8 @@ pub mod eval;
 pub mod geometry;
 pub mod image;
 pub mod io;
+pub mod nn;
 pub mod sequence;
+pub mod testing;
 
 pub use error::{Error, Result};

@@ -1,0 +1,48 @@
+//! Convolution benches over the network's shapes (SPEC.md §7). Names: `<impl>_<op>_<shape>`.
+//! Throughput is reported in elements = FLOPs (`2 · 9 c_in · h_out · w_out · c_out`), so criterion's
+//! "elem/s" reads as FLOP/s.
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use densefeat::nn::conv2d::{conv2d_im2col, im2col, scratch_len, PackedConv2d};
+use densefeat::nn::{Activation, Conv2dGeometry};
+use ndarray::{Array1, Array3, Array4};
+use std::hint::black_box;
+
+/// The shapes we run: (h, w, c_in, c_out, stride).
+const SHAPES: [(usize, usize, usize, usize, usize); 2] = [(240, 320, 32, 32, 1), (120, 160, 35, 32, 2)];
+
+fn pattern(n: usize, seed: u64) -> impl FnMut() -> f32 {
+    let mut s = seed.wrapping_add(n as u64);
+    move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((s >> 40) as f32 / (1u64 << 24) as f32) - 0.5
+    }
+}
+
+fn bench_conv(c: &mut Criterion) {
+    let mut group = c.benchmark_group("conv2d");
+    group.sample_size(20);
+    for (h, w, c_in, c_out, stride) in SHAPES {
+        let g = Conv2dGeometry::new(h, w, c_in, c_out, stride).expect("valid shape");
+        let mut next = pattern(h * w, 1);
+        let x = Array3::from_shape_simple_fn(g.input_shape(), &mut next);
+        let wt = Array4::from_shape_simple_fn(g.weight_shape(), &mut next);
+        let b = Array1::from_shape_simple_fn(c_out, &mut next);
+        let packed = PackedConv2d::new(&g, wt.view(), b.view()).expect("packed");
+        let lanes = (4 * rayon::current_num_threads()).min(im2col::n_blocks(&g));
+        let mut scratch = vec![0.0; lanes * scratch_len(&g)];
+        let mut out = vec![0.0; g.output_shape().iter().product()];
+        let xs = x.as_slice().expect("contiguous");
+        group.throughput(Throughput::Elements(g.flops() as u64));
+        group.bench_function(format!("im2col_conv2d_{h}x{w}_c{c_in}to{c_out}_s{stride}"), |bench| {
+            bench.iter(|| {
+                conv2d_im2col(&packed, black_box(xs), Activation::Relu, &mut scratch, &mut out).expect("run");
+                black_box(&out);
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_conv);
+criterion_main!(benches);

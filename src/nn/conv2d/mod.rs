@@ -1,0 +1,98 @@
+//! 3x3 convolution, zero padding 1, stride 1 or 2, bias, optional fused ReLU (SPEC.md §7.2).
+//!
+//! Exactly `torch.nn.Conv2d(c_in, c_out, 3, stride, padding=1)` (a cross-correlation):
+//!
+//! ```text
+//! out[y, x, o] = act( b[o] + Σ_{c, ky, kx} w[o, c, ky, kx] · in[s·y + ky - 1, s·x + kx - 1, c] )
+//! ```
+//!
+//! with `in` zero outside the image. Output pixel `j` is centred on input pixel `s·j` (SPEC.md §2.1):
+//!
+//! ```text
+//!  stride 2, w = 5:   pad  in0  in1  in2  in3  in4  pad
+//!  out0 reads          [pad  in0  in1]
+//!  out1 reads                    [in1  in2  in3]
+//!  out2 reads                              [in3  in4  pad]
+//! ```
+//!
+//! # Shapes
+//! `input [h, w, c_in]` (channels-last), `weight [c_out, c_in, 3, 3]` (PyTorch layout), `bias
+//! [c_out]`, output `[(h - 1)/s + 1, (w - 1)/s + 1, c_out]` ([`Conv2dGeometry`]).
+//!
+//! # Example
+//! ```
+//! use densefeat::nn::{conv2d, Activation, Conv2dGeometry, Conv2dImpl};
+//! use ndarray::{array, Array4};
+//! let x = array![[[1.0f32], [2.0], [3.0]], [[4.0], [5.0], [6.0]], [[7.0], [8.0], [9.0]]];
+//! let g = Conv2dGeometry::new(3, 3, 1, 1, 1).unwrap();
+//! let w = Array4::<f32>::ones((1, 1, 3, 3)); // sums each 3x3 neighbourhood
+//! let y = conv2d(Conv2dImpl::Im2colGemm, &g, x.view(), w.view(), array![0.0f32].view(), Activation::None).unwrap();
+//! assert_eq!(y.into_raw_vec_and_offset().0, vec![12.0, 21.0, 16.0, 27.0, 45.0, 33.0, 24.0, 39.0, 28.0]);
+//! ```
+
+pub mod im2col;
+pub mod reference;
+
+use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};
+
+pub use im2col::{conv2d_im2col, scratch_len, PackedConv2d};
+pub use reference::conv2d_reference;
+
+use crate::error::Result;
+use crate::nn::{default_lanes, expect_shape, Activation, Conv2dGeometry};
+
+/// Which conv2d implementation to run. Every variant is always compiled and always tested.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Conv2dImpl {
+    /// Seven nested loops, f64 accumulation, one thread ([`conv2d_reference`]). The oracle.
+    Reference,
+    /// im2col of blocks of output rows into scratch, then `matrixmultiply::sgemm`, in parallel over
+    /// the blocks ([`conv2d_im2col`]).
+    Im2colGemm,
+}
+
+impl Conv2dImpl {
+    /// Every implementation, for tests and benches.
+    pub const ALL: [Conv2dImpl; 2] = [Conv2dImpl::Reference, Conv2dImpl::Im2colGemm];
+}
+
+/// Runs the chosen implementation on f32 arrays, allocating the output and any scratch. (The
+/// reference computes in f64 and rounds once to f32.)
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] if an array's shape disagrees with `geom`.
+pub fn conv2d(
+    imp: Conv2dImpl,
+    geom: &Conv2dGeometry,
+    input: ArrayView3<f32>,
+    weight: ArrayView4<f32>,
+    bias: ArrayView1<f32>,
+    activation: Activation,
+) -> Result<Array3<f32>> {
+    expect_shape("conv2d input", input.shape(), &geom.input_shape())?;
+    match imp {
+        Conv2dImpl::Reference => {
+            let out = conv2d_reference(
+                geom,
+                input.mapv(f64::from).view(),
+                weight.mapv(f64::from).view(),
+                bias.mapv(f64::from).view(),
+                activation,
+            )?;
+            Ok(out.mapv(|v| v as f32))
+        }
+        Conv2dImpl::Im2colGemm => {
+            let packed = PackedConv2d::new(geom, weight, bias)?;
+            let input = input.as_standard_layout();
+            let mut out = Array3::zeros(geom.output_shape());
+            let lanes = default_lanes(im2col::n_blocks(geom));
+            let mut scratch = vec![0.0; lanes * scratch_len(geom)];
+            let (Some(x), Some(y)) = (input.as_slice(), out.as_slice_mut()) else {
+                unreachable!("standard-layout arrays are contiguous")
+            };
+            conv2d_im2col(&packed, x, activation, &mut scratch, y)?;
+            Ok(out)
+        }
+    }
+}

@@ -1,0 +1,88 @@
+//! 5x5 transposed convolution, stride 2, padding 2, output padding 1, bias (SPEC.md §7.3).
+//!
+//! Exactly `torch.nn.ConvTranspose2d(c_in, c_out, 5, stride=2, padding=2, output_padding=1)`:
+//!
+//! ```text
+//! out[oy, ox, co] = b[co] + Σ_{ci} Σ_{(iy, ky): oy = 2 iy - 2 + ky} Σ_{(ix, kx): ox = 2 ix - 2 + kx}
+//!                   in[iy, ix, ci] · w[ci, co, ky, kx]
+//! ```
+//!
+//! Input pixel `i` spreads its (unflipped) kernel over outputs `2i - 2 ..= 2i + 2`, the centre tap
+//! `k = 2` landing on `2i`, where coarse pixel `i` sits (SPEC.md §2.1). The output is `2h x 2w`;
+//! contributions that would land outside it are cropped:
+//!
+//! ```text
+//!  input  i:       0           1           2
+//!  output o:  (-2 -1) 0  1  2  3  4  5  6  7  (8)     k = o - 2i + 2
+//!  i = 0 spreads   [-2 .. 2]
+//!  i = 2 spreads                     [2 .......  6]
+//! ```
+//!
+//! # Shapes
+//! `input [h, w, c_in]`, `weight [c_in, c_out, 5, 5]` (PyTorch layout), `bias [c_out]`, output
+//! `[2h, 2w, c_out]` ([`Deconv2dGeometry`]).
+
+pub mod fast;
+pub mod reference;
+
+use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};
+
+pub use fast::{deconv2d_fast, scratch_len, PackedDeconv2d};
+pub use reference::deconv2d_reference;
+
+use crate::error::Result;
+use crate::nn::{default_lanes, expect_shape, Deconv2dGeometry};
+
+/// Which transposed-convolution implementation to run. Every variant is always compiled and tested.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Deconv2dImpl {
+    /// Scatter from the definition, f64 accumulation, one thread ([`deconv2d_reference`]).
+    Reference,
+    /// Gather as four parity sub-convolutions, each a GEMM, parallel over output row pairs
+    /// ([`deconv2d_fast`]).
+    ParityGemm,
+}
+
+impl Deconv2dImpl {
+    /// Every implementation, for tests and benches.
+    pub const ALL: [Deconv2dImpl; 2] = [Deconv2dImpl::Reference, Deconv2dImpl::ParityGemm];
+}
+
+/// Runs the chosen implementation on f32 arrays, allocating the output and any scratch. (The
+/// reference computes in f64 and rounds once to f32.)
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] if an array's shape disagrees with `geom`.
+pub fn deconv2d(
+    imp: Deconv2dImpl,
+    geom: &Deconv2dGeometry,
+    input: ArrayView3<f32>,
+    weight: ArrayView4<f32>,
+    bias: ArrayView1<f32>,
+) -> Result<Array3<f32>> {
+    expect_shape("deconv2d input", input.shape(), &geom.input_shape())?;
+    match imp {
+        Deconv2dImpl::Reference => {
+            let out = deconv2d_reference(
+                geom,
+                input.mapv(f64::from).view(),
+                weight.mapv(f64::from).view(),
+                bias.mapv(f64::from).view(),
+            )?;
+            Ok(out.mapv(|v| v as f32))
+        }
+        Deconv2dImpl::ParityGemm => {
+            let packed = PackedDeconv2d::new(geom, weight, bias)?;
+            let input = input.as_standard_layout();
+            let mut out = Array3::zeros(geom.output_shape());
+            let lanes = default_lanes(geom.h());
+            let mut scratch = vec![0.0; lanes * scratch_len(geom)];
+            let (Some(x), Some(y)) = (input.as_slice(), out.as_slice_mut()) else {
+                unreachable!("standard-layout arrays are contiguous")
+            };
+            deconv2d_fast(&packed, x, &mut scratch, y)?;
+            Ok(out)
+        }
+    }
+}

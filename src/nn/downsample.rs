@@ -1,0 +1,89 @@
+//! 2x image downsampling (SPEC.md §2.1, §7.4) and the network's elementwise helpers on
+//! channels-last `[H, W, C]` arrays.
+
+use ndarray::{concatenate, Array3, ArrayView3, Axis};
+use rayon::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::nn::geometry::DownsampleGeometry;
+
+/// Tent filter `[1/4, 1/2, 1/4]`, centred on input pixel `2j` for output pixel `j`.
+const TENT: [f64; 3] = [0.25, 0.5, 0.25];
+
+/// Input index of tap `t ∈ {0, 1, 2}` of output `j` along an axis of length `n`: `2j + t - 1`,
+/// clamped to `0..n` (edge replication).
+#[inline]
+fn tap(j: usize, t: usize, n: usize) -> usize {
+    (2 * j + t).saturating_sub(1).min(n - 1)
+}
+
+/// 2x downsampling with the separable tent `[1/4, 1/2, 1/4]` centred on input pixel `2j`, edges
+/// replicated, so output pixel `j` sits at input pixel `2j` as after a stride-2 convolution:
+///
+/// `out[j, i, c] = Σ_{a, b ∈ {0,1,2}} t[a] t[b] in[clamp(2j + a - 1), clamp(2i + b - 1), c]`.
+///
+/// The nine-term sum is formed in f64 (the products by powers of two are exact) and rounded once
+/// to f32, so a constant image stays exactly constant.
+///
+/// ```text
+///  n = 5:   in0 in0 in1 in2 in3 in4 in4     (edges replicated)
+///  out0     [1/4 1/2 1/4]
+///  out1             [1/4 1/2 1/4]
+///  out2                     [1/4 1/2 1/4]
+/// ```
+///
+/// # Shapes
+/// `[h, w, c]` to `[ceil(h/2), ceil(w/2), c]`.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if a dimension is zero.
+pub fn downsample2x(input: ArrayView3<f32>) -> Result<Array3<f32>> {
+    let (h, w, c) = input.dim();
+    let geom = DownsampleGeometry::new(h, w, c)?;
+    let [h_out, w_out, _] = geom.output_shape();
+    let mut out = Array3::zeros((h_out, w_out, c));
+    let Some(out_slice) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
+    out_slice.par_chunks_mut(w_out * c).enumerate().for_each(|(j, row)| {
+        for i in 0..w_out {
+            for ch in 0..c {
+                let mut acc = 0.0f64;
+                for (a, ta) in TENT.iter().enumerate() {
+                    for (b, tb) in TENT.iter().enumerate() {
+                        acc += ta * tb * f64::from(input[[tap(j, a, h), tap(i, b, w), ch]]);
+                    }
+                }
+                row[i * c + ch] = acc as f32;
+            }
+        }
+    });
+    Ok(out)
+}
+
+/// Concatenates two maps along channels: `[h, w, ca]`, `[h, w, cb]` to `[h, w, ca + cb]`, `a`'s
+/// channels first (PyTorch `torch.cat([a, b], dim=1)` in NCHW).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if the heights or widths differ.
+pub fn concat_channels(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<f32>> {
+    if a.shape()[..2] != b.shape()[..2] {
+        return Err(Error::invalid_argument(
+            "concat_channels",
+            format!("spatial sizes differ: {:?} and {:?}", a.shape(), b.shape()),
+        ));
+    }
+    concatenate(Axis(2), &[a, b]).map_err(|e| Error::invalid_argument("concat_channels", e.to_string()))
+}
+
+/// Elementwise sum of two maps of the same shape.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if the shapes differ.
+pub fn add(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<f32>> {
+    if a.shape() != b.shape() {
+        return Err(Error::invalid_argument(
+            "add",
+            format!("shapes differ: {:?} and {:?}", a.shape(), b.shape()),
+        ));
+    }
+    Ok(&a + &b)
+}

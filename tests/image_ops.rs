@@ -40,12 +40,12 @@ proptest! {
         let (x, y) = (fx * (w - 1) as f64, fy * (h - 1) as f64);
         let mut out = [0.0f32; 2];
         let inside = sample_bilinear(&img.view(), x, y, &mut out);
-        for c in 0..2 {
+        for (c, &got) in out.iter().enumerate() {
             let want = bilinear_reference(&img, x, y, c);
             prop_assert_eq!(inside, want.is_some());
             if let Some(want) = want {
                 // 4-term convex combination of values <= 255, computed in f64 and rounded once.
-                prop_assert!((out[c] as f64 - want).abs() <= 255.0 * f32::EPSILON as f64, "{} vs {}", out[c], want);
+                prop_assert!((got as f64 - want).abs() <= 255.0 * f32::EPSILON as f64, "{} vs {}", got, want);
             }
         }
     }

@@ -81,8 +81,8 @@ pub fn within_budget<D: Dimension>(
     let mut err = BudgetError { shapes: None, first: Vec::new(), count: 0, total: want.len() };
     for ((index, &g), (&w, &m)) in got.into_dyn().indexed_iter().zip(want.iter().zip(magnitude.iter())) {
         let budget = rel * m;
-        // Written so that NaN fails.
-        if !((g - w).abs() <= budget) {
+        let ok = (g - w).abs() <= budget; // false when anything is NaN
+        if !ok {
             err.count += 1;
             if err.first.len() < REPORTED {
                 let index = index.slice().to_vec();

@@ -1,0 +1,508 @@
+//! The network's kernels (SPEC.md §7): fast implementations against the f64 references within the
+//! §7.5 budget, bit-identical results for any thread count, and known answers pinning PyTorch's
+//! semantics.
+
+use densefeat::nn::conv2d::{conv2d_im2col, im2col, scratch_len, PackedConv2d};
+use densefeat::nn::deconv2d::{deconv2d_fast, scratch_len as deconv_scratch_len, PackedDeconv2d};
+use densefeat::nn::geometry::DownsampleGeometry;
+use densefeat::nn::{
+    add, concat_channels, conv2d, deconv2d, downsample2x, Activation, Conv2dGeometry, Conv2dImpl,
+    Deconv2dGeometry, Deconv2dImpl,
+};
+use densefeat::testing::within_budget;
+use ndarray::{array, s, Array1, Array3, Array4, Dimension};
+use proptest::prelude::*;
+
+// ---------------------------------------------------------------------------------------------
+// Cases
+
+/// Values in [-1, 1) from a seeded LCG (all randomness comes from the proptest seed).
+fn lcg(seed: u64) -> impl FnMut() -> f32 {
+    let mut s = seed ^ 0x9E37_79B9_7F4A_7C15;
+    move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((s >> 40) as f32 / (1u64 << 23) as f32) - 1.0
+    }
+}
+
+fn bits<D: Dimension>(a: &ndarray::Array<f32, D>) -> Vec<u32> {
+    a.iter().map(|v| v.to_bits()).collect()
+}
+
+fn thread_pool(n: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap()
+}
+
+/// Spatial sizes that stress borders, strides and GEMM tile edges (16 is a microkernel width).
+const SIZES: [usize; 12] = [1, 2, 3, 4, 5, 7, 8, 15, 16, 17, 31, 33];
+const C_INS: [usize; 4] = [1, 3, 32, 35];
+const C_OUTS: [usize; 3] = [1, 8, 32];
+
+#[derive(Clone, Debug)]
+struct ConvCase {
+    g: Conv2dGeometry,
+    x: Array3<f32>,
+    w: Array4<f32>,
+    b: Array1<f32>,
+    act: Activation,
+}
+
+impl ConvCase {
+    fn new(shape: (usize, usize, usize, usize, usize), act: Activation, seed: u64) -> Self {
+        let (h, w, c_in, c_out, stride) = shape;
+        let g = Conv2dGeometry::new(h, w, c_in, c_out, stride).unwrap();
+        let mut next = lcg(seed);
+        let x = Array3::from_shape_simple_fn(g.input_shape(), &mut next);
+        let w = Array4::from_shape_simple_fn(g.weight_shape(), &mut next);
+        let b = Array1::from_shape_simple_fn(c_out, &mut next);
+        ConvCase { g, x, w, b, act }
+    }
+    fn run(&self, imp: Conv2dImpl) -> Array3<f32> {
+        conv2d(imp, &self.g, self.x.view(), self.w.view(), self.b.view(), self.act).unwrap()
+    }
+    /// The same case on |x|, |w|, |b| without activation: its reference output is Σ|x||w| + |b|.
+    fn abs(&self) -> Self {
+        let abs = |v: f32| v.abs();
+        ConvCase {
+            g: self.g,
+            x: self.x.mapv(abs),
+            w: self.w.mapv(abs),
+            b: self.b.mapv(abs),
+            act: Activation::None,
+        }
+    }
+}
+
+fn conv_cases() -> impl Strategy<Value = ConvCase> {
+    (
+        prop::sample::select(SIZES.to_vec()),
+        prop::sample::select(SIZES.to_vec()),
+        prop::sample::select(C_INS.to_vec()),
+        prop::sample::select(C_OUTS.to_vec()),
+        prop::sample::select(vec![1usize, 2]),
+        any::<bool>(),
+        any::<u64>(),
+    )
+        .prop_map(|(h, w, c_in, c_out, stride, relu, seed)| {
+            let act = if relu { Activation::Relu } else { Activation::None };
+            ConvCase::new((h, w, c_in, c_out, stride), act, seed)
+        })
+}
+
+#[derive(Clone, Debug)]
+struct DeconvCase {
+    g: Deconv2dGeometry,
+    x: Array3<f32>,
+    w: Array4<f32>,
+    b: Array1<f32>,
+}
+
+impl DeconvCase {
+    fn new(h: usize, w: usize, c_in: usize, c_out: usize, seed: u64) -> Self {
+        let g = Deconv2dGeometry::new(h, w, c_in, c_out).unwrap();
+        let mut next = lcg(seed);
+        let x = Array3::from_shape_simple_fn(g.input_shape(), &mut next);
+        let w = Array4::from_shape_simple_fn(g.weight_shape(), &mut next);
+        let b = Array1::from_shape_simple_fn(c_out, &mut next);
+        DeconvCase { g, x, w, b }
+    }
+    fn run(&self, imp: Deconv2dImpl) -> Array3<f32> {
+        deconv2d(imp, &self.g, self.x.view(), self.w.view(), self.b.view()).unwrap()
+    }
+    fn abs(&self) -> Self {
+        let abs = |v: f32| v.abs();
+        DeconvCase { g: self.g, x: self.x.mapv(abs), w: self.w.mapv(abs), b: self.b.mapv(abs) }
+    }
+}
+
+/// Deconv inputs are coarse maps; smaller sizes keep the f64 scatter reference quick.
+const DECONV_SIZES: [usize; 10] = [1, 2, 3, 4, 5, 7, 8, 9, 16, 17];
+
+fn deconv_cases() -> impl Strategy<Value = DeconvCase> {
+    (
+        prop::sample::select(DECONV_SIZES.to_vec()),
+        prop::sample::select(DECONV_SIZES.to_vec()),
+        prop::sample::select(C_INS.to_vec()),
+        prop::sample::select(C_OUTS.to_vec()),
+        any::<u64>(),
+    )
+        .prop_map(|(h, w, c_in, c_out, seed)| DeconvCase::new(h, w, c_in, c_out, seed))
+}
+
+/// The §7.5 budget for a K-term dot product plus bias: 2 K ε_f32 (Σ|x||w| + |b|).
+fn budget(k: usize) -> f32 {
+    2.0 * k as f32 * f32::EPSILON
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fast against reference
+
+proptest! {
+    #[test]
+    fn im2col_matches_reference(case in conv_cases()) {
+        let fast = case.run(Conv2dImpl::Im2colGemm);
+        let oracle = case.run(Conv2dImpl::Reference);
+        let magnitude = case.abs().run(Conv2dImpl::Reference);
+        within_budget(fast.view(), oracle.view(), magnitude.view(), budget(case.g.k()))?;
+    }
+
+    #[test]
+    fn deconv_parity_gemm_matches_reference(case in deconv_cases()) {
+        let fast = case.run(Deconv2dImpl::ParityGemm);
+        let oracle = case.run(Deconv2dImpl::Reference);
+        let magnitude = case.abs().run(Deconv2dImpl::Reference);
+        within_budget(fast.view(), oracle.view(), magnitude.view(), budget(case.g.k()))?;
+    }
+
+    #[test]
+    fn im2col_gather_is_bit_exact(case in conv_cases(), start in 0.0..1.0f64, rows in 1usize..4) {
+        let g = case.g;
+        let y0 = (start * g.h_out() as f64) as usize;
+        let rows = rows.min(g.h_out() - y0);
+        let mut cols = vec![f32::NAN; rows * g.w_out() * g.k()];
+        im2col::im2col_rows(&g, case.x.as_slice().unwrap(), y0, rows, &mut cols);
+        let (h, w, c_in, s) = (g.h() as isize, g.w() as isize, g.c_in(), g.stride() as isize);
+        let mut i = 0;
+        for y in y0..y0 + rows {
+            for x in 0..g.w_out() {
+                for ky in 0..3isize {
+                    for kx in 0..3isize {
+                        let (iy, ix) = (s * y as isize + ky - 1, s * x as isize + kx - 1);
+                        for c in 0..c_in {
+                            let want = if iy < 0 || ix < 0 || iy >= h || ix >= w {
+                                0.0
+                            } else {
+                                case.x[[iy as usize, ix as usize, c]]
+                            };
+                            prop_assert_eq!(cols[i].to_bits(), want.to_bits(), "y {} x {} ky {} kx {} c {}", y, x, ky, kx, c);
+                            i += 1;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn downsample_is_exact_on_affine_images(h in 1usize..12, w in 1usize..12, a in -8i32..8, b in -8i32..8, c0 in -64i32..64) {
+        // Small-integer affine images: every tent sum is exact, so interior samples equal the
+        // image at 2j and border samples the replicated-edge average.
+        let img = Array3::from_shape_fn((h, w, 1), |(y, x, _)| (a * x as i32 + b * y as i32 + c0) as f32);
+        let out = downsample2x(img.view()).unwrap();
+        let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as f64;
+        for ((j, i, _), &v) in out.indexed_iter() {
+            let ey = (clamp(2 * j as isize - 1, h) + 2.0 * (2 * j) as f64 + clamp(2 * j as isize + 1, h)) / 4.0;
+            let ex = (clamp(2 * i as isize - 1, w) + 2.0 * (2 * i) as f64 + clamp(2 * i as isize + 1, w)) / 4.0;
+            let want = a as f64 * ex + b as f64 * ey + c0 as f64;
+            prop_assert_eq!(v as f64, want, "at ({}, {})", j, i);
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Determinism
+
+#[test]
+fn im2col_output_independent_of_thread_count() {
+    for (shape, seed) in [((37, 29, 35, 32, 1), 7), ((41, 30, 32, 8, 2), 8), ((5, 300, 3, 32, 1), 9)] {
+        let case = ConvCase::new(shape, Activation::Relu, seed);
+        let run = |n| thread_pool(n).install(|| case.run(Conv2dImpl::Im2colGemm));
+        let one = run(1);
+        for n in [2, 3, 8] {
+            assert_eq!(bits(&run(n)), bits(&one), "shape {shape:?}, threads = {n}");
+        }
+    }
+}
+
+#[test]
+fn im2col_output_independent_of_scratch_lanes() {
+    let case = ConvCase::new((37, 29, 35, 32, 1), Activation::None, 3);
+    let packed = PackedConv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
+    let run = |lanes: usize| {
+        let mut scratch = vec![0.0; lanes * scratch_len(&case.g)];
+        let mut out = vec![0.0f32; case.g.output_shape().iter().product()];
+        conv2d_im2col(&packed, case.x.as_slice().unwrap(), Activation::None, &mut scratch, &mut out).unwrap();
+        out.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    };
+    let one = run(1);
+    for lanes in [2, 3, 64] {
+        assert_eq!(run(lanes), one, "lanes = {lanes}");
+    }
+}
+
+#[test]
+fn deconv_output_independent_of_thread_count() {
+    let case = DeconvCase::new(19, 23, 35, 32, 11);
+    let run = |n| thread_pool(n).install(|| case.run(Deconv2dImpl::ParityGemm));
+    let one = run(1);
+    for n in [2, 3, 8] {
+        assert_eq!(bits(&run(n)), bits(&one), "threads = {n}");
+    }
+    let packed = PackedDeconv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
+    let mut out = vec![0.0f32; case.g.output_shape().iter().product()];
+    let mut scratch = vec![0.0; deconv_scratch_len(&case.g)];
+    deconv2d_fast(&packed, case.x.as_slice().unwrap(), &mut scratch, &mut out).unwrap();
+    assert_eq!(out.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), bits(&one), "one lane");
+}
+
+#[test]
+fn downsample_output_independent_of_thread_count() {
+    let mut next = lcg(5);
+    let img = Array3::from_shape_simple_fn((57, 43, 3), &mut next);
+    let run = |n| thread_pool(n).install(|| downsample2x(img.view()).unwrap());
+    let one = run(1);
+    for n in [2, 3, 8] {
+        assert_eq!(bits(&run(n)), bits(&one), "threads = {n}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Known answers (PyTorch semantics)
+
+fn conv_all(g: &Conv2dGeometry, x: &Array3<f32>, w: &Array4<f32>, b: &Array1<f32>) -> Vec<Array3<f32>> {
+    Conv2dImpl::ALL
+        .iter()
+        .map(|&imp| conv2d(imp, g, x.view(), w.view(), b.view(), Activation::None).unwrap())
+        .collect()
+}
+
+#[test]
+fn conv_ones_kernel_sums_neighbourhoods_like_pytorch() {
+    // torch.nn.functional.conv2d(torch.arange(1., 10.).view(1, 1, 3, 3), torch.ones(1, 1, 3, 3),
+    //                            padding=1, stride=s)
+    let x = Array3::from_shape_fn((3, 3, 1), |(y, x, _)| (3 * y + x + 1) as f32);
+    let w = Array4::ones((1, 1, 3, 3));
+    let b = array![0.0f32];
+    let g1 = Conv2dGeometry::new(3, 3, 1, 1, 1).unwrap();
+    for y in conv_all(&g1, &x, &w, &b) {
+        assert_eq!(
+            y.into_shape_with_order((3, 3)).unwrap(),
+            array![[12.0, 21.0, 16.0], [27.0, 45.0, 33.0], [24.0, 39.0, 28.0]]
+        );
+    }
+    let g2 = Conv2dGeometry::new(3, 3, 1, 1, 2).unwrap();
+    for y in conv_all(&g2, &x, &w, &b) {
+        assert_eq!(y.into_shape_with_order((2, 2)).unwrap(), array![[12.0, 16.0], [24.0, 28.0]]);
+    }
+}
+
+#[test]
+fn conv_stride2_centre_delta_picks_input_pixel_2j() {
+    // SPEC §2.1: stride-2 output j is centred on input pixel 2j.
+    let (h, w, c) = (7, 6, 3);
+    let x = Array3::from_shape_fn((h, w, c), |(y, x, ch)| (100 * y + 10 * x + ch) as f32);
+    let mut wt = Array4::zeros((c, c, 3, 3));
+    for ch in 0..c {
+        wt[[ch, ch, 1, 1]] = 1.0;
+    }
+    let g = Conv2dGeometry::new(h, w, c, c, 2).unwrap();
+    assert_eq!(g.output_shape(), [4, 3, c]);
+    for y in conv_all(&g, &x, &wt, &Array1::zeros(c)) {
+        assert_eq!(y, x.slice(s![..;2, ..;2, ..]));
+    }
+}
+
+#[test]
+fn conv_is_cross_correlation_not_convolution() {
+    // Only tap (ky, kx) = (0, 0) set: out[y, x] = in[y - 1, x - 1] (a flipped kernel would read
+    // in[y + 1, x + 1]).
+    let x = Array3::from_shape_fn((4, 5, 1), |(y, x, _)| (10 * y + x + 1) as f32);
+    let mut wt = Array4::zeros((1, 1, 3, 3));
+    wt[[0, 0, 0, 0]] = 1.0;
+    let g = Conv2dGeometry::new(4, 5, 1, 1, 1).unwrap();
+    for y in conv_all(&g, &x, &wt, &array![0.5]) {
+        for ((yy, xx, _), &v) in y.indexed_iter() {
+            let want = if yy == 0 || xx == 0 { 0.0 } else { x[[yy - 1, xx - 1, 0]] };
+            assert_eq!(v, want + 0.5, "at ({yy}, {xx})");
+        }
+    }
+}
+
+#[test]
+fn conv_weight_layout_is_out_in_ky_kx() {
+    // w[o, c, 1, 1] = 10 o + c + 1: out[.., o] = Σ_c (10 o + c + 1) in[.., c].
+    let x = Array3::from_shape_fn((2, 2, 2), |(y, x, c)| [1.0, 100.0][c] * (1 + y + x) as f32);
+    let mut wt = Array4::zeros((3, 2, 3, 3));
+    for o in 0..3 {
+        for c in 0..2 {
+            wt[[o, c, 1, 1]] = (10 * o + c + 1) as f32;
+        }
+    }
+    let g = Conv2dGeometry::new(2, 2, 2, 3, 1).unwrap();
+    for y in conv_all(&g, &x, &wt, &array![0.0, 0.0, 0.0]) {
+        for ((yy, xx, o), &v) in y.indexed_iter() {
+            let want = (10 * o + 1) as f32 * x[[yy, xx, 0]] + (10 * o + 2) as f32 * x[[yy, xx, 1]];
+            assert_eq!(v, want);
+        }
+    }
+}
+
+#[test]
+fn conv_relu_clamps_negative_outputs() {
+    let x = array![[[1.0f32], [-2.0]]];
+    let mut wt = Array4::zeros((1, 1, 3, 3));
+    wt[[0, 0, 1, 1]] = 1.0;
+    let g = Conv2dGeometry::new(1, 2, 1, 1, 1).unwrap();
+    for imp in Conv2dImpl::ALL {
+        let y = conv2d(imp, &g, x.view(), wt.view(), array![0.5].view(), Activation::Relu).unwrap();
+        assert_eq!(y, array![[[1.5f32], [0.0]]], "{imp:?}");
+    }
+}
+
+fn deconv_all(g: &Deconv2dGeometry, x: &Array3<f32>, w: &Array4<f32>, b: &Array1<f32>) -> Vec<Array3<f32>> {
+    Deconv2dImpl::ALL.iter().map(|&imp| deconv2d(imp, g, x.view(), w.view(), b.view()).unwrap()).collect()
+}
+
+#[test]
+fn deconv_impulse_spreads_unflipped_kernel_over_2i_minus_2_to_2i_plus_2() {
+    // torch.nn.ConvTranspose2d(1, 1, 5, stride=2, padding=2, output_padding=1): an impulse at input
+    // (iy, ix) writes w[ky, kx] at output (2 iy - 2 + ky, 2 ix - 2 + kx), cropped to 2h x 2w.
+    let kernel = Array4::from_shape_fn((1, 1, 5, 5), |(_, _, ky, kx)| (10 * ky + kx + 1) as f32);
+    let g = Deconv2dGeometry::new(4, 3, 1, 1).unwrap();
+    assert_eq!(g.output_shape(), [8, 6, 1]);
+    for (iy, ix) in [(0, 0), (2, 1), (3, 2), (1, 1)] {
+        let mut x = Array3::zeros((4, 3, 1));
+        x[[iy, ix, 0]] = 1.0;
+        for y in deconv_all(&g, &x, &kernel, &array![0.0]) {
+            for ((oy, ox, _), &v) in y.indexed_iter() {
+                let (ky, kx) = (oy as isize - 2 * iy as isize + 2, ox as isize - 2 * ix as isize + 2);
+                let want = if (0..5).contains(&ky) && (0..5).contains(&kx) {
+                    kernel[[0, 0, ky as usize, kx as usize]]
+                } else {
+                    0.0
+                };
+                assert_eq!(v, want, "impulse ({iy}, {ix}), output ({oy}, {ox})");
+            }
+        }
+    }
+}
+
+#[test]
+fn deconv_weight_layout_is_in_out_ky_kx() {
+    // c_in = 2, c_out = 3; an impulse in input channel 1 reproduces w[1, co, .., ..] in channel co.
+    let w =
+        Array4::from_shape_fn((2, 3, 5, 5), |(ci, co, ky, kx)| (1000 * ci + 100 * co + 10 * ky + kx) as f32);
+    let g = Deconv2dGeometry::new(3, 3, 2, 3).unwrap();
+    let mut x = Array3::zeros((3, 3, 2));
+    x[[1, 1, 1]] = 1.0;
+    for y in deconv_all(&g, &x, &w, &array![0.25, 0.5, 0.75]) {
+        for co in 0..3 {
+            for ky in 0..5 {
+                for kx in 0..5 {
+                    assert_eq!(y[[ky, kx, co]], w[[1, co, ky, kx]] + [0.25, 0.5, 0.75][co]);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn downsample_of_a_constant_is_the_constant() {
+    for (h, w) in [(1, 1), (1, 4), (5, 1), (6, 7), (9, 8)] {
+        let img = Array3::from_elem((h, w, 3), 0.1f32);
+        let out = downsample2x(img.view()).unwrap();
+        assert_eq!(out.dim(), (h.div_ceil(2), w.div_ceil(2), 3));
+        assert!(out.iter().all(|&v| v == 0.1f32), "{h}x{w}");
+    }
+}
+
+#[test]
+fn downsample_of_a_ramp_samples_it_at_2j() {
+    // Interior: the tent is symmetric, so a ramp keeps its value at 2j. Border: the replicated
+    // edge pulls the value by a quarter step.
+    let img = Array3::from_shape_fn((1, 7, 1), |(_, x, _)| 4.0 * x as f32);
+    let out = downsample2x(img.view()).unwrap();
+    assert_eq!(out.into_raw_vec_and_offset().0, vec![1.0, 8.0, 16.0, 23.0]);
+    let img = Array3::from_shape_fn((6, 1, 1), |(y, _, _)| 4.0 * y as f32);
+    let out = downsample2x(img.view()).unwrap();
+    assert_eq!(out.into_raw_vec_and_offset().0, vec![1.0, 8.0, 16.0]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Shapes, helpers and errors
+
+#[test]
+fn output_sizes_follow_spec() {
+    for n in 1..40 {
+        let g1 = Conv2dGeometry::new(n, n + 1, 1, 1, 1).unwrap();
+        assert_eq!((g1.h_out(), g1.w_out()), (n, n + 1));
+        let g2 = Conv2dGeometry::new(n, n + 1, 1, 1, 2).unwrap();
+        assert_eq!((g2.h_out(), g2.w_out()), (n.div_ceil(2), (n + 1).div_ceil(2)));
+        let d = Deconv2dGeometry::new(n, n + 1, 1, 1).unwrap();
+        assert_eq!((d.h_out(), d.w_out()), (2 * n, 2 * n + 2));
+        assert_eq!(
+            DownsampleGeometry::new(n, n + 1, 3).unwrap().output_shape(),
+            [n.div_ceil(2), (n + 1).div_ceil(2), 3]
+        );
+    }
+}
+
+#[test]
+fn geometry_rejects_zero_sizes_and_bad_strides() {
+    assert!(Conv2dGeometry::new(0, 4, 1, 1, 1).is_err());
+    assert!(Conv2dGeometry::new(4, 4, 0, 1, 1).is_err());
+    assert!(Conv2dGeometry::new(4, 4, 1, 0, 2).is_err());
+    for s in [0, 3, 4] {
+        assert!(Conv2dGeometry::new(4, 4, 1, 1, s).is_err(), "stride {s}");
+    }
+    assert!(Conv2dGeometry::new(usize::MAX / 2, 4, 8, 8, 1).is_err());
+    assert!(Deconv2dGeometry::new(4, 0, 1, 1).is_err());
+    assert!(Deconv2dGeometry::new(4, 4, 1, 0).is_err());
+    assert!(DownsampleGeometry::new(4, 4, 0).is_err());
+}
+
+#[test]
+fn kernels_reject_mismatched_shapes_and_short_scratch() {
+    let case = ConvCase::new((5, 6, 3, 8, 1), Activation::None, 1);
+    let other = Conv2dGeometry::new(5, 7, 3, 8, 1).unwrap();
+    for imp in Conv2dImpl::ALL {
+        assert!(conv2d(imp, &other, case.x.view(), case.w.view(), case.b.view(), Activation::None).is_err());
+        assert!(conv2d(
+            imp,
+            &case.g,
+            case.x.view(),
+            case.w.view(),
+            Array1::zeros(7).view(),
+            Activation::None
+        )
+        .is_err());
+    }
+    let packed = PackedConv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
+    let mut out = vec![0.0; case.g.output_shape().iter().product()];
+    let mut short = vec![0.0; scratch_len(&case.g) - 1];
+    assert!(
+        conv2d_im2col(&packed, case.x.as_slice().unwrap(), Activation::None, &mut short, &mut out).is_err()
+    );
+    let d = DeconvCase::new(3, 4, 2, 5, 1);
+    let bad = Array4::zeros((5, 2, 5, 5)); // [c_out, c_in] is the Conv2d layout, not ConvTranspose2d's
+    for imp in Deconv2dImpl::ALL {
+        assert!(deconv2d(imp, &d.g, d.x.view(), bad.view(), d.b.view()).is_err());
+    }
+}
+
+#[test]
+fn concat_and_add_are_channels_last() {
+    let a = Array3::from_shape_fn((2, 3, 2), |(y, x, c)| (100 * y + 10 * x + c) as f32);
+    let b = Array3::from_shape_fn((2, 3, 1), |(y, x, _)| -((100 * y + 10 * x) as f32));
+    let cat = concat_channels(a.view(), b.view()).unwrap();
+    assert_eq!(cat.dim(), (2, 3, 3));
+    assert_eq!(cat.slice(s![.., .., ..2]), a);
+    assert_eq!(cat.slice(s![.., .., 2..]), b);
+    assert!(concat_channels(a.view(), Array3::zeros((2, 4, 1)).view()).is_err());
+    let sum = add(a.view(), a.view()).unwrap();
+    assert_eq!(sum, &a * 2.0);
+    assert!(add(a.view(), b.view()).is_err());
+}
+
+#[test]
+fn within_budget_reports_first_mismatches() {
+    let want = Array1::from_elem(10, 1.0f32);
+    let got = Array1::from_shape_fn(10, |i| if i >= 2 { 1.5 } else { 1.0 });
+    let err = within_budget(got.view(), want.view(), want.view(), 0.1).unwrap_err();
+    assert_eq!(err.count, 8);
+    assert_eq!(err.first.len(), 5);
+    assert_eq!(err.first[0].index, vec![2]);
+    let text = err.to_string();
+    assert!(text.contains("8 of 10") && text.contains("and 3 more"), "{text}");
+    assert!(within_budget(want.view(), want.view(), want.view(), 0.0).is_ok());
+}

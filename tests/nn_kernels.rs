@@ -447,6 +447,8 @@ fn geometry_rejects_zero_sizes_and_bad_strides() {
     }
     assert!(Conv2dGeometry::new(usize::MAX / 2, 4, 8, 8, 1).is_err());
     assert!(Deconv2dGeometry::new(4, 0, 1, 1).is_err());
+    assert!(Deconv2dGeometry::new(usize::MAX / 2, 1, 1, 1).is_err());
+    assert!(DownsampleGeometry::new(1, usize::MAX, 1).is_err());
     assert!(Deconv2dGeometry::new(4, 4, 1, 0).is_err());
     assert!(DownsampleGeometry::new(4, 4, 0).is_err());
 }

@@ -39,12 +39,22 @@ fn downsample_out_len(n: usize) -> usize {
     n.div_ceil(2)
 }
 
-/// Checks that every size is positive and that their product (an element count) fits in `usize`.
+/// Largest size along any axis: keeps `2n + 4` and signed pixel offsets far from overflow.
+const MAX_DIM: usize = (isize::MAX / 8) as usize;
+
+/// Checks that every size is positive and at most [`MAX_DIM`], and that their product (an element
+/// count) fits in `usize`.
 fn check_sizes(op: &str, sizes: &[(&str, usize)]) -> Result<()> {
     let mut total: usize = 1;
     for &(name, value) in sizes {
         if value == 0 {
             return Err(Error::invalid_argument(format!("{op} {name}"), "must be at least 1"));
+        }
+        if value > MAX_DIM {
+            return Err(Error::invalid_argument(
+                format!("{op} {name}"),
+                format!("{value} exceeds {MAX_DIM}"),
+            ));
         }
         total = total.checked_mul(value).ok_or_else(|| {
             Error::invalid_argument(op.to_string(), format!("element count overflows with {name} = {value}"))

@@ -12,10 +12,11 @@
 //! contributions that would land outside it are cropped:
 //!
 //! ```text
-//!  input  i:       0           1           2
-//!  output o:  (-2 -1) 0  1  2  3  4  5  6  7  (8)     k = o - 2i + 2
-//!  i = 0 spreads   [-2 .. 2]
-//!  i = 2 spreads                     [2 .......  6]
+//!  h = 3:      input i = 0           1           2
+//!  output o:   -2 -1  0  1  2  3  4  5 |6      (o < 0 and o >= 2h = 6 are cropped)
+//!  i = 0 adds  [k=0 ........ k=4]
+//!  i = 1 adds         [k=0 ........ k=4]
+//!  i = 2 adds               [k=0 ....... |k=4]
 //! ```
 //!
 //! # Shapes

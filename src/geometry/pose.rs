@@ -24,7 +24,7 @@ pub fn relative_pose(t_wr: &Pose, t_wn: &Pose) -> Pose {
 /// # Errors
 /// A message saying what is wrong: a non-finite entry, a last row other than `0 0 0 1`, or a
 /// rotation that is not orthonormal with determinant +1 within [`ROTATION_TOLERANCE`]. The nearest
-/// rotation (by SVD) is used when the check passes.
+/// rotation (nalgebra's `Rotation3::from_matrix`) is used when the check passes.
 pub fn pose_from_matrix(m: &Matrix4<f64>) -> Result<Pose, String> {
     if m.iter().any(|v| !v.is_finite()) {
         return Err("pose matrix has a non-finite entry".into());

@@ -269,3 +269,40 @@ fn dvmvs_writer_round_trips_bit_exact() {
     assert_eq!(f.rgb[[y, x, c]], ((x * 7 + y * 3 + c * 50 + i) % 256) as f32);
     assert!((f.depth.unwrap()[[3, 4]] - 0.57).abs() < 1e-6);
 }
+
+#[test]
+fn icl_nuim_depth_first_associations_and_frame_id_ground_truth() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path();
+    for dir in ["rgb", "depth"] {
+        std::fs::create_dir_all(p.join(dir)).unwrap();
+    }
+    for i in 0..3 {
+        densefeat::image::save_rgb_png(
+            &p.join(format!("rgb/{i}.png")),
+            &ndarray::Array3::from_elem((480, 640, 3), 9.0),
+        )
+        .unwrap();
+        let depth = ndarray::Array2::from_elem((480, 640), 2.0);
+        densefeat::image::save_depth_png_mm(&p.join(format!("depth/{i}.png")), &depth).unwrap();
+    }
+    let assoc: String = (0..3).map(|i| format!("{i} depth/{i}.png {i} rgb/{i}.png\n")).collect();
+    std::fs::write(p.join("associations.txt"), assoc).unwrap();
+    let gt: String = (0..3).map(|i| format!("{i} {}.5 0 0 0 0 0 1\n", i)).collect();
+    std::fs::write(p.join("livingRoom0.gt.freiburg"), gt).unwrap();
+    let seq = open(p).unwrap();
+    assert_eq!(seq.len(), 3);
+    assert_eq!((seq.camera.fx, seq.camera.fy, seq.camera.cx, seq.camera.cy), (481.2, -480.0, 319.5, 239.5));
+    assert!(seq.notes.iter().any(|n| n.contains("ICL-NUIM")), "{:?}", seq.notes);
+    assert!(seq.frames[1].rgb.ends_with("rgb/1.png"));
+    assert!(seq.frames[1].depth.as_ref().unwrap().path().ends_with("depth/1.png"));
+    assert_eq!(seq.frames[2].pose.translation.vector.x, 2.5);
+    // An explicit camera file wins, and its size line must match the images.
+    std::fs::write(p.join("cam.txt"), "# fx fy cx cy k1 k2 p1 p2\n500 500 320 240 0.1 0 0 0\n640 480\n")
+        .unwrap();
+    let o = OpenOptions { camera: Some(CameraChoice::File(p.join("cam.txt"))), ..Default::default() };
+    let seq = open_with(p, &o).unwrap();
+    assert_eq!(seq.camera.fx, 500.0);
+    assert_eq!(seq.raw_camera.distortion.unwrap().k1, 0.1);
+    assert!(seq.undistorts());
+}

@@ -1,5 +1,5 @@
 //! `densefeat inspect PATH`: open a sequence folder (any supported format) and print its
-//! [`Summary`](crate::sequence::inspect::Summary).
+//! [`Summary`].
 
 use std::path::PathBuf;
 

@@ -289,7 +289,7 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
     }
 }
 
-mod calib;
+pub mod calib;
 mod detect;
 pub mod disparity;
 mod dvmvs;

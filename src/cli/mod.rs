@@ -5,6 +5,8 @@ use clap::{Parser, Subcommand};
 
 use crate::error::Result;
 
+pub mod inspect;
+
 /// Dense monocular reconstruction with learned good features to match.
 #[derive(Debug, Parser)]
 #[command(name = "densefeat", version, about)]
@@ -16,12 +18,17 @@ pub struct Cli {
 
 /// Subcommands.
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    /// Open a sequence folder and print what was read: frames, camera, depth, motion, warnings.
+    Inspect(inspect::InspectArgs),
+}
 
 /// Parse the process arguments and run the subcommand.
 ///
 /// # Errors
 /// Whatever the subcommand returns.
 pub fn run(cli: Cli) -> Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Inspect(args) => inspect::run(args),
+    }
 }

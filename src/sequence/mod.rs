@@ -1,6 +1,9 @@
 //! Posed image sequences. Every reader yields one [`Sequence`]: per-frame metadata (file paths,
 //! timestamps, camera-to-world poses) read eagerly and validated up front, pixels loaded on demand
 //! with [`Sequence::load_frame`] (a 373-frame sequence would not fit in memory as `f32`).
+//!
+//! [`open`] detects the format of a folder and dispatches to its reader; [`inspect::Summary`]
+//! describes an opened sequence.
 
 use std::path::{Path, PathBuf};
 
@@ -124,7 +127,8 @@ pub struct Sequence {
     pub frames: Vec<FrameInfo>,
     /// Present for stereo pairs.
     pub stereo: Option<StereoInfo>,
-    /// What the reader decided on the user's behalf (calibration used, frames dropped, ...).
+    /// What the reader decided on the user's behalf (calibration used, frames dropped, ...). Notes
+    /// starting with [`WARNING_NOTE`] are warnings.
     pub notes: Vec<String>,
     undistort: Option<UndistortMap>,
 }
@@ -285,6 +289,20 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
     }
 }
 
+pub mod calib;
+mod detect;
 pub mod disparity;
+mod dvmvs;
 mod dvmvs_write;
+pub mod inspect;
+mod stereo;
+mod text;
+mod tum;
+
+pub use calib::{read_camera_file, CameraChoice};
+pub use detect::{detect, open, open_with, OpenOptions, DEFAULT_MAX_POSE_GAP, DEFAULT_MAX_TIME_GAP};
 pub use dvmvs_write::{frame_file_name, DvmvsWriter};
+
+/// Prefix of the [`Sequence::notes`] that are warnings (dropped frames, guessed camera, missing
+/// depth, uncalibrated stereo); `densefeat inspect` lists them as warnings.
+pub const WARNING_NOTE: &str = "warning: ";

@@ -1,0 +1,138 @@
+//! Shared helpers for the readers' text files and image folders: every error names the file and,
+//! for text, the 1-based line.
+
+use std::path::{Path, PathBuf};
+
+use image::{ColorType, ImageDecoder, ImageReader};
+
+use crate::error::{Error, Result};
+
+/// One meaningful line of a text file: blank lines and `#` comments are skipped.
+#[derive(Clone, Debug)]
+pub(crate) struct Line {
+    /// 1-based line number in the file.
+    pub number: usize,
+    /// The line's whitespace-separated fields.
+    pub fields: Vec<String>,
+}
+
+/// Read a whole text file.
+pub(crate) fn read_text(path: &Path) -> Result<String> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    String::from_utf8(bytes).map_err(|e| {
+        Error::bad_file(
+            path,
+            format!("not UTF-8 text (first bad byte at offset {})", e.utf8_error().valid_up_to()),
+        )
+    })
+}
+
+/// The non-blank, non-comment lines of `path`, split on whitespace (commas count as whitespace, so
+/// `1,2,3` and `1 2 3` read the same).
+pub(crate) fn data_lines(path: &Path) -> Result<Vec<Line>> {
+    Ok(comment_and_data_lines(path)?.1)
+}
+
+/// Like [`data_lines`], also returning the comment lines' text (without `#`).
+pub(crate) fn comment_and_data_lines(path: &Path) -> Result<(Vec<String>, Vec<Line>)> {
+    let text = read_text(path)?;
+    let mut comments = Vec::new();
+    let mut lines = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let t = raw.trim();
+        if t.is_empty() {
+            continue;
+        }
+        if let Some(c) = t.strip_prefix('#') {
+            comments.push(c.trim().to_string());
+            continue;
+        }
+        let fields = t.split(|c: char| c.is_whitespace() || c == ',').filter(|s| !s.is_empty());
+        lines.push(Line { number: i + 1, fields: fields.map(str::to_string).collect() });
+    }
+    Ok((comments, lines))
+}
+
+impl Line {
+    /// Require at least `n` fields; `what` describes the expected layout for the message.
+    pub fn expect_at_least(&self, path: &Path, n: usize, what: &str) -> Result<()> {
+        if self.fields.len() < n {
+            return Err(Error::parse(
+                path,
+                self.number,
+                format!("expected {what} ({n} fields), found {} field(s)", self.fields.len()),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Field `i` as a finite `f64`; `name` says what it is.
+    pub fn float(&self, path: &Path, i: usize, name: &str) -> Result<f64> {
+        let s = self.fields.get(i).map(String::as_str).unwrap_or("");
+        let v: f64 = s.parse().map_err(|_| {
+            Error::parse(path, self.number, format!("{name} (field {}) is {s:?}, not a number", i + 1))
+        })?;
+        if !v.is_finite() {
+            return Err(Error::parse(
+                path,
+                self.number,
+                format!("{name} (field {}) is {s}, must be finite", i + 1),
+            ));
+        }
+        Ok(v)
+    }
+
+    /// Fields `start..start + N` as finite numbers.
+    pub fn floats<const N: usize>(&self, path: &Path, start: usize, name: &str) -> Result<[f64; N]> {
+        let mut out = [0.0; N];
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = self.float(path, start + k, name)?;
+        }
+        Ok(out)
+    }
+}
+
+/// `root/relative`, with an error naming `list:line` when the file does not exist.
+pub(crate) fn existing_file(root: &Path, relative: &str, list: &Path, line: usize) -> Result<PathBuf> {
+    let p = root.join(relative);
+    if !p.is_file() {
+        return Err(Error::parse(
+            list,
+            line,
+            format!("references {relative}, but {} does not exist", p.display()),
+        ));
+    }
+    Ok(p)
+}
+
+/// The `*.png` files directly in `dir`, sorted by file name.
+pub(crate) fn list_pngs(dir: &Path) -> Result<Vec<PathBuf>> {
+    let entries = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
+    let mut out = Vec::new();
+    for entry in entries {
+        let p = entry.map_err(|e| Error::io(dir, e))?.path();
+        if p.is_file() && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+            out.push(p);
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Check from the header alone that `path` is a 16-bit single-channel image, so an 8-bit export
+/// is reported when the sequence is opened rather than on the first load.
+pub(crate) fn check_depth_png16(path: &Path) -> Result<()> {
+    let reader = ImageReader::open(path).map_err(|e| Error::io(path, e))?;
+    let reader = reader.with_guessed_format().map_err(|e| Error::io(path, e))?;
+    let decoder =
+        reader.into_decoder().map_err(|e| Error::bad_file(path, format!("cannot read image header: {e}")))?;
+    match decoder.color_type() {
+        ColorType::L16 => Ok(()),
+        other => Err(Error::bad_file(path, format!("depth image must be 16-bit grey, got {other:?}"))),
+    }
+}
+
+/// The file name of `p` as text, for messages and frame names.
+pub(crate) fn stem(p: &Path) -> String {
+    p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+}

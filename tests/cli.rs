@@ -1,0 +1,39 @@
+//! The `densefeat` binary: errors exit non-zero with `error:` naming the path; `inspect` prints the
+//! summary.
+
+mod common;
+
+use std::process::Command;
+
+#[test]
+fn inspect_bad_folder_fails_naming_it() {
+    let d = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat")).arg("inspect").arg(d.path()).output().unwrap();
+    assert!(!out.status.success());
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.starts_with("error: "), "{err}");
+    assert!(err.contains(&d.path().display().to_string()), "{err}");
+}
+
+#[test]
+fn inspect_hololens_prints_summary() {
+    let Some(dir) = common::data_dir("hololens_000") else { return };
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat")).arg("inspect").arg(&dir).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(text.contains("DeepVideoMVS"), "{text}");
+    assert!(text.contains("373 (540x360)"), "{text}");
+    assert!(text.contains("consistency"), "{text}");
+}
+
+#[test]
+fn inspect_rejects_bad_max_gap() {
+    let d = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["inspect", "--max-gap", "-1"])
+        .arg(d.path())
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+}

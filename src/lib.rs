@@ -11,6 +11,7 @@
 //! - [`image`]: image types, PNG I/O, bilinear sampling, undistortion.
 //! - [`sequence`]: posed RGB-D sequences (TUM, ICL-NUIM, DeepVideoMVS / 7-Scenes, stereo pairs).
 //! - [`eval`]: depth metrics and the photometric warp check.
+//! - [`synth`]: a deterministic renderer of textured rooms with exact depth.
 //!
 //! ```
 //! use densefeat::geometry::{PinholeCamera, Pose, Warp};
@@ -32,5 +33,6 @@ pub mod geometry;
 pub mod image;
 pub mod io;
 pub mod sequence;
+pub mod synth;
 
 pub use error::{Error, Result};

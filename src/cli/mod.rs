@@ -5,6 +5,8 @@ use clap::{Parser, Subcommand};
 
 use crate::error::Result;
 
+pub mod synth;
+
 /// Dense monocular reconstruction with learned good features to match.
 #[derive(Debug, Parser)]
 #[command(name = "densefeat", version, about)]
@@ -16,12 +18,17 @@ pub struct Cli {
 
 /// Subcommands.
 #[derive(Debug, Subcommand)]
-pub enum Command {}
+pub enum Command {
+    /// Render a synthetic posed RGB-D sequence (DeepVideoMVS layout).
+    Synth(synth::SynthArgs),
+}
 
 /// Parse the process arguments and run the subcommand.
 ///
 /// # Errors
 /// Whatever the subcommand returns.
 pub fn run(cli: Cli) -> Result<()> {
-    match cli.command {}
+    match cli.command {
+        Command::Synth(args) => synth::run(args),
+    }
 }

@@ -56,6 +56,11 @@ pub fn run(args: SynthArgs) -> Result<()> {
     let scene = Scene::generate(&cfg)?;
     let start = std::time::Instant::now();
     let quiet = args.quiet;
+    if !quiet {
+        for line in scene.summary() {
+            eprintln!("synth: {line}");
+        }
+    }
     write_scene(&scene, &args.out, |done, total| {
         if !quiet {
             eprint!("\rsynth: {done}/{total} frames");

@@ -35,6 +35,11 @@ const PLACEMENT_TRIES: usize = 60;
 const STACK_CHANCE: f64 = 0.35;
 const CABINET_CHANCE: f64 = 0.5;
 const POSTER_CHANCE: f64 = 0.6;
+/// Texture period multiplier of the room's walls, floor and ceiling (seen from further away).
+const ROOM_TEXTURE_SIZE: f64 = 2.0;
+/// Probability that the ceiling, and that one wall, is near-uniform.
+const PLAIN_CEILING_CHANCE: f64 = 0.6;
+const PLAIN_WALL_CHANCE: f64 = 0.7;
 /// Offset of a poster from its wall, metres.
 const POSTER_OFFSET: f64 = 0.005;
 
@@ -147,8 +152,16 @@ impl Builder<'_> {
                 [depth + 2.0 * e, height + 2.0 * e],
             ),
         ];
-        for (name, origin, u, v, size) in planes {
-            let texture = Texture::random(self.rng, true);
+        // Real rooms have plain surfaces: the ceiling is usually plain, often one wall is too.
+        let plain_ceiling = self.rng.chance(PLAIN_CEILING_CHANCE);
+        let plain_wall = if self.rng.chance(PLAIN_WALL_CHANCE) { 2 + self.rng.below(4) } else { usize::MAX };
+        for (k, (name, origin, u, v, size)) in planes.into_iter().enumerate() {
+            let plain = (k == 1 && plain_ceiling) || k == plain_wall;
+            let texture = if plain {
+                Texture::near_uniform(self.rng)
+            } else {
+                Texture::random(self.rng, true, ROOM_TEXTURE_SIZE)
+            };
             self.add(Shape::Quad(Quad::new(origin, u, v, size)), texture, name.to_string());
         }
     }
@@ -173,7 +186,7 @@ impl Builder<'_> {
             self.footprints.push(f);
             let up = Vector3::new(0.0, -rise, run) / length;
             let quad = Quad::new(Vector3::new(x0, self.floor, z0), Vector3::x(), up, [width, length]);
-            let texture = Texture::random(self.rng, false);
+            let texture = Texture::random(self.rng, false, 1.0);
             let what = format!("board {width:.2} x {length:.2} m leaning {:.0} deg", lean.to_degrees());
             self.add(Shape::Quad(quad), texture, what);
             return;
@@ -195,7 +208,7 @@ impl Builder<'_> {
             }
             self.footprints.push(f);
             let centre = Vector3::new(x, self.floor - half.y, z);
-            let texture = Texture::random(self.rng, true);
+            let texture = Texture::random(self.rng, true, 1.0);
             let what = format!(
                 "box {:.2} x {:.2} x {:.2} m, yaw {:.0} deg",
                 2.0 * half.x,
@@ -220,7 +233,7 @@ impl Builder<'_> {
         let (dx, dz) = (self.rng.range(-slack, slack), self.rng.range(-slack, slack));
         debug_assert!(top.x < r);
         let c = Vector3::new(centre.x + dx, centre.y - half.y - top.y, centre.z + dz);
-        let texture = Texture::random(self.rng, true);
+        let texture = Texture::random(self.rng, true, 1.0);
         let what = format!("stacked box {:.2} x {:.2} x {:.2} m", 2.0 * top.x, 2.0 * top.y, 2.0 * top.z);
         self.add(Shape::Cuboid(Cuboid { centre: c, axes: yaw_axes(yaw), half: top }), texture, what);
     }
@@ -240,7 +253,7 @@ impl Builder<'_> {
                 continue;
             }
             let centre = Vector3::new(x, self.floor - bottom - half.y, z);
-            let texture = Texture::random(self.rng, true);
+            let texture = Texture::random(self.rng, true, 1.0);
             let what = format!("wall cabinet {:.2} m above the floor", bottom);
             self.add(Shape::Cuboid(Cuboid { centre, axes: Matrix3::identity(), half }), texture, what);
             return;
@@ -267,7 +280,7 @@ impl Builder<'_> {
                 Quad::new(Vector3::new(x, top, self.far - POSTER_OFFSET), Vector3::x(), Vector3::y(), [w, h])
             }
         };
-        let texture = Texture::random(self.rng, false);
+        let texture = Texture::random(self.rng, false, 1.0);
         let wall = ["left", "right", "far"][which];
         self.add(Shape::Quad(quad), texture, format!("poster {w:.2} x {h:.2} m on the {wall} wall"));
     }
@@ -297,7 +310,7 @@ pub(super) fn generate(rng: &mut SplitMix64, path: &CameraPath) -> Room {
     let keep_out =
         [c.x - ext.x - CLEARANCE, c.x + ext.x + CLEARANCE, c.z - ext.z - CLEARANCE, c.z + ext.z + CLEARANCE];
     let light_dir = Vector3::new(rng.range(-0.4, 0.4), 1.0, rng.range(0.1, 0.5)).normalize();
-    let ambient = rng.range(0.45, 0.6);
+    let ambient = rng.range(0.5, 0.65);
     let light = Light { direction: light_dir, ambient, diffuse: 1.0 - ambient };
     let mut b = Builder {
         rng,

@@ -12,8 +12,9 @@ use crate::error::{Error, Result};
 use crate::geometry::{PinholeCamera, Pose};
 use crate::image::{DepthMap, RgbImage};
 
-/// A directional light plus ambient term. Shading is Lambertian and view-independent:
-/// `shade = ambient + diffuse · max(0, -n·direction)` with `n` the surface normal facing the viewer.
+/// A directional light plus ambient term. Shading is "half-Lambert" (soft, never black) and
+/// view-independent: `shade = ambient + diffuse · (1 - n·direction) / 2` with `n` the unit surface
+/// normal facing the viewer.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Light {
     /// Unit direction the light travels in (world frame).
@@ -35,7 +36,7 @@ impl Light {
     /// The shading factor of a surface with unit normal `n` (facing the viewer).
     #[inline]
     pub fn shade(&self, n: &Vector3<f64>) -> f64 {
-        self.ambient + self.diffuse * (-n.dot(&self.direction)).max(0.0)
+        self.ambient + self.diffuse * 0.5 * (1.0 - n.dot(&self.direction))
     }
 }
 

@@ -15,8 +15,14 @@ pub type Albedo = [f64; 3];
 /// Largest number of colours in a [`Texture::Collage`] palette.
 pub const PALETTE_LEN: usize = 4;
 
+/// Probability of the near-uniform kind where it is allowed.
+const PLAIN_SHARE: f64 = 0.2;
+
+/// Lowest albedo of a [`Texture::near_uniform`] colour: painted surfaces are light.
+const PAINT_FLOOR: f64 = 0.45;
+
 /// Half-width of soft stripe and checker edges, as a fraction of the period.
-const EDGE_SOFTNESS: f64 = 0.06;
+const EDGE_SOFTNESS: f64 = 0.15;
 
 /// Half-width of collage shape edges, as a fraction of the cell.
 const COLLAGE_EDGE: f64 = 0.02;
@@ -130,26 +136,37 @@ impl Texture {
         }
     }
 
+    /// A random near-uniform texture in a light colour (a painted wall or ceiling).
+    pub fn near_uniform(rng: &mut SplitMix64) -> Self {
+        let key = rng.next_u64();
+        let base = random_colour(rng).map(|c| PAINT_FLOOR + (1.0 - PAINT_FLOOR) * c);
+        Self::near_uniform_with(rng, base, key)
+    }
+
+    fn near_uniform_with(rng: &mut SplitMix64, colour: Albedo, key: u64) -> Self {
+        let gradient = [rng.range(-0.08, 0.08), rng.range(-0.08, 0.08)];
+        Texture::Uniform { colour, gradient, grain: rng.range(0.005, 0.02), key }
+    }
+
     /// A random texture. The kind is drawn with weights favouring textured surfaces;
-    /// `allow_plain` = `false` excludes the near-uniform kind.
-    pub fn random(rng: &mut SplitMix64, allow_plain: bool) -> Self {
+    /// `allow_plain` = `false` excludes the near-uniform kind. `size` scales every spatial period
+    /// (1 for objects; larger for walls, which are seen from further away).
+    pub fn random(rng: &mut SplitMix64, allow_plain: bool, size: f64) -> Self {
         let key = rng.next_u64();
         let base = random_colour(rng);
         let other = contrasting(rng, &base);
-        let roll = rng.unit();
-        let plain_weight = if allow_plain { 0.2 } else { 0.0 };
-        let roll = roll * (1.0 - plain_weight) + plain_weight;
-        if roll < plain_weight {
-            let g = rng.range(-0.08, 0.08);
-            let h = rng.range(-0.08, 0.08);
-            Texture::Uniform { colour: base, gradient: [g, h], grain: rng.range(0.005, 0.02), key }
+        // Kinds by cumulative probability: near-uniform, noise, collage, stripes, checker.
+        let lo = if allow_plain { 0.0 } else { PLAIN_SHARE };
+        let roll = lo + (1.0 - lo) * rng.unit();
+        if roll < PLAIN_SHARE {
+            Self::near_uniform_with(rng, base, key)
         } else if roll < 0.5 {
-            Texture::Noise { a: base, b: other, scale: rng.range(0.08, 0.35), octaves: 3, key }
+            Texture::Noise { a: base, b: other, scale: size * rng.range(0.08, 0.35), octaves: 3, key }
         } else if roll < 0.7 {
             Texture::Collage {
                 background: base,
                 palette: [(); PALETTE_LEN].map(|_| random_colour(rng)),
-                cell: rng.range(0.15, 0.35),
+                cell: size * rng.range(0.15, 0.35),
                 key,
             }
         } else if roll < 0.85 {
@@ -157,11 +174,11 @@ impl Texture {
             Texture::Stripes {
                 a: base,
                 b: other,
-                period: rng.range(0.06, 0.25),
+                period: size * rng.range(0.06, 0.25),
                 direction: [super::detmath::cos(angle), super::detmath::sin(angle)],
             }
         } else {
-            Texture::Checker { a: base, b: other, period: rng.range(0.08, 0.3) }
+            Texture::Checker { a: base, b: other, period: size * rng.range(0.08, 0.3) }
         }
     }
 }
@@ -226,7 +243,7 @@ mod tests {
     fn every_kind_stays_in_unit_range() {
         let mut rng = SplitMix64::new(3);
         for _ in 0..200 {
-            let t = Texture::random(&mut rng, true);
+            let t = Texture::random(&mut rng, true, 1.0);
             for k in 0..50 {
                 let (u, v) = (k as f64 * 0.173 - 4.0, k as f64 * -0.091 + 2.0);
                 for c in t.eval(u, v) {

@@ -11,9 +11,9 @@ use super::rng::{hash_unit, SplitMix64};
 use crate::geometry::Pose;
 
 /// Amplitudes (metres) of the slow and fast translation sinusoids along x, y (down), z.
-const TRANSLATION_AMPLITUDE: [[f64; 2]; 3] = [[0.55, 0.06], [0.08, 0.03], [0.25, 0.05]];
+const TRANSLATION_AMPLITUDE: [[f64; 2]; 3] = [[0.45, 0.05], [0.06, 0.02], [0.2, 0.04]];
 /// Period ranges (frames) of the slow and fast sinusoids.
-const SLOW_PERIOD: (f64, f64) = (140.0, 220.0);
+const SLOW_PERIOD: (f64, f64) = (170.0, 260.0);
 const FAST_PERIOD: (f64, f64) = (35.0, 60.0);
 /// Distance (metres) ahead of the camera centre of the look-at target.
 const LOOK_DISTANCE: f64 = 3.5;

@@ -93,7 +93,10 @@ impl Builder<'_> {
 
     /// Whether `f` keeps [`GAP`] from every object placed so far.
     fn clear_of_objects(&self, f: &Footprint) -> bool {
-        self.footprints.iter().all(|o| ((o.x - f.x).powi(2) + (o.z - f.z).powi(2)).sqrt() >= o.r + f.r + GAP)
+        self.footprints.iter().all(|o| {
+            let (dx, dz) = (o.x - f.x, o.z - f.z);
+            (dx * dx + dz * dz).sqrt() >= o.r + f.r + GAP
+        })
     }
 
     /// Whether `f` keeps [`GAP`] from the walls.

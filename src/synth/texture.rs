@@ -223,7 +223,8 @@ fn collage(
         let c = &palette[(h(4) * PALETTE_LEN as f64) as usize % PALETTE_LEN];
         let inside = if h(5) < 0.5 {
             // Disc (an ellipse in cell units); the edge is soft over COLLAGE_EDGE.
-            let r = (((lx - cx) / rx).powi(2) + ((ly - cy) / ry).powi(2)).sqrt();
+            let (ex, ey) = ((lx - cx) / rx, (ly - cy) / ry);
+            let r = (ex * ex + ey * ey).sqrt();
             1.0 - smoothstep(1.0 - COLLAGE_EDGE / rx.min(ry), 1.0, r)
         } else {
             let dx = rx - (lx - cx).abs();

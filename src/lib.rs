@@ -13,6 +13,7 @@
 //! - [`eval`]: depth metrics and the photometric warp check.
 //! - [`nn`]: the feature network's kernels (conv 3x3, transposed conv 5x5, 2x downsampling).
 //! - [`testing`]: error-budget comparisons shared by the test suites.
+//! - [`synth`]: a deterministic renderer of textured rooms with exact depth.
 //!
 //! ```
 //! use densefeat::geometry::{PinholeCamera, Pose, Warp};
@@ -35,6 +36,7 @@ pub mod image;
 pub mod io;
 pub mod nn;
 pub mod sequence;
+pub mod synth;
 pub mod testing;
 
 pub use error::{Error, Result};

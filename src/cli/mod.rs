@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 use crate::error::Result;
 
 pub mod inspect;
+pub mod synth;
 
 /// Dense monocular reconstruction with learned good features to match.
 #[derive(Debug, Parser)]
@@ -21,6 +22,8 @@ pub struct Cli {
 pub enum Command {
     /// Open a sequence folder and print what was read: frames, camera, depth, motion, warnings.
     Inspect(inspect::InspectArgs),
+    /// Render a synthetic posed RGB-D sequence (DeepVideoMVS layout).
+    Synth(synth::SynthArgs),
 }
 
 /// Parse the process arguments and run the subcommand.
@@ -30,5 +33,6 @@ pub enum Command {
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Inspect(args) => inspect::run(args),
+        Command::Synth(args) => synth::run(args),
     }
 }

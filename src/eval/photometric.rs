@@ -15,6 +15,11 @@ pub struct WarpCheck {
     pub warped_error: f64,
     /// Mean |I_ref(u) - I_tgt(u)| over the same pixels.
     pub identity_error: f64,
+    /// Mean |I_ref(u) - (a I_tgt(warp(u)) + b)| after the least-squares affine brightness fit
+    /// `(a, b)` over the same pixels: what remains once exposure / gain changes are explained.
+    pub affine_error: f64,
+    /// The fitted brightness transfer `(a, b)`.
+    pub affine: (f64, f64),
     /// Number of pixels compared.
     pub pixels: usize,
     /// Fraction of reference pixels with valid depth whose warp lands inside the target.
@@ -44,6 +49,7 @@ pub fn photometric_warp_check(
     let (g_ref, g_tgt) = (to_gray(&reference.rgb), to_gray(&target.rgb));
     let g_tgt3 = g_tgt.view().insert_axis(ndarray::Axis(2));
     let (mut sum_w, mut sum_i, mut n, mut n_depth) = (0.0f64, 0.0f64, 0usize, 0usize);
+    let mut pairs: Vec<(f64, f64)> = Vec::new();
     let mut s = [0.0f32];
     for ((y, x), &z) in depth.indexed_iter() {
         if !is_valid_depth(z) {
@@ -57,6 +63,7 @@ pub fn photometric_warp_check(
         let r = g_ref[[y, x]];
         sum_w += (r - s[0]).abs() as f64;
         sum_i += (r - g_tgt[[y, x]]).abs() as f64;
+        pairs.push((r as f64, s[0] as f64));
         n += 1;
     }
     if n == 0 {
@@ -68,10 +75,31 @@ pub fn photometric_warp_check(
             ),
         ));
     }
+    let (a, b) = affine_fit(&pairs);
+    let affine_error = pairs.iter().map(|&(r, s)| (r - (a * s + b)).abs()).sum::<f64>() / n as f64;
     Ok(WarpCheck {
         warped_error: sum_w / n as f64,
+        affine_error,
+        affine: (a, b),
         identity_error: sum_i / n as f64,
         pixels: n,
         in_view: n as f64 / n_depth as f64,
     })
+}
+
+/// Least-squares `(a, b)` minimising `Σ (r - (a s + b))²`; `(1, 0)` when `s` is constant.
+fn affine_fit(pairs: &[(f64, f64)]) -> (f64, f64) {
+    let n = pairs.len() as f64;
+    let (mr, ms) = pairs.iter().fold((0.0, 0.0), |(ar, as_), &(r, s)| (ar + r, as_ + s));
+    let (mr, ms) = (mr / n, ms / n);
+    let (mut sss, mut srs) = (0.0, 0.0);
+    for &(r, s) in pairs {
+        sss += (s - ms) * (s - ms);
+        srs += (s - ms) * (r - mr);
+    }
+    if sss <= f64::EPSILON * n {
+        return (1.0, mr - ms);
+    }
+    let a = srs / sss;
+    (a, mr - a * ms)
 }

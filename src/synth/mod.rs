@@ -1,0 +1,164 @@
+//! A deterministic renderer of indoor-like scenes with exact depth, for training and testing
+//! without a dataset.
+//!
+//! A seed fixes everything: a room (floor, ceiling, four walls) with textured boxes on the floor,
+//! sometimes stacked, an optional wall cabinet and poster, and a board leaning against the far
+//! wall (a slanted plane); per-surface procedural textures from rich to nearly textureless
+//! ([`Texture`]); a handheld-like camera path ([`CameraPath`]); and a per-frame camera response
+//! ([`Photometric`]).
+//!
+//! Rendering casts rays analytically ([`surface`]): depth is the optical-axis depth of the nearest
+//! hit through the pixel centre (integer coordinates, SPEC.md §2.1), colour is the mean of
+//! `n × n` stratified sub-pixel samples around it. Geometry is `f64`.
+//!
+//! Determinism: the scene comes from an in-crate SplitMix64 ([`rng`]), per-pixel noise from a
+//! counter-based hash, trigonometry from [`detmath`] (IEEE basic operations only), and rows are
+//! rendered in parallel with each pixel computed independently. A seed gives bit-identical frames
+//! for any thread count, and the same files on any platform with the same `Cargo.lock`.
+//!
+//! Speed (`cargo bench --bench synth`, 2×2 samples, 2 CPU cores): about 30 ms per 320×240 frame and
+//! 117 ms per 640×480 frame, i.e. fast enough to render training data on the fly.
+//!
+//! ```
+//! use densefeat::synth::{Scene, SceneConfig};
+//! let cfg = SceneConfig { width: 64, height: 48, frames: 2, ..SceneConfig::default() };
+//! let scene = Scene::generate(&cfg).unwrap();
+//! let frame = scene.render(1).unwrap();
+//! assert_eq!(frame.rgb.dim(), (48, 64, 3));
+//! assert!(frame.depth.iter().all(|&z| z > 0.3 && z < 7.0));
+//! ```
+
+pub mod detmath;
+mod layout;
+pub mod noise;
+mod photometric;
+mod render;
+pub mod rng;
+mod scene;
+pub mod surface;
+mod texture;
+mod trajectory;
+mod write;
+
+pub use photometric::{Exposure, Photometric, PhotometricConfig};
+pub use scene::{Light, Scene, SynthFrame};
+pub use surface::{Cuboid, Hit, Quad, Shape, Surface};
+pub use texture::{random_colour, Albedo, Texture, PALETTE_LEN};
+pub use trajectory::{look_at, CameraPath};
+pub use write::{write_scene, write_sequence};
+
+use crate::error::{Error, Result};
+use crate::geometry::PinholeCamera;
+
+/// Largest image side accepted, pixels.
+pub const MAX_SIDE: usize = 8192;
+/// Largest number of frames accepted.
+pub const MAX_FRAMES: usize = 1_000_000;
+/// Largest sub-pixel grid accepted (`samples_per_axis²` rays per pixel).
+pub const MAX_SAMPLES_PER_AXIS: usize = 8;
+/// Default focal length as a fraction of the image width (horizontal field of view ≈ 64°).
+pub const DEFAULT_FOCAL_RATIO: f64 = 0.8;
+
+/// What to render.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SceneConfig {
+    /// Fixes the room, objects, textures, camera path and photometric drift.
+    pub seed: u64,
+    /// Image width, pixels.
+    pub width: usize,
+    /// Image height, pixels.
+    pub height: usize,
+    /// Number of frames.
+    pub frames: usize,
+    /// `fx = fy = focal_ratio · width`; the principal point is the image centre `((W-1)/2, (H-1)/2)`.
+    pub focal_ratio: f64,
+    /// Anti-aliasing: `samples_per_axis²` stratified colour samples per pixel.
+    pub samples_per_axis: usize,
+    /// Camera response.
+    pub photometric: PhotometricConfig,
+}
+
+impl Default for SceneConfig {
+    fn default() -> Self {
+        Self {
+            seed: 1,
+            width: 320,
+            height: 240,
+            frames: 40,
+            focal_ratio: DEFAULT_FOCAL_RATIO,
+            samples_per_axis: 2,
+            photometric: PhotometricConfig::default(),
+        }
+    }
+}
+
+impl SceneConfig {
+    /// Check every field.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming the first field out of range.
+    pub fn validate(&self) -> Result<()> {
+        for (name, v) in [("width", self.width), ("height", self.height)] {
+            if v == 0 || v > MAX_SIDE {
+                return Err(Error::invalid_argument(name, format!("{v} pixels: must be in 1..={MAX_SIDE}")));
+            }
+        }
+        if self.frames == 0 || self.frames > MAX_FRAMES {
+            return Err(Error::invalid_argument(
+                "frames",
+                format!("{}: must be in 1..={MAX_FRAMES}", self.frames),
+            ));
+        }
+        if !(self.focal_ratio.is_finite() && self.focal_ratio > 0.0) {
+            return Err(Error::invalid_argument(
+                "focal ratio",
+                format!("{}: must be finite and positive", self.focal_ratio),
+            ));
+        }
+        if self.samples_per_axis == 0 || self.samples_per_axis > MAX_SAMPLES_PER_AXIS {
+            return Err(Error::invalid_argument(
+                "samples per axis",
+                format!("{}: must be in 1..={MAX_SAMPLES_PER_AXIS}", self.samples_per_axis),
+            ));
+        }
+        let p = &self.photometric;
+        let finite_non_negative = [
+            ("gain amplitude", p.gain_amplitude),
+            ("bias amplitude", p.bias_amplitude),
+            ("vignetting", p.vignetting),
+            ("noise sigma", p.noise_sigma),
+        ];
+        for (name, v) in finite_non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::invalid_argument(name, format!("{v}: must be finite and >= 0")));
+            }
+        }
+        if p.gain_amplitude >= 1.0 || p.vignetting > 1.0 {
+            return Err(Error::invalid_argument(
+                "photometric",
+                format!(
+                    "gain amplitude {} must be < 1 and vignetting {} <= 1",
+                    p.gain_amplitude, p.vignetting
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The pinhole camera these settings describe.
+    ///
+    /// # Errors
+    /// As [`SceneConfig::validate`].
+    pub fn camera(&self) -> Result<PinholeCamera> {
+        self.validate()?;
+        let f = self.focal_ratio * self.width as f64;
+        PinholeCamera::new(
+            f,
+            f,
+            (self.width as f64 - 1.0) / 2.0,
+            (self.height as f64 - 1.0) / 2.0,
+            self.width,
+            self.height,
+        )
+    }
+}

@@ -1,0 +1,124 @@
+//! A handheld-like camera path: smooth, bounded translation (two sinusoids per axis around a
+//! centre, so any number of frames stays inside a known box) and a camera that looks at a slowly
+//! wandering target point with a gentle roll, plus small per-frame jitter.
+//!
+//! Frame `i`'s pose depends only on the path and `i`, never on the sequence length.
+
+use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+use super::detmath::{cos, sin};
+use super::rng::{hash_unit, SplitMix64};
+use crate::geometry::Pose;
+
+/// Amplitudes (metres) of the slow and fast translation sinusoids along x, y (down), z.
+const TRANSLATION_AMPLITUDE: [[f64; 2]; 3] = [[0.45, 0.05], [0.06, 0.02], [0.2, 0.04]];
+/// Period ranges (frames) of the slow and fast sinusoids.
+const SLOW_PERIOD: (f64, f64) = (170.0, 260.0);
+const FAST_PERIOD: (f64, f64) = (35.0, 60.0);
+/// Distance (metres) ahead of the camera centre of the look-at target.
+const LOOK_DISTANCE: f64 = 3.5;
+/// Pan (x) and tilt (y) amplitudes of the target, metres at [`LOOK_DISTANCE`].
+const TARGET_AMPLITUDE: [f64; 2] = [0.7, 0.2];
+/// Roll amplitude, radians.
+const ROLL_AMPLITUDE: f64 = 0.035;
+/// Per-frame uniform jitter half-widths: camera position (m), target (m), roll (rad).
+const JITTER: [f64; 3] = [0.0015, 0.008, 0.002];
+
+/// A seeded camera path.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraPath {
+    centre: Vector3<f64>,
+    /// Per axis, per sinusoid: (period, phase).
+    waves: [[(f64, f64); 2]; 3],
+    /// Target pan, tilt and roll: (period, phase).
+    view_waves: [(f64, f64); 3],
+    /// Downward offset of the target, metres at [`LOOK_DISTANCE`] (a slight downward look).
+    tilt: f64,
+    key: u64,
+}
+
+impl CameraPath {
+    /// A path around `centre` with periods and phases drawn from `rng`.
+    pub fn random(centre: Vector3<f64>, rng: &mut SplitMix64) -> Self {
+        let tau = std::f64::consts::TAU;
+        let mut wave = |p: (f64, f64)| (rng.range(p.0, p.1), rng.range(0.0, tau));
+        let waves = [0; 3].map(|_| [wave(SLOW_PERIOD), wave(FAST_PERIOD)]);
+        let view_waves = [wave(SLOW_PERIOD), wave(SLOW_PERIOD), wave(FAST_PERIOD)];
+        Self { centre, waves, view_waves, tilt: rng.range(0.2, 0.5), key: rng.next_u64() }
+    }
+
+    /// Half-extent of the box around the path centre that every camera position stays in.
+    pub fn half_extent() -> Vector3<f64> {
+        let a = TRANSLATION_AMPLITUDE;
+        Vector3::new(a[0][0] + a[0][1], a[1][0] + a[1][1], a[2][0] + a[2][1]).add_scalar(JITTER[0])
+    }
+
+    /// The path's centre.
+    pub fn centre(&self) -> Vector3<f64> {
+        self.centre
+    }
+
+    fn jitter(&self, i: usize, k: u64, half_width: f64) -> f64 {
+        half_width * (2.0 * hash_unit(self.key, i as u64, k, 0) - 1.0)
+    }
+
+    /// Camera-to-world pose of frame `i`.
+    pub fn pose(&self, i: usize) -> Pose {
+        let (t, tau) = (i as f64, std::f64::consts::TAU);
+        let wave = |(period, phase): (f64, f64)| sin(tau * t / period + phase);
+        let mut eye = self.centre;
+        for k in 0..3 {
+            let [slow, fast] = self.waves[k];
+            eye[k] += TRANSLATION_AMPLITUDE[k][0] * wave(slow) + TRANSLATION_AMPLITUDE[k][1] * wave(fast);
+            eye[k] += self.jitter(i, k as u64, JITTER[0]);
+        }
+        let target = Vector3::new(
+            self.centre.x + TARGET_AMPLITUDE[0] * wave(self.view_waves[0]) + self.jitter(i, 3, JITTER[1]),
+            eye.y + self.tilt + TARGET_AMPLITUDE[1] * wave(self.view_waves[1]) + self.jitter(i, 4, JITTER[1]),
+            self.centre.z + LOOK_DISTANCE,
+        );
+        let roll = ROLL_AMPLITUDE * wave(self.view_waves[2]) + self.jitter(i, 5, JITTER[2]);
+        look_at(&eye, &target, roll)
+    }
+}
+
+/// The camera-to-world pose at `eye` whose optical axis (z) points at `target`, with image x to the
+/// right and y down relative to world "down" `(0, 1, 0)`, rolled by `roll` radians about z.
+/// Uses only `+ - * / sqrt` and [`sin`]/[`cos`].
+pub fn look_at(eye: &Vector3<f64>, target: &Vector3<f64>, roll: f64) -> Pose {
+    let down = Vector3::new(0.0, 1.0, 0.0);
+    let f = (target - eye).normalize();
+    let r = down.cross(&f).normalize();
+    let d = f.cross(&r);
+    let (c, s) = (cos(roll), sin(roll));
+    let (r, d) = (r * c + d * s, d * c - r * s);
+    let rot = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[r, d, f]));
+    Pose::from_parts(Translation3::from(*eye), UnitQuaternion::from_rotation_matrix(&rot))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn look_at_points_the_optical_axis_at_the_target() {
+        let eye = Vector3::new(0.3, -0.2, 0.1);
+        let target = Vector3::new(1.0, 0.4, 4.0);
+        let pose = look_at(&eye, &target, 0.02);
+        let in_cam = pose.inverse_transform_point(&target.into());
+        assert!(in_cam.x.abs() < 1e-12 && in_cam.y.abs() < 1e-12 && in_cam.z > 0.0, "{in_cam:?}");
+        // No roll, level target: camera x stays horizontal.
+        let level = look_at(&eye, &Vector3::new(0.3, -0.2, 3.0), 0.0);
+        assert!((level.rotation * Vector3::x() - Vector3::x()).norm() < 1e-12);
+    }
+
+    #[test]
+    fn positions_stay_inside_the_advertised_box() {
+        let path = CameraPath::random(Vector3::zeros(), &mut SplitMix64::new(9));
+        let h = CameraPath::half_extent();
+        for i in 0..2000 {
+            let p = path.pose(i).translation.vector;
+            assert!(p.x.abs() <= h.x && p.y.abs() <= h.y && p.z.abs() <= h.z, "frame {i}: {p:?}");
+        }
+    }
+}

@@ -14,7 +14,7 @@ fn fixture() -> std::path::PathBuf {
 
 #[test]
 fn synthetic_fixture_warp_is_near_exact() {
-    let seq = open(&fixture()).unwrap();
+    let seq = open(fixture()).unwrap();
     for i in (0..seq.len() - 5).step_by(3) {
         let (a, b) = (seq.load_frame(i).unwrap(), seq.load_frame(i + 5).unwrap());
         let c = photometric_warp_check(&seq.camera, &a, &b).unwrap();

@@ -71,6 +71,8 @@ pub struct Consistency {
     pub median_warped: f64,
     /// Median identity (no warp) grey error.
     pub median_identity: f64,
+    /// Median warped grey error after a least-squares brightness fit (exposure changes removed).
+    pub median_affine: f64,
 }
 
 impl Consistency {
@@ -285,7 +287,13 @@ fn consistency(seq: &Sequence, offset: usize) -> Result<Option<Consistency>> {
     }
     let mut w: Vec<f64> = pairs.iter().map(|p| p.2.warped_error).collect();
     let mut id: Vec<f64> = pairs.iter().map(|p| p.2.identity_error).collect();
-    Ok(Some(Consistency { median_warped: median(&mut w), median_identity: median(&mut id), pairs }))
+    let mut af: Vec<f64> = pairs.iter().map(|p| p.2.affine_error).collect();
+    Ok(Some(Consistency {
+        median_warped: median(&mut w),
+        median_identity: median(&mut id),
+        median_affine: median(&mut af),
+        pairs,
+    }))
 }
 
 /// A length in metres in a readable unit.
@@ -366,10 +374,11 @@ impl fmt::Display for Summary {
                 let pairs: Vec<String> = c.pairs.iter().map(|(i, j, _)| format!("{j}->{i}")).collect();
                 writeln!(
                     f,
-                    "consistency  pose/depth warp check over {} pairs ({}): median grey error {:.2} warped vs {:.2} identity, gain {:.2}x",
+                    "consistency  pose/depth warp check over {} pairs ({}): median grey error {:.2} warped ({:.2} after a brightness fit) vs {:.2} identity, gain {:.2}x",
                     c.pairs.len(),
                     pairs.join(", "),
                     c.median_warped,
+                    c.median_affine,
                     c.median_identity,
                     c.gain()
                 )?;

@@ -7,6 +7,7 @@
 //! (SPEC.md): pixel centres at integer coordinates, channels-last `[H, W, C]` `f32` tensors,
 //! camera-to-world poses in metres, inverse depth `ρ = 1/z`.
 //!
+//! - [`costvolume`]: the photometric cost volume (paper eq. 4) and winner-take-all depth.
 //! - [`geometry`]: pinhole cameras, distortion, SE(3), the inverse-depth warp.
 //! - [`image`]: image types, PNG I/O, bilinear sampling, undistortion.
 //! - [`sequence`]: posed RGB-D sequences (TUM, ICL-NUIM, DeepVideoMVS / 7-Scenes, stereo pairs).
@@ -29,6 +30,7 @@
 #![deny(rustdoc::broken_intra_doc_links)]
 
 pub mod cli;
+pub mod costvolume;
 pub mod error;
 pub mod eval;
 pub mod geometry;

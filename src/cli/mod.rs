@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 use crate::error::Result;
 
+pub mod bench_costvolume;
 pub mod inspect;
 pub mod synth;
 
@@ -24,6 +25,8 @@ pub enum Command {
     Inspect(inspect::InspectArgs),
     /// Render a synthetic posed RGB-D sequence (DeepVideoMVS layout).
     Synth(synth::SynthArgs),
+    /// Time adding one live frame to a cost volume (median ms per frame, hypotheses per second).
+    BenchCostvolume(bench_costvolume::BenchCostvolumeArgs),
 }
 
 /// Parse the process arguments and run the subcommand.
@@ -34,5 +37,6 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Inspect(args) => inspect::run(args),
         Command::Synth(args) => synth::run(args),
+        Command::BenchCostvolume(args) => bench_costvolume::run(args),
     }
 }

@@ -36,18 +36,28 @@ pub struct BenchCostvolumeArgs {
     pub reference: bool,
 }
 
+/// Inputs of [`bench_inputs`].
+#[derive(Clone, Debug)]
+pub struct BenchInputs {
+    /// Reference features `[H, W, C]`.
+    pub reference: Array3<f32>,
+    /// Live features `[H, W, C]`.
+    pub live: Array3<f32>,
+    /// The camera of both frames.
+    pub camera: PinholeCamera,
+    /// The hypotheses.
+    pub bins: InverseDepthBins,
+    /// `T_nr`.
+    pub t_nr: Pose,
+}
+
 /// Inputs of the benchmark: random reference and live features in `[0, 1)`, a camera with
 /// `f = 0.8 W` and the principal point at the centre, hypotheses over `[0.25, 4]` 1/m, and a live
 /// camera 5 cm to the right, 2 cm forward, rotated by about 1° (a typical neighbouring keyframe).
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] for an empty size, fewer than 2 bins or no channel.
-pub fn bench_inputs(
-    width: usize,
-    height: usize,
-    channels: usize,
-    bins: usize,
-) -> Result<(Array3<f32>, Array3<f32>, PinholeCamera, InverseDepthBins, Pose)> {
+pub fn bench_inputs(width: usize, height: usize, channels: usize, bins: usize) -> Result<BenchInputs> {
     if channels == 0 {
         return Err(Error::invalid_argument("--channels", "0: must be at least 1"));
     }
@@ -62,7 +72,7 @@ pub fn bench_inputs(
         Translation3::new(-0.05, 0.0, -0.02),
         UnitQuaternion::from_euler_angles(0.01, -0.015, 0.005),
     );
-    Ok((reference, live, cam, bins, t_nr))
+    Ok(BenchInputs { reference, live, camera: cam, bins, t_nr })
 }
 
 /// Run the benchmark and print the result.
@@ -77,7 +87,8 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     if args.threads == 0 {
         return Err(Error::invalid_argument("--threads", "0: must be at least 1"));
     }
-    let (reference, live, cam, bins, t_nr) = bench_inputs(width, height, args.channels, args.bins)?;
+    let BenchInputs { reference, live, camera: cam, bins, t_nr } =
+        bench_inputs(width, height, args.channels, args.bins)?;
     let imp = if args.reference { CostVolumeImpl::Reference } else { CostVolumeImpl::Fast };
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads)
@@ -85,8 +96,12 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
         .map_err(|e| Error::invalid_argument("--threads", e.to_string()))?;
     let mut cv = CostVolume::with_impl(reference, cam, bins, imp)?;
     let mut times = Vec::with_capacity(args.runs);
+    let mut cpu_start = None;
     pool.install(|| -> Result<()> {
         for run in 0..args.runs + 2 {
+            if run == 2 {
+                cpu_start = process_cpu_seconds();
+            }
             let start = Instant::now();
             cv.add_frame(live.view(), &t_nr)?;
             if run >= 2 {
@@ -95,6 +110,8 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
         }
         Ok(())
     })?;
+    let cpu = cpu_start.zip(process_cpu_seconds()).map(|(a, b)| (b - a) / args.runs as f64);
+    let total: f64 = times.iter().sum::<f64>() / args.runs as f64;
     times.sort_by(f64::total_cmp);
     let median = times[times.len() / 2];
     let hyps = (width * height * args.bins) as f64;
@@ -113,5 +130,30 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
         hyps / median / 1e6,
         seen * 100.0
     );
+    if let Some(cpu) = cpu {
+        // On a shared machine the wall time includes waiting for a core; CPU time does not.
+        println!(
+            "  CPU time {:.2} ms per frame (all threads; {:.0}% of {} core(s) while timed); \
+             CPU time / threads = {:.2} ms",
+            cpu * 1e3,
+            100.0 * cpu / (total * args.threads as f64),
+            args.threads,
+            cpu * 1e3 / args.threads as f64
+        );
+    }
     Ok(())
 }
+
+/// User + system CPU time of this process from `/proc/self/stat` (Linux; 100 Hz ticks), or `None`.
+fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name: state is field 3, utime 14, stime 15.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let utime: f64 = fields.get(11)?.parse().ok()?;
+    let stime: f64 = fields.get(12)?.parse().ok()?;
+    Some((utime + stime) / CLOCK_TICKS_PER_SECOND)
+}
+
+/// `sysconf(_SC_CLK_TCK)` on every Linux target we run on.
+const CLOCK_TICKS_PER_SECOND: f64 = 100.0;

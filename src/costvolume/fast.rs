@@ -3,8 +3,9 @@
 //! Per reference pixel `u`, `p(ρ) = R K⁻¹ u̇ + ρ t` is affine in `ρ`: `a = R K⁻¹ u̇` is computed
 //! once ([`Warp::point`] at `ρ = 0`) and each hypothesis costs three multiply-adds, a projection and
 //! a bounds check, with exactly the `f64` expressions of [`Warp::apply`] and `sample_bilinear`, so
-//! validity (and hence every count) matches the reference bit for bit. Valid hypotheses are
-//! collected first (corner offset and four `f32` bilinear weights); the channel loop then reads the
+//! validity (and hence every count) matches the reference bit for bit. A branch-free loop over the
+//! hypotheses fills validity, corner offset and four `f32` bilinear weights (it vectorises, division
+//! included); the channel loop then reads the
 //! four corner vectors contiguously (channels last), shares the weights across channels, and keeps
 //! [`LANES`] independent `f32` partial sums that are folded by a fixed pairwise tree. The lane
 //! structure is explicit, so the bits do not depend on which vector width the compiler picks: the
@@ -35,16 +36,20 @@ pub(super) struct Slices<'a> {
     pub channels: usize,
 }
 
-/// One valid hypothesis of a pixel: its bin, the flat offset of the top-left corner's first channel,
-/// the offsets to the right and lower corners (0 on a 1-pixel-wide or -high image), and the weights
-/// `(1-a)(1-b), a(1-b), (1-a)b, ab` rounded to `f32`.
-#[derive(Clone, Copy, Debug, Default)]
-struct Tap {
-    k: usize,
-    offset: usize,
-    dx: usize,
-    dy: usize,
-    w: [f32; 4],
+/// Per-hypothesis scratch of one pixel (length `K` each): validity, the flat offset of the
+/// top-left corner's first channel, and the bilinear weights `(1-a)(1-b), a(1-b), (1-a)b, ab`
+/// rounded to `f32`. Filled by a branch-free loop over `k` that the compiler vectorises.
+#[derive(Clone, Debug, Default)]
+struct Scratch {
+    ok: Vec<bool>,
+    offset: Vec<usize>,
+    w: [Vec<f32>; 4],
+}
+
+impl Scratch {
+    fn new(k: usize) -> Self {
+        Self { ok: vec![false; k], offset: vec![0; k], w: std::array::from_fn(|_| vec![0.0; k]) }
+    }
 }
 
 /// Which kernel [`CostVolumeImpl::Fast`](super::CostVolumeImpl::Fast) runs on this CPU:
@@ -68,19 +73,6 @@ fn has_avx512() -> bool {
     }
 }
 
-/// Corner index and weight along one axis, as `image::sample` does; `None` outside `[0, n-1]`.
-#[inline(always)]
-fn axis(x: f64, n: usize) -> Option<(usize, usize, f64)> {
-    if !(x >= 0.0 && x <= (n - 1) as f64) {
-        return None;
-    }
-    if n == 1 {
-        return Some((0, 0, 0.0));
-    }
-    let x0 = (x.floor() as usize).min(n - 2);
-    Some((x0, 1, x - x0 as f64))
-}
-
 /// Add one live frame into `sums` / `counts` (`[H, W, K]`). `dispatch`: use AVX-512 when available.
 pub(super) fn add_frame(
     geo: &Geometry,
@@ -94,16 +86,16 @@ pub(super) fn add_frame(
     let row_cells = w * k_count;
     let use_avx512 = dispatch && has_avx512();
     sums.par_chunks_mut(row_cells).zip(counts.par_chunks_mut(row_cells)).enumerate().for_each_init(
-        || Vec::with_capacity(k_count),
-        |taps, (y, (sum_row, count_row))| {
+        || Scratch::new(k_count),
+        |scratch, (y, (sum_row, count_row))| {
             #[cfg(target_arch = "x86_64")]
             if use_avx512 {
                 // SAFETY: `has_avx512()` reported AVX-512F on this CPU.
-                unsafe { row_avx512(geo, feats, rhos, y, sum_row, count_row, taps) };
+                unsafe { row_avx512(geo, feats, rhos, y, sum_row, count_row, scratch) };
                 return;
             }
             let _ = use_avx512;
-            row(geo, feats, rhos, y, sum_row, count_row, taps);
+            row_any(geo, feats, rhos, y, sum_row, count_row, scratch);
         },
     );
 }
@@ -117,58 +109,98 @@ unsafe fn row_avx512(
     y: usize,
     sum_row: &mut [f32],
     count_row: &mut [u16],
-    taps: &mut Vec<Tap>,
+    scratch: &mut Scratch,
 ) {
-    row(geo, feats, rhos, y, sum_row, count_row, taps);
+    row_any(geo, feats, rhos, y, sum_row, count_row, scratch);
 }
 
-/// One reference row.
+/// [`row`] with the channel count as a compile-time constant for the common counts (so the channel
+/// loop unrolls completely); the same arithmetic, hence the same bits, as the generic instance.
 #[inline(always)]
-fn row(
+fn row_any(
     geo: &Geometry,
     feats: &Slices,
     rhos: &[f64],
     y: usize,
     sum_row: &mut [f32],
     count_row: &mut [u16],
-    taps: &mut Vec<Tap>,
+    scratch: &mut Scratch,
+) {
+    match feats.channels {
+        1 => row::<1>(geo, feats, rhos, y, sum_row, count_row, scratch),
+        3 => row::<3>(geo, feats, rhos, y, sum_row, count_row, scratch),
+        16 => row::<16>(geo, feats, rhos, y, sum_row, count_row, scratch),
+        32 => row::<32>(geo, feats, rhos, y, sum_row, count_row, scratch),
+        64 => row::<64>(geo, feats, rhos, y, sum_row, count_row, scratch),
+        _ => row::<0>(geo, feats, rhos, y, sum_row, count_row, scratch),
+    }
+}
+
+/// One reference row. `CH`: the channel count, or 0 to read it from `feats`.
+#[inline(always)]
+fn row<const CH: usize>(
+    geo: &Geometry,
+    feats: &Slices,
+    rhos: &[f64],
+    y: usize,
+    sum_row: &mut [f32],
+    count_row: &mut [u16],
+    scratch: &mut Scratch,
 ) {
     let cam = geo.camera;
-    let (w, h, c, k_count) = (cam.width, cam.height, feats.channels, rhos.len());
+    debug_assert!(CH == 0 || CH == feats.channels);
+    let c = if CH == 0 { feats.channels } else { CH };
+    let (w, h, k_count) = (cam.width, cam.height, rhos.len());
+    // Bounds and corner clamps of `image::sample`: valid iff 0 <= x <= W-1; x0 = min(floor x, W-2);
+    // on a 1-pixel-wide image x0 = 0, a = 0 and the right corner aliases the left one.
+    let (x_max, y_max) = ((w - 1) as f64, (h - 1) as f64);
+    let (x_cap, y_cap) = (w.saturating_sub(2) as f64, h.saturating_sub(2) as f64);
+    let (dx, dy) = (if w > 1 { c } else { 0 }, if h > 1 { w * c } else { 0 });
+    let (fx, fy, cx, cy) = (cam.fx, cam.fy, cam.cx, cam.cy);
+    let t = geo.t;
+    let Scratch { ok, offset, w: wts } = scratch;
+    let [w00, w10, w01, w11] = wts;
+    let (ok, offset) = (&mut ok[..k_count], &mut offset[..k_count]);
+    let (w00, w10, w01, w11) =
+        (&mut w00[..k_count], &mut w10[..k_count], &mut w01[..k_count], &mut w11[..k_count]);
     for x in 0..w {
         // a = R K⁻¹ u̇ (+ 0·t, which leaves every later value's bits unchanged).
         let a = geo.warp.point(x as f64, y as f64, 0.0);
-        taps.clear();
-        for (k, &rho) in rhos.iter().enumerate() {
-            let p = a + geo.t * rho;
-            let Some(uv) = cam.project(&p) else { continue };
-            let (Some((x0, dx, fa)), Some((y0, dy, fb))) = (axis(uv.x, w), axis(uv.y, h)) else {
-                continue;
-            };
-            let wts = [(1.0 - fa) * (1.0 - fb), fa * (1.0 - fb), (1.0 - fa) * fb, fa * fb];
-            taps.push(Tap {
-                k,
-                offset: (y0 * w + x0) * c,
-                dx: dx * c,
-                dy: dy * w * c,
-                w: wts.map(|v| v as f32),
-            });
+        // Branch-free over k, the same f64 expressions as `Warp::apply` (p = a + ρ t, then
+        // `PinholeCamera::project`) and `image::sample`, so validity matches the reference exactly.
+        for k in 0..k_count {
+            let rho = rhos[k];
+            let (px, py, pz) = (a.x + t.x * rho, a.y + t.y * rho, a.z + t.z * rho);
+            let u = fx * px / pz + cx;
+            let v = fy * py / pz + cy;
+            ok[k] = pz > 0.0 && pz.is_finite() && u >= 0.0 && u <= x_max && v >= 0.0 && v <= y_max;
+            let (x0, y0) = (u.floor().min(x_cap), v.floor().min(y_cap));
+            let (fa, fb) = (u - x0, v - y0);
+            // Saturating casts: garbage (never read) where `ok` is false.
+            offset[k] = (y0 as usize * w + x0 as usize) * c;
+            w00[k] = ((1.0 - fa) * (1.0 - fb)) as f32;
+            w10[k] = (fa * (1.0 - fb)) as f32;
+            w01[k] = ((1.0 - fa) * fb) as f32;
+            w11[k] = (fa * fb) as f32;
         }
         let r = &feats.reference[(y * w + x) * c..(y * w + x + 1) * c];
         let sums = &mut sum_row[x * k_count..(x + 1) * k_count];
         let counts = &mut count_row[x * k_count..(x + 1) * k_count];
-        for tap in taps.iter() {
-            let o = tap.offset;
+        for k in 0..k_count {
+            if !ok[k] {
+                continue;
+            }
+            let o = offset[k];
             let l1 = l1_distance(
                 r,
                 &feats.live[o..o + c],
-                &feats.live[o + tap.dx..o + tap.dx + c],
-                &feats.live[o + tap.dy..o + tap.dy + c],
-                &feats.live[o + tap.dy + tap.dx..o + tap.dy + tap.dx + c],
-                tap.w,
+                &feats.live[o + dx..o + dx + c],
+                &feats.live[o + dy..o + dy + c],
+                &feats.live[o + dy + dx..o + dy + dx + c],
+                [w00[k], w10[k], w01[k], w11[k]],
             );
-            sums[tap.k] += l1;
-            counts[tap.k] += 1;
+            sums[k] += l1;
+            counts[k] += 1;
         }
     }
 }
@@ -195,10 +227,10 @@ fn l1_distance(r: &[f32], p00: &[f32], p10: &[f32], p01: &[f32], p11: &[f32], w:
         }
         i += LANES;
     }
-    for l in 0..n - full {
+    for (l, lane) in acc.iter_mut().enumerate().take(n - full) {
         let j = full + l;
         let s = w[0] * p00[j] + w[1] * p10[j] + w[2] * p01[j] + w[3] * p11[j];
-        acc[l] += (r[j] - s).abs();
+        *lane += (r[j] - s).abs();
     }
     let mut width = LANES / 2;
     while width > 0 {

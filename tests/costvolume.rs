@@ -92,7 +92,7 @@ proptest! {
         seed: u64,
         h in 1usize..20,
         w in 1usize..20,
-        c in prop::sample::select(vec![1usize, 3, 32]),
+        c in prop::sample::select(vec![1usize, 3, 32, 35]),
         k in prop::sample::select(vec![2usize, 3, 17]),
         frames in 1usize..4,
     ) {
@@ -147,6 +147,13 @@ fn unseen_cells_have_no_cost_and_a_finite_sentinel() {
         assert_eq!(cv.cost(1, 1, 0), Some(0.0));
         assert_eq!(cv.count(2, 3, 0), 1);
     }
+    // Without the ρ = 0 hypothesis nothing is seen: every pixel is invalid, depth 0.
+    let bins = InverseDepthBins::new(0.5, 2.0, 3).unwrap();
+    let mut cv = CostVolume::new(f.clone(), cam, bins).unwrap();
+    cv.add_frame(f.view(), &t_nr).unwrap();
+    let wta = cv.winner_take_all();
+    assert!(wta.valid.iter().all(|&v| !v));
+    assert!(wta.depth.iter().all(|&z| z == 0.0));
 }
 
 #[test]
@@ -279,4 +286,23 @@ fn synthetic_room_wta_depth_is_accurate_on_textured_pixels() {
     assert!(tex.delta_1_25 > 0.95, "textured δ<1.25 = {}", tex.delta_1_25);
     assert!(tex.delta_1_1 > 0.92, "textured δ<1.1 = {}", tex.delta_1_1);
     assert!(tex.abs_rel < 0.05, "textured abs rel = {}", tex.abs_rel);
+}
+
+#[test]
+fn bench_costvolume_cli_runs() {
+    let args = [
+        "densefeat",
+        "bench-costvolume",
+        "--size",
+        "16x12",
+        "--bins",
+        "4",
+        "--channels",
+        "3",
+        "--threads",
+        "1",
+    ];
+    densefeat::cli::run(<densefeat::cli::Cli as clap::Parser>::try_parse_from(args).unwrap()).unwrap();
+    let bad = ["densefeat", "bench-costvolume", "--runs", "3"];
+    assert!(densefeat::cli::run(<densefeat::cli::Cli as clap::Parser>::try_parse_from(bad).unwrap()).is_err());
 }

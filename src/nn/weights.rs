@@ -283,6 +283,7 @@ impl NetworkWeights {
             .and_then(|s| serde_json::from_str(s).map_err(|e| e.to_string()))
             .map_err(|e| bad(format!("header is not JSON: {e}")))?;
         let config = parse_metadata(&json).map_err(|what| bad(format!("metadata: {what}")))?;
+        check_entries(&json, &config).map_err(bad)?;
         let st = SafeTensors::deserialize(bytes).map_err(|e| bad(describe_safetensors_error(&e)))?;
         read_tensors(&st, &config, &json, path)
     }
@@ -339,6 +340,41 @@ fn parse_metadata(json: &serde_json::Value) -> std::result::Result<NetworkConfig
     };
     config.validate().map_err(|e| e.to_string())?;
     Ok(config)
+}
+
+/// Checks the header's tensor names, dtypes and shapes against the configuration, before the
+/// data offsets are looked at (so a wrong dtype is reported as such, not as a size mismatch).
+fn check_entries(json: &serde_json::Value, config: &NetworkConfig) -> std::result::Result<(), String> {
+    let header = json.as_object().ok_or("header is not a JSON object")?;
+    let specs = tensor_specs(config);
+    let expected: BTreeSet<&str> = specs.iter().map(|s| s.name.as_str()).collect();
+    let present: BTreeSet<&str> =
+        header.keys().map(String::as_str).filter(|k| *k != "__metadata__").collect();
+    let missing: Vec<_> = expected.difference(&present).collect();
+    let extra: Vec<_> = present.difference(&expected).collect();
+    if !missing.is_empty() || !extra.is_empty() {
+        return Err(format!(
+            "tensor names do not match a {}-block network: missing {missing:?}, unexpected {extra:?}",
+            config.blocks
+        ));
+    }
+    for spec in &specs {
+        let entry = &header[&spec.name];
+        let dtype = entry.get("dtype").and_then(|d| d.as_str()).unwrap_or("(none)");
+        if dtype != "F32" {
+            return Err(format!("{}: dtype {dtype}, expected F32", spec.name));
+        }
+        let shape: Option<Vec<usize>> = entry
+            .get("shape")
+            .and_then(|s| s.as_array())
+            .and_then(|a| a.iter().map(|d| d.as_u64().and_then(|d| usize::try_from(d).ok())).collect());
+        match shape {
+            Some(shape) if shape == spec.shape => {}
+            Some(shape) => return Err(format!("{}: shape {shape:?}, expected {:?}", spec.name, spec.shape)),
+            None => return Err(format!("{}: no valid shape", spec.name)),
+        }
+    }
+    Ok(())
 }
 
 /// Checks names, dtypes, shapes and values against the configuration and builds the weights.

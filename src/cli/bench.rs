@@ -63,7 +63,7 @@ pub struct GemmArgs {
 }
 
 /// Rows of `A` (and `C`) per parallel SGEMM task.
-const GEMM_ROW_BLOCK: usize = 64;
+pub const GEMM_ROW_BLOCK: usize = 64;
 /// Warm-up runs before timing.
 const WARMUP: usize = 2;
 /// Fewest timed forward runs.

@@ -292,7 +292,8 @@ fn synthetic_room_wta_depth_is_accurate_on_textured_pixels() {
 fn bench_costvolume_cli_runs() {
     let args = [
         "densefeat",
-        "bench-costvolume",
+        "bench",
+        "costvolume",
         "--size",
         "16x12",
         "--bins",
@@ -303,6 +304,6 @@ fn bench_costvolume_cli_runs() {
         "1",
     ];
     densefeat::cli::run(<densefeat::cli::Cli as clap::Parser>::try_parse_from(args).unwrap()).unwrap();
-    let bad = ["densefeat", "bench-costvolume", "--runs", "3"];
+    let bad = ["densefeat", "bench", "costvolume", "--runs", "3"];
     assert!(densefeat::cli::run(<densefeat::cli::Cli as clap::Parser>::try_parse_from(bad).unwrap()).is_err());
 }

@@ -1,4 +1,4 @@
-//! `densefeat bench-costvolume`: time [`CostVolume::add_frame`] on random features and a realistic
+//! `densefeat bench costvolume`: time [`CostVolume::add_frame`] on random features and a realistic
 //! pose, and print the median milliseconds per added frame and hypotheses per second.
 
 use std::time::Instant;
@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use crate::synth::rng::SplitMix64;
 
-/// Arguments of `densefeat bench-costvolume`.
+/// Arguments of `densefeat bench costvolume`.
 #[derive(Debug, Clone, Args)]
 pub struct BenchCostvolumeArgs {
     /// Feature-map size as WIDTHxHEIGHT.

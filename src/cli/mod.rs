@@ -5,7 +5,10 @@ use clap::{Parser, Subcommand};
 
 use crate::error::Result;
 
+pub mod bench;
 pub mod bench_costvolume;
+pub mod features;
+pub mod init_weights;
 pub mod inspect;
 pub mod synth;
 
@@ -25,8 +28,12 @@ pub enum Command {
     Inspect(inspect::InspectArgs),
     /// Render a synthetic posed RGB-D sequence (DeepVideoMVS layout).
     Synth(synth::SynthArgs),
-    /// Time adding one live frame to a cost volume (median ms per frame, hypotheses per second).
-    BenchCostvolume(bench_costvolume::BenchCostvolumeArgs),
+    /// Compute dense features of one image with the feature network (writes .npy, optional PCA PNG).
+    Features(features::FeaturesArgs),
+    /// Write Xavier-initialised (untrained) feature-network weights as safetensors.
+    InitWeights(init_weights::InitWeightsArgs),
+    /// Time the network's forward pass or the SGEMM peak.
+    Bench(bench::BenchArgs),
 }
 
 /// Parse the process arguments and run the subcommand.
@@ -37,6 +44,8 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Inspect(args) => inspect::run(args),
         Command::Synth(args) => synth::run(args),
-        Command::BenchCostvolume(args) => bench_costvolume::run(args),
+        Command::Features(args) => features::run(args),
+        Command::InitWeights(args) => init_weights::run(args),
+        Command::Bench(args) => bench::run(args),
     }
 }

@@ -6,16 +6,28 @@
 //! one checked against it (`tests/nn_kernels.rs`) within the error budget of SPEC.md §7.5. Fast
 //! kernels split work over independent output rows with rayon and sum every output in a fixed
 //! order, so their results are bit-identical for any thread count.
+//!
+//! The network itself (SPEC.md §8): [`config`] (hyper-parameters and level arithmetic),
+//! [`weights`] (PyTorch names, Xavier init, safetensors), [`network`] (the forward pass),
+//! [`budget`] (the network-level error bound) and [`viz`] (a PCA colouring of features).
 
+pub mod budget;
+pub mod config;
 pub mod conv2d;
 pub mod deconv2d;
 pub mod downsample;
 pub mod geometry;
+pub mod network;
+pub mod viz;
+pub mod weights;
 
+pub use config::NetworkConfig;
 pub use conv2d::{conv2d, Conv2dImpl};
 pub use deconv2d::{deconv2d, Deconv2dImpl};
 pub use downsample::{add, concat_channels, downsample2x};
 pub use geometry::{Conv2dGeometry, Deconv2dGeometry, DownsampleGeometry};
+pub use network::{FeatureNet, ForwardOutput, NetworkImpl};
+pub use weights::NetworkWeights;
 
 use crate::error::{Error, Result};
 

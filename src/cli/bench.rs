@@ -1,0 +1,197 @@
+//! `densefeat bench`: timing of the feature network's forward pass and of the machine's SGEMM
+//! peak, each inside a rayon pool of `--threads` threads.
+
+use std::time::Instant;
+
+use clap::{Args, Subcommand};
+use ndarray::Array3;
+use rayon::prelude::*;
+
+use crate::cli::synth::parse_size;
+use crate::error::{Error, Result};
+use crate::nn::{FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
+
+/// Arguments of `densefeat bench`.
+#[derive(Debug, Clone, Args)]
+pub struct BenchArgs {
+    /// What to time.
+    #[command(subcommand)]
+    pub what: BenchCommand,
+}
+
+/// Bench subcommands.
+#[derive(Debug, Clone, Subcommand)]
+pub enum BenchCommand {
+    /// Median time of the network's forward pass (Xavier weights, a synthetic pattern image).
+    Forward(ForwardArgs),
+    /// SGEMM throughput (matrixmultiply, parallel over row blocks): the machine's practical peak.
+    Gemm(GemmArgs),
+    /// Time adding one live frame to a cost volume (median ms per frame, hypotheses per second).
+    Costvolume(super::bench_costvolume::BenchCostvolumeArgs),
+}
+
+/// Arguments of `densefeat bench forward`.
+#[derive(Debug, Clone, Args)]
+pub struct ForwardArgs {
+    /// Image size WIDTHxHEIGHT.
+    #[arg(long, default_value = "320x240")]
+    pub size: String,
+    /// Stride of block 1 (1 or 2).
+    #[arg(long, default_value_t = 2)]
+    pub b1_stride: usize,
+    /// Rayon threads.
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
+    /// Timed runs (at least 20), after two warm-up runs.
+    #[arg(long, default_value_t = 20)]
+    pub runs: usize,
+    /// Size of the GEMM used to measure the peak.
+    #[arg(long, default_value_t = 1024)]
+    pub gemm_size: usize,
+}
+
+/// Arguments of `densefeat bench gemm`.
+#[derive(Debug, Clone, Args)]
+pub struct GemmArgs {
+    /// Side of the square matrices.
+    #[arg(long, default_value_t = 1024)]
+    pub size: usize,
+    /// Rayon threads.
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
+    /// Timed runs, after one warm-up run.
+    #[arg(long, default_value_t = 10)]
+    pub runs: usize,
+}
+
+/// Rows of `A` (and `C`) per parallel SGEMM task.
+pub const GEMM_ROW_BLOCK: usize = 64;
+/// Warm-up runs before timing.
+const WARMUP: usize = 2;
+/// Fewest timed forward runs.
+const MIN_RUNS: usize = 20;
+
+fn pool(threads: usize) -> Result<rayon::ThreadPool> {
+    if threads == 0 {
+        return Err(Error::invalid_argument("--threads", "must be at least 1"));
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| Error::invalid_argument("--threads", e.to_string()))
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
+}
+
+/// Median GFLOP/s of `C = A B` for `n x n` f32 matrices, split over rayon in blocks of
+/// [`GEMM_ROW_BLOCK`] rows of `A` (each a `matrixmultiply::sgemm` call), in the current pool.
+pub fn gemm_gflops(n: usize, runs: usize) -> f64 {
+    let a: Vec<f32> = (0..n * n).map(|i| ((i * 7 % 13) as f32 - 6.0) / 8.0).collect();
+    let b: Vec<f32> = (0..n * n).map(|i| ((i * 5 % 11) as f32 - 5.0) / 8.0).collect();
+    let mut c = vec![0.0f32; n * n];
+    let mut once = || {
+        let start = Instant::now();
+        c.par_chunks_mut(GEMM_ROW_BLOCK * n).enumerate().for_each(|(blk, c_rows)| {
+            let rows = c_rows.len() / n;
+            let a_rows = &a[blk * GEMM_ROW_BLOCK * n..][..rows * n];
+            // SAFETY: a_rows is rows×n, b is n×n, c_rows is rows×n, all row-major and in bounds;
+            // c_rows is a distinct &mut slice.
+            unsafe {
+                matrixmultiply::sgemm(
+                    rows,
+                    n,
+                    n,
+                    1.0,
+                    a_rows.as_ptr(),
+                    n as isize,
+                    1,
+                    b.as_ptr(),
+                    n as isize,
+                    1,
+                    0.0,
+                    c_rows.as_mut_ptr(),
+                    n as isize,
+                    1,
+                );
+            }
+        });
+        start.elapsed().as_secs_f64()
+    };
+    once();
+    let times: Vec<f64> = (0..runs.max(1)).map(|_| once()).collect();
+    2.0 * (n as f64).powi(3) / median(times) / 1e9
+}
+
+/// A deterministic test pattern `[h, w, 3]` in 0..=255.
+fn pattern(h: usize, w: usize) -> Array3<f32> {
+    Array3::from_shape_fn((h, w, 3), |(y, x, c)| ((x * 7 + y * 13 + c * 61 + (x * y) % 17) % 256) as f32)
+}
+
+fn run_forward(args: &ForwardArgs) -> Result<()> {
+    let (w, h) = parse_size(&args.size)?;
+    if args.runs < MIN_RUNS {
+        return Err(Error::invalid_argument("--runs", format!("{} is below {MIN_RUNS}", args.runs)));
+    }
+    let config =
+        NetworkConfig { b1_stride: args.b1_stride, input_mean: [128.0; 3], ..NetworkConfig::default() };
+    let net = FeatureNet::new(NetworkWeights::xavier_uniform(&config, 0)?)?;
+    let image = pattern(h, w);
+    let pool = pool(args.threads)?;
+    let (ms, peak) = pool.install(|| -> Result<(f64, f64)> {
+        for _ in 0..WARMUP {
+            net.forward(image.view(), NetworkImpl::FAST)?;
+        }
+        let mut times = Vec::with_capacity(args.runs);
+        for _ in 0..args.runs {
+            let start = Instant::now();
+            std::hint::black_box(net.forward(image.view(), NetworkImpl::FAST)?);
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+        Ok((median(times), gemm_gflops(args.gemm_size, 10)))
+    })?;
+    let gflop = net.flops(h, w) / 1e9;
+    let gflops = gflop / (ms / 1e3);
+    println!(
+        "| size | b1 stride | threads | runs | median ms | GFLOP | GFLOP/s | SGEMM peak GFLOP/s | of peak |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
+    println!(
+        "| {w}x{h} | {} | {} | {} | {ms:.2} | {gflop:.3} | {gflops:.1} | {peak:.1} | {:.0} % |",
+        args.b1_stride,
+        args.threads,
+        args.runs,
+        100.0 * gflops / peak
+    );
+    Ok(())
+}
+
+fn run_gemm(args: &GemmArgs) -> Result<()> {
+    if args.size == 0 {
+        return Err(Error::invalid_argument("--size", "must be at least 1"));
+    }
+    let gflops = pool(args.threads)?.install(|| gemm_gflops(args.size, args.runs));
+    println!("| n | threads | runs | median GFLOP/s |");
+    println!("|---|---|---|---|");
+    println!("| {} | {} | {} | {gflops:.1} |", args.size, args.threads, args.runs);
+    Ok(())
+}
+
+/// Runs the bench.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for bad sizes, strides or thread counts.
+pub fn run(args: BenchArgs) -> Result<()> {
+    match &args.what {
+        BenchCommand::Forward(a) => run_forward(a),
+        BenchCommand::Gemm(a) => run_gemm(a),
+        BenchCommand::Costvolume(a) => super::bench_costvolume::run(a),
+    }
+}

@@ -1,0 +1,148 @@
+//! The network-level error budget (SPEC.md §8.7).
+//!
+//! 1. **Per layer, in place** ([`LayerCheckExecutor`]): while a network runs with the chosen
+//!    kernels, every convolution and transposed convolution is also run by its f64 reference on the
+//!    *same* input, and the fast output must be within the §7.5 budget `2 K ε M` of it. So the fast
+//!    network is exactly a composition of layers that each meet their budget.
+//! 2. **End to end** ([`relative_budget`]): `max |fast - ref| <= D · 2 K_max ε · max |ref|` for
+//!    every output map, `D` the number of layers on the longest path and `K_max` the largest
+//!    product count. This is a first-order model (each layer adds at most its own relative error,
+//!    and Xavier-initialised layers roughly preserve the max norm), not a proof: the rigorous
+//!    worst case, which propagates errors through `|W|`, grows like `(sqrt(3K)/2)^D` and is
+//!    vacuous beyond two blocks.
+
+use ndarray::{Array1, Array3, Array4};
+
+use crate::error::Result;
+use crate::nn::config::NetworkConfig;
+use crate::nn::conv2d::conv2d_reference;
+use crate::nn::deconv2d::deconv2d_reference;
+use crate::nn::network::{Executor, KernelExecutor, NetworkImpl};
+use crate::nn::weights::LayerParams;
+use crate::nn::{Activation, Conv2dGeometry, Deconv2dGeometry};
+use crate::testing::within_budget;
+
+/// Relative budget of one layer with `k` products per output (SPEC.md §7.5).
+fn layer_budget(k: usize) -> f32 {
+    2.0 * k as f32 * f32::EPSILON
+}
+
+/// Runs the network with the chosen kernels and checks every layer against its reference on the
+/// same input. Failures are collected, not raised, so a test can report them all.
+#[derive(Clone, Debug)]
+pub struct LayerCheckExecutor {
+    /// The kernels under test.
+    pub imp: NetworkImpl,
+    /// One message per layer outside its budget.
+    pub failures: Vec<String>,
+    /// Largest `|fast - ref| / (2 K ε M)` seen (at most 1 when there are no failures).
+    pub worst_fraction: f64,
+    /// Layers checked so far.
+    pub layers: usize,
+}
+
+impl LayerCheckExecutor {
+    /// A checker of `imp`.
+    pub fn new(imp: NetworkImpl) -> Self {
+        LayerCheckExecutor { imp, failures: Vec::new(), worst_fraction: 0.0, layers: 0 }
+    }
+
+    fn check(
+        &mut self,
+        what: &str,
+        got: &Array3<f32>,
+        want: &Array3<f64>,
+        magnitude: &Array3<f64>,
+        k: usize,
+    ) {
+        let want32 = want.mapv(|v| v as f32);
+        let mag32 = magnitude.mapv(|v| v as f32);
+        let rel = layer_budget(k);
+        self.layers += 1;
+        for ((g, w), m) in got.iter().zip(want32.iter()).zip(mag32.iter()) {
+            let budget = f64::from(rel) * f64::from(*m);
+            let diff = f64::from((g - w).abs());
+            if budget > 0.0 {
+                self.worst_fraction = self.worst_fraction.max(diff / budget);
+            }
+        }
+        if let Err(e) = within_budget(got.view(), want32.view(), mag32.view(), rel) {
+            self.failures.push(format!("layer {} ({what}, K = {k}): {e}", self.layers));
+        }
+    }
+}
+
+/// `|W|`, `|b|` in f64.
+fn abs_params(l: &LayerParams) -> (Array4<f64>, Array1<f64>) {
+    (l.weight.mapv(|v| f64::from(v.abs())), l.bias.mapv(|v| f64::from(v.abs())))
+}
+
+/// `(x, |x|)` in f64.
+fn f64_and_abs(x: &Array3<f32>) -> (Array3<f64>, Array3<f64>) {
+    (x.mapv(f64::from), x.mapv(|v| f64::from(v.abs())))
+}
+
+impl Executor for LayerCheckExecutor {
+    type Map = Array3<f32>;
+    fn image(&mut self, image: &Array3<f32>) -> Result<Array3<f32>> {
+        Ok(image.clone())
+    }
+    fn conv(
+        &mut self,
+        x: &Array3<f32>,
+        l: &LayerParams,
+        stride: usize,
+        act: Activation,
+    ) -> Result<Array3<f32>> {
+        let got = KernelExecutor(self.imp).conv(x, l, stride, act)?;
+        let (h, w, c_in) = x.dim();
+        let g = Conv2dGeometry::new(h, w, c_in, l.weight.shape()[0], stride)?;
+        let (xf, xa) = f64_and_abs(x);
+        let (aw, ab) = abs_params(l);
+        let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));
+        let want = conv2d_reference(&g, xf.view(), wf.view(), bf.view(), act)?;
+        let magnitude = conv2d_reference(&g, xa.view(), aw.view(), ab.view(), Activation::None)?;
+        self.check(&format!("conv {:?} stride {stride}", x.shape()), &got, &want, &magnitude, g.k());
+        Ok(got)
+    }
+    fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
+        let got = KernelExecutor(self.imp).deconv(x, l)?;
+        let (h, w, c_in) = x.dim();
+        let g = Deconv2dGeometry::new(h, w, c_in, l.weight.shape()[1])?;
+        let (xf, xa) = f64_and_abs(x);
+        let (aw, ab) = abs_params(l);
+        let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));
+        let want = deconv2d_reference(&g, xf.view(), wf.view(), bf.view())?;
+        let magnitude = deconv2d_reference(&g, xa.view(), aw.view(), ab.view())?;
+        self.check(&format!("deconv {:?}", x.shape()), &got, &want, &magnitude, g.k());
+        Ok(got)
+    }
+    fn concat(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
+        KernelExecutor(self.imp).concat(a, b)
+    }
+    fn add(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
+        KernelExecutor(self.imp).add(a, b)
+    }
+    fn crop(&mut self, x: &Array3<f32>, h: usize, w: usize) -> Array3<f32> {
+        KernelExecutor(self.imp).crop(x, h, w)
+    }
+}
+
+/// Number of (transposed) convolutions on the longest path from the image to the features:
+/// `3 · blocks` convolutions and `blocks - 1` transposed convolutions.
+pub fn depth(config: &NetworkConfig) -> usize {
+    3 * config.blocks + config.blocks - 1
+}
+
+/// Largest number of products in one output of any layer: `9 (channels + 3)` with more than one
+/// block, else `9 channels` (`9 · 3` if that is larger).
+pub fn max_products(config: &NetworkConfig) -> usize {
+    let widest_in = (0..config.blocks).map(|k| config.block_in_channels(k)).max().unwrap_or(0);
+    9 * widest_in.max(config.channels)
+}
+
+/// End-to-end relative budget `D · 2 K_max ε` ([`depth`], [`max_products`]): a bound on
+/// `max |fast - ref| / max |ref|` for any output map (SPEC.md §8.7).
+pub fn relative_budget(config: &NetworkConfig) -> f64 {
+    depth(config) as f64 * 2.0 * max_products(config) as f64 * f64::from(f32::EPSILON)
+}

@@ -1,0 +1,274 @@
+//! The feature network of the paper's §3.1 (SPEC.md §8): an encoder of `blocks` blocks of three
+//! 3x3 convolutions, each block after the first seeing the previous block's output concatenated
+//! with the image at that resolution, and a decoder that sums every block's output with the
+//! upsampled (5x5 stride-2 transposed convolution) aggregate of the coarser blocks.
+//!
+//! ```text
+//!  image ──pad──(-mean)──► B1 ─► out_1 ─────────────────────────► a_1 = out_1 + up_1(a_2) = features
+//!     │ downsample2x*        │ concat(out_1, image at out_1's level)          ▲
+//!     └──────────────────────┴► B2 ─► out_2 ────────────► a_2 = out_2 + up_2(a_3)
+//!                                        ...                      ▲
+//!                                     B_n ─► out_n ────────────► a_n = out_n
+//! ```
+//!
+//! Every op runs through an [`Executor`], so the same code is the fast network, the reference
+//! network and the error-bound propagation of [`crate::nn::budget`].
+
+use ndarray::{s, Array3, ArrayView3, Axis};
+
+use crate::error::{Error, Result};
+use crate::nn::config::{NetworkConfig, IMAGE_CHANNELS};
+use crate::nn::geometry::{Conv2dGeometry, Deconv2dGeometry, DECONV_KERNEL};
+use crate::nn::weights::{LayerParams, NetworkWeights};
+use crate::nn::{add, concat_channels, conv2d, deconv2d, downsample2x, Activation, Conv2dImpl, Deconv2dImpl};
+
+/// Which kernels the network runs. Every combination is always compiled and tested.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NetworkImpl {
+    /// Convolution implementation.
+    pub conv: Conv2dImpl,
+    /// Transposed-convolution implementation.
+    pub deconv: Deconv2dImpl,
+}
+
+impl NetworkImpl {
+    /// The fast kernels (the default).
+    pub const FAST: NetworkImpl =
+        NetworkImpl { conv: Conv2dImpl::Im2colGemm, deconv: Deconv2dImpl::ParityGemm };
+    /// The f64 reference kernels (the oracle; single-threaded and slow).
+    pub const REFERENCE: NetworkImpl =
+        NetworkImpl { conv: Conv2dImpl::Reference, deconv: Deconv2dImpl::Reference };
+}
+
+impl Default for NetworkImpl {
+    fn default() -> Self {
+        Self::FAST
+    }
+}
+
+/// Everything a forward pass computes, cropped to the input's size (SPEC.md §8.2).
+#[derive(Clone, Debug)]
+pub struct ForwardOutput<M = Array3<f32>> {
+    /// `blocks[k]`: block `k`'s output (0-based), `[ceil(H / 2^l), ceil(W / 2^l), channels]` with
+    /// `l = config.block_level(k)`.
+    pub blocks: Vec<M>,
+    /// `aggregated[k] = blocks[k] + deconv_k(aggregated[k + 1])`, the last equal to the last block.
+    pub aggregated: Vec<M>,
+}
+
+impl<M> ForwardOutput<M> {
+    /// The features, `aggregated[0]`.
+    ///
+    /// # Panics
+    /// Never for an output of [`FeatureNet::forward`], which has at least one block.
+    pub fn features(&self) -> &M {
+        &self.aggregated[0]
+    }
+}
+
+/// The operations a forward pass is made of, on some map type (an f32 activation, or an activation
+/// with an error bound). Used by [`run_network`].
+pub trait Executor {
+    /// An activation map `[h, w, c]`.
+    type Map: Clone;
+    /// Wraps a (padded, mean-subtracted, possibly downsampled) image.
+    fn image(&mut self, image: &Array3<f32>) -> Result<Self::Map>;
+    /// 3x3 convolution, padding 1, with the given stride and activation.
+    fn conv(
+        &mut self,
+        x: &Self::Map,
+        layer: &LayerParams,
+        stride: usize,
+        act: Activation,
+    ) -> Result<Self::Map>;
+    /// 5x5 stride-2 transposed convolution.
+    fn deconv(&mut self, x: &Self::Map, layer: &LayerParams) -> Result<Self::Map>;
+    /// Channel concatenation, `a` first.
+    fn concat(&mut self, a: &Self::Map, b: &Self::Map) -> Result<Self::Map>;
+    /// Elementwise sum.
+    fn add(&mut self, a: &Self::Map, b: &Self::Map) -> Result<Self::Map>;
+    /// The top-left `h x w` window.
+    fn crop(&mut self, x: &Self::Map, h: usize, w: usize) -> Self::Map;
+}
+
+/// Shape of a map from its dimensions, for kernels' geometries.
+fn dims(x: &Array3<f32>) -> (usize, usize, usize) {
+    x.dim()
+}
+
+/// Runs the network's kernels on f32 maps with the chosen implementations.
+#[derive(Clone, Copy, Debug)]
+pub struct KernelExecutor(pub NetworkImpl);
+
+impl Executor for KernelExecutor {
+    type Map = Array3<f32>;
+    fn image(&mut self, image: &Array3<f32>) -> Result<Array3<f32>> {
+        Ok(image.clone())
+    }
+    fn conv(
+        &mut self,
+        x: &Array3<f32>,
+        l: &LayerParams,
+        stride: usize,
+        act: Activation,
+    ) -> Result<Array3<f32>> {
+        let (h, w, c_in) = dims(x);
+        let g = Conv2dGeometry::new(h, w, c_in, l.weight.shape()[0], stride)?;
+        conv2d(self.0.conv, &g, x.view(), l.weight.view(), l.bias.view(), act)
+    }
+    fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
+        let (h, w, c_in) = dims(x);
+        let g = Deconv2dGeometry::new(h, w, c_in, l.weight.shape()[1])?;
+        deconv2d(self.0.deconv, &g, x.view(), l.weight.view(), l.bias.view())
+    }
+    fn concat(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
+        concat_channels(a.view(), b.view())
+    }
+    fn add(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
+        add(a.view(), b.view())
+    }
+    fn crop(&mut self, x: &Array3<f32>, h: usize, w: usize) -> Array3<f32> {
+        x.slice(s![..h, ..w, ..]).to_owned()
+    }
+}
+
+/// Pads `[h, w, c]` at the bottom and right to `[hp, wp, c]` by replicating the last row/column.
+pub fn pad_edge(x: ArrayView3<f32>, hp: usize, wp: usize) -> Array3<f32> {
+    let (h, w, c) = x.dim();
+    Array3::from_shape_fn((hp, wp, c), |(y, i, ch)| x[[y.min(h - 1), i.min(w - 1), ch]])
+}
+
+/// The image pyramid the blocks see: level 0 is the image padded (SPEC.md §8.2) with the mean
+/// subtracted in f32, level `l + 1` is [`downsample2x`] of level `l`, up to `max_level`.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if the image is not `[H, W, 3]` with `H, W >= 1`.
+pub fn image_pyramid(
+    config: &NetworkConfig,
+    image: ArrayView3<f32>,
+    max_level: usize,
+) -> Result<Vec<Array3<f32>>> {
+    let (h, w, c) = image.dim();
+    if c != IMAGE_CHANNELS || h == 0 || w == 0 {
+        return Err(Error::invalid_argument(
+            "image",
+            format!("shape {:?}, expected [H >= 1, W >= 1, 3]", image.shape()),
+        ));
+    }
+    let (hp, wp) = config.padded_size(h, w);
+    let mut level0 = pad_edge(image, hp, wp);
+    for (ch, mut plane) in level0.axis_iter_mut(Axis(2)).enumerate() {
+        let mean = config.input_mean[ch];
+        plane.mapv_inplace(|v| v - mean);
+    }
+    let mut levels = vec![level0];
+    for l in 0..max_level {
+        let next = downsample2x(levels[l].view())?;
+        levels.push(next);
+    }
+    Ok(levels)
+}
+
+/// The forward pass (SPEC.md §8.1-8.2) through any [`Executor`].
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for a malformed image or weights that do not match their config.
+pub fn run_network<E: Executor>(
+    exec: &mut E,
+    weights: &NetworkWeights,
+    image: ArrayView3<f32>,
+) -> Result<ForwardOutput<E::Map>> {
+    weights.validate()?;
+    let config = &weights.config;
+    let (h, w, _) = image.dim();
+    // Block k > 0 needs the image at block k-1's level; the deepest is the next-to-last block's.
+    let max_level = if config.blocks > 1 { config.block_level(config.blocks - 2) } else { 0 };
+    let pyramid = image_pyramid(config, image, max_level)?;
+    let mut outs: Vec<E::Map> = Vec::with_capacity(config.blocks);
+    for (k, block) in weights.blocks.iter().enumerate() {
+        let input = match outs.last() {
+            None => exec.image(&pyramid[0])?,
+            Some(prev) => {
+                let img = exec.image(&pyramid[config.block_level(k - 1)])?;
+                exec.concat(prev, &img)?
+            }
+        };
+        let x = exec.conv(&input, &block.conv1, config.block_stride(k), Activation::Relu)?;
+        let x = exec.conv(&x, &block.conv2, 1, Activation::Relu)?;
+        outs.push(exec.conv(&x, &block.conv3, 1, Activation::None)?);
+    }
+    // Decoder, coarse to fine: a_k = out_k + deconv_k(a_{k+1}).
+    let mut aggregated: Vec<E::Map> = Vec::with_capacity(config.blocks);
+    for k in (0..config.blocks).rev() {
+        let a = match aggregated.last() {
+            None => outs[k].clone(),
+            Some(coarser) => {
+                let up = exec.deconv(coarser, &weights.deconvs[k])?;
+                exec.add(&outs[k], &up)?
+            }
+        };
+        aggregated.push(a);
+    }
+    aggregated.reverse();
+    let shapes = config.output_shapes(h, w);
+    let crop_all = |exec: &mut E, maps: &[E::Map]| -> Vec<E::Map> {
+        maps.iter().zip(&shapes).map(|(m, &[hl, wl, _])| exec.crop(m, hl, wl)).collect()
+    };
+    Ok(ForwardOutput { blocks: crop_all(exec, &outs), aggregated: crop_all(exec, &aggregated) })
+}
+
+/// The feature network with its weights.
+#[derive(Clone, Debug)]
+pub struct FeatureNet {
+    weights: NetworkWeights,
+}
+
+impl FeatureNet {
+    /// Wraps validated weights.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] if a tensor's shape disagrees with the configuration.
+    pub fn new(weights: NetworkWeights) -> Result<Self> {
+        weights.validate()?;
+        Ok(FeatureNet { weights })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &NetworkConfig {
+        &self.weights.config
+    }
+
+    /// The weights.
+    pub fn weights(&self) -> &NetworkWeights {
+        &self.weights
+    }
+
+    /// Runs the network on an RGB image `[H, W, 3]` (0-255, SPEC.md §2.2). Parallel inside each
+    /// kernel (rayon's current pool); the result is bit-identical for any thread count.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] if the image is not `[H >= 1, W >= 1, 3]`.
+    pub fn forward(&self, image: ArrayView3<f32>, imp: NetworkImpl) -> Result<ForwardOutput> {
+        run_network(&mut KernelExecutor(imp), &self.weights, image)
+    }
+
+    /// Floating-point operations of one forward pass on an `h x w` image (multiply and add each
+    /// count one), as run: on the padded input, convolutions `2 · 9 c_in · h_out w_out c_out`,
+    /// transposed convolutions `2 · 25 c_in c_out` per input pixel (the parity GEMMs' work,
+    /// including border taps). Bias, ReLU, additions and downsampling are not counted.
+    pub fn flops(&self, h: usize, w: usize) -> f64 {
+        let config = &self.weights.config;
+        let (hp, wp) = config.padded_size(h, w);
+        let c = config.channels as f64;
+        let mut total = 0.0;
+        for k in 0..config.blocks {
+            let (hl, wl) = NetworkConfig::level_size(hp, wp, config.block_level(k));
+            let pixels = (hl * wl) as f64;
+            total += 2.0 * 9.0 * pixels * c * (config.block_in_channels(k) as f64 + 2.0 * c);
+            if k > 0 {
+                total += 2.0 * (DECONV_KERNEL * DECONV_KERNEL) as f64 * pixels * c * c;
+            }
+        }
+        total
+    }
+}

@@ -1,0 +1,297 @@
+//! The feature network (SPEC.md §8): structure, shapes and padding, the fast network against the
+//! reference network within the propagated budget of §8.7, and bit-identical features for any
+//! thread count.
+
+use densefeat::nn::budget::{depth, max_products, relative_budget, LayerCheckExecutor};
+use densefeat::nn::network::{pad_edge, run_network, Executor};
+use densefeat::nn::weights::LayerParams;
+use densefeat::nn::{Activation, FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
+use ndarray::{Array1, Array3};
+
+/// An image in 0..=255 (integers) from a seeded LCG.
+fn image(h: usize, w: usize, seed: u64) -> Array3<f32> {
+    let mut s = seed ^ 0x9E37_79B9_7F4A_7C15;
+    Array3::from_shape_simple_fn((h, w, 3), || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((s >> 33) % 256) as f32
+    })
+}
+
+/// Xavier weights with non-zero biases, so that every term of the budget is exercised.
+fn weights(config: &NetworkConfig, seed: u64) -> NetworkWeights {
+    let mut w = NetworkWeights::xavier_uniform(config, seed).unwrap();
+    let mut s = seed;
+    let mut biases: Vec<&mut Array1<f32>> =
+        w.blocks.iter_mut().flat_map(|b| [&mut b.conv1.bias, &mut b.conv2.bias, &mut b.conv3.bias]).collect();
+    biases.extend(w.deconvs.iter_mut().map(|d| &mut d.bias));
+    for b in biases {
+        b.mapv_inplace(|_| {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 40) as f32 / (1u64 << 24) as f32) - 0.5
+        });
+    }
+    w
+}
+
+fn bits(a: &Array3<f32>) -> Vec<u32> {
+    a.iter().map(|v| v.to_bits()).collect()
+}
+
+fn thread_pool(n: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap()
+}
+
+fn every_config(channels: usize) -> impl Iterator<Item = NetworkConfig> {
+    (1..=5).flat_map(move |blocks| {
+        [1, 2].map(|b1_stride| NetworkConfig {
+            blocks,
+            channels,
+            b1_stride,
+            input_mean: [90.0, 100.5, 110.25],
+        })
+    })
+}
+
+#[test]
+fn block_outputs_have_level_sizes() {
+    // SPEC §2.6: level l is ceil(W / 2^l) x ceil(H / 2^l); B1 stride 2 puts block k on level k.
+    let net =
+        FeatureNet::new(weights(&NetworkConfig { channels: 4, ..NetworkConfig::default() }, 1)).unwrap();
+    let out = net.forward(image(240, 320, 1).view(), NetworkImpl::FAST).unwrap();
+    let want = [[120, 160, 4], [60, 80, 4], [30, 40, 4], [15, 20, 4], [8, 10, 4]];
+    let got: Vec<&[usize]> = out.blocks.iter().map(|b| b.shape()).collect();
+    assert_eq!(got, want.iter().map(|s| &s[..]).collect::<Vec<_>>());
+    let got: Vec<&[usize]> = out.aggregated.iter().map(|b| b.shape()).collect();
+    assert_eq!(got, want.iter().map(|s| &s[..]).collect::<Vec<_>>());
+    let stride1 = NetworkConfig { channels: 4, b1_stride: 1, ..NetworkConfig::default() };
+    let net = FeatureNet::new(weights(&stride1, 1)).unwrap();
+    let out = net.forward(image(13, 17, 1).view(), NetworkImpl::FAST).unwrap();
+    let got: Vec<&[usize]> = out.blocks.iter().map(|b| b.shape()).collect();
+    assert_eq!(got, vec![&[13, 17, 4][..], &[7, 9, 4], &[4, 5, 4], &[2, 3, 4], &[1, 2, 4]]);
+}
+
+#[test]
+fn odd_sizes_give_ceil_sizes_for_every_configuration() {
+    for config in every_config(3) {
+        let net = FeatureNet::new(weights(&config, 2)).unwrap();
+        for (h, w) in [(1, 1), (17, 13), (13, 17), (33, 47)] {
+            let out = net.forward(image(h, w, 3).view(), NetworkImpl::FAST).unwrap();
+            assert_eq!(out.blocks.len(), config.blocks);
+            assert_eq!(out.aggregated.len(), config.blocks);
+            for k in 0..config.blocks {
+                let l = config.block_level(k);
+                let want = [h.div_ceil(1 << l), w.div_ceil(1 << l), 3];
+                assert_eq!(out.blocks[k].shape(), want, "{config:?} {h}x{w} block {k}");
+                assert_eq!(out.aggregated[k].shape(), want, "{config:?} {h}x{w} aggregate {k}");
+                assert!(out.aggregated[k].iter().all(|v| v.is_finite()));
+            }
+            assert_eq!(out.features(), &out.aggregated[0]);
+            assert_eq!(out.aggregated[config.blocks - 1], out.blocks[config.blocks - 1]);
+        }
+    }
+}
+
+#[test]
+fn padding_replicates_bottom_right_edges_and_keeps_the_origin() {
+    // Running on an image pre-padded by edge replication to the total stride, then cropping, gives
+    // exactly the features of the unpadded image (SPEC §8.2).
+    let config = NetworkConfig { channels: 4, ..NetworkConfig::default() };
+    let net = FeatureNet::new(weights(&config, 4)).unwrap();
+    let img = image(17, 13, 4);
+    let padded = pad_edge(img.view(), 32, 32);
+    assert_eq!(padded[[31, 31, 2]], img[[16, 12, 2]]);
+    assert_eq!(padded[[5, 20, 1]], img[[5, 12, 1]]);
+    let a = net.forward(img.view(), NetworkImpl::FAST).unwrap();
+    let b = net.forward(padded.view(), NetworkImpl::FAST).unwrap();
+    for k in 0..config.blocks {
+        let (h, w, _) = a.aggregated[k].dim();
+        let crop = b.aggregated[k].slice(ndarray::s![..h, ..w, ..]).to_owned();
+        assert_eq!(bits(&a.aggregated[k]), bits(&crop), "aggregate {k}");
+    }
+}
+
+#[test]
+fn input_mean_is_subtracted_without_scaling() {
+    // Shifting the image and the mean by the same integers changes nothing (exact in f32).
+    let base = NetworkConfig { blocks: 3, channels: 4, b1_stride: 2, input_mean: [0.0; 3] };
+    let shift = [10.0f32, 20.0, 30.0];
+    let mut w0 = weights(&base, 5);
+    let img = image(20, 24, 5);
+    let out0 = FeatureNet::new(w0.clone()).unwrap().forward(img.view(), NetworkImpl::FAST).unwrap();
+    w0.config.input_mean = shift;
+    let mut shifted = img.clone();
+    for ((_, _, c), v) in shifted.indexed_iter_mut() {
+        *v += shift[c];
+    }
+    let out1 = FeatureNet::new(w0).unwrap().forward(shifted.view(), NetworkImpl::FAST).unwrap();
+    assert_eq!(bits(out0.features()), bits(out1.features()));
+}
+
+/// Records every op with its shapes.
+struct Recorder(Vec<String>);
+
+impl Executor for Recorder {
+    type Map = Array3<f32>;
+    fn image(&mut self, image: &Array3<f32>) -> densefeat::Result<Array3<f32>> {
+        self.0.push(format!("image {:?}", image.shape()));
+        Ok(image.clone())
+    }
+    fn conv(
+        &mut self,
+        x: &Self::Map,
+        l: &LayerParams,
+        stride: usize,
+        act: Activation,
+    ) -> densefeat::Result<Self::Map> {
+        let (h, w, _) = x.dim();
+        let c = l.weight.shape()[0];
+        self.0.push(format!("conv {:?} -> c{c} s{stride} {act:?}", x.shape()));
+        Ok(Array3::zeros(((h - 1) / stride + 1, (w - 1) / stride + 1, c)))
+    }
+    fn deconv(&mut self, x: &Self::Map, l: &LayerParams) -> densefeat::Result<Self::Map> {
+        let (h, w, _) = x.dim();
+        self.0.push(format!("deconv {:?}", x.shape()));
+        Ok(Array3::zeros((2 * h, 2 * w, l.weight.shape()[1])))
+    }
+    fn concat(&mut self, a: &Self::Map, b: &Self::Map) -> densefeat::Result<Self::Map> {
+        self.0.push(format!("concat {:?} {:?}", a.shape(), b.shape()));
+        Ok(ndarray::concatenate(ndarray::Axis(2), &[a.view(), b.view()]).unwrap())
+    }
+    fn add(&mut self, a: &Self::Map, b: &Self::Map) -> densefeat::Result<Self::Map> {
+        self.0.push(format!("add {:?} {:?}", a.shape(), b.shape()));
+        Ok(a + b)
+    }
+    fn crop(&mut self, x: &Self::Map, h: usize, w: usize) -> Self::Map {
+        x.slice(ndarray::s![..h, ..w, ..]).to_owned()
+    }
+}
+
+#[test]
+fn network_structure_matches_spec() {
+    // B1 stride 1, 3 blocks, 8 channels, 10x6 image padded to 12x8 (total stride 4).
+    let config = NetworkConfig { blocks: 3, channels: 8, b1_stride: 1, input_mean: [0.0; 3] };
+    let mut rec = Recorder(Vec::new());
+    run_network(&mut rec, &weights(&config, 6), image(6, 10, 6).view()).unwrap();
+    let want = [
+        "image [8, 12, 3]",
+        "conv [8, 12, 3] -> c8 s1 Relu",
+        "conv [8, 12, 8] -> c8 s1 Relu",
+        "conv [8, 12, 8] -> c8 s1 None",
+        "image [8, 12, 3]",
+        "concat [8, 12, 8] [8, 12, 3]",
+        "conv [8, 12, 11] -> c8 s2 Relu",
+        "conv [4, 6, 8] -> c8 s1 Relu",
+        "conv [4, 6, 8] -> c8 s1 None",
+        "image [4, 6, 3]",
+        "concat [4, 6, 8] [4, 6, 3]",
+        "conv [4, 6, 11] -> c8 s2 Relu",
+        "conv [2, 3, 8] -> c8 s1 Relu",
+        "conv [2, 3, 8] -> c8 s1 None",
+        "deconv [2, 3, 8]",
+        "add [4, 6, 8] [4, 6, 8]",
+        "deconv [4, 6, 8]",
+        "add [8, 12, 8] [8, 12, 8]",
+    ];
+    assert_eq!(rec.0, want);
+}
+
+fn max_abs(a: &Array3<f32>) -> f64 {
+    a.iter().fold(0.0f64, |m, v| m.max(f64::from(v.abs())))
+}
+
+fn max_diff(a: &Array3<f32>, b: &Array3<f32>) -> f64 {
+    a.iter().zip(b.iter()).fold(0.0f64, |m, (x, y)| m.max(f64::from((x - y).abs())))
+}
+
+fn cases() -> impl Iterator<Item = (NetworkConfig, usize, usize)> {
+    every_config(6).map(|c| (c, 17, 13)).chain([(NetworkConfig::default(), 33, 47)])
+}
+
+#[test]
+fn every_fast_layer_meets_its_budget_inside_the_network() {
+    let mut worst = 0.0f64;
+    for (i, (config, h, w)) in cases().enumerate() {
+        let wts = weights(&config, 10 + i as u64);
+        let mut check = LayerCheckExecutor::new(NetworkImpl::FAST);
+        run_network(&mut check, &wts, image(h, w, 20 + i as u64).view()).unwrap();
+        assert_eq!(check.layers, depth(&config), "{config:?}");
+        assert!(check.failures.is_empty(), "{config:?} {h}x{w}:\n{}", check.failures.join("\n"));
+        assert!(check.worst_fraction <= 1.0);
+        worst = worst.max(check.worst_fraction);
+    }
+    eprintln!("largest |fast - ref| / (2 K eps M) over all layers: {worst:e}");
+}
+
+#[test]
+fn fast_network_matches_reference_network_within_relative_budget() {
+    let mut worst = 0.0f64;
+    for (i, (config, h, w)) in cases().enumerate() {
+        let wts = weights(&config, 10 + i as u64);
+        let img = image(h, w, 20 + i as u64);
+        let net = FeatureNet::new(wts).unwrap();
+        let fast = net.forward(img.view(), NetworkImpl::FAST).unwrap();
+        let reference = net.forward(img.view(), NetworkImpl::REFERENCE).unwrap();
+        let budget = relative_budget(&config);
+        for (name, got, want) in [
+            ("block", &fast.blocks, &reference.blocks),
+            ("aggregate", &fast.aggregated, &reference.aggregated),
+        ] {
+            for (k, (g, r)) in got.iter().zip(want).enumerate() {
+                let rel = max_diff(g, r) / max_abs(r);
+                worst = worst.max(rel);
+                assert!(
+                    rel <= budget,
+                    "{config:?} {h}x{w} {name} {k}: relative error {rel:e} > budget {budget:e}"
+                );
+            }
+        }
+    }
+    eprintln!("largest max|fast - ref| / max|ref|: {worst:e}");
+}
+
+#[test]
+fn relative_budget_of_the_paper_network() {
+    // 5 blocks: 15 convs + 4 deconvs; K_max = 9 · 35.
+    let config = NetworkConfig::default();
+    assert_eq!((depth(&config), max_products(&config)), (19, 315));
+    assert!((relative_budget(&config) - 19.0 * 2.0 * 315.0 * f64::from(f32::EPSILON)).abs() < 1e-15);
+}
+
+#[test]
+fn features_independent_of_thread_count() {
+    let net = FeatureNet::new(weights(&NetworkConfig::default(), 8)).unwrap();
+    let img = image(47, 61, 8);
+    let run = |n: usize| thread_pool(n).install(|| net.forward(img.view(), NetworkImpl::FAST).unwrap());
+    let one = run(1);
+    for n in [2, 3, 8] {
+        let other = run(n);
+        for k in 0..one.blocks.len() {
+            assert_eq!(bits(&other.blocks[k]), bits(&one.blocks[k]), "threads = {n}, block {k}");
+            assert_eq!(bits(&other.aggregated[k]), bits(&one.aggregated[k]), "threads = {n}, aggregate {k}");
+        }
+    }
+}
+
+#[test]
+fn flops_count_every_layer() {
+    let net = FeatureNet::new(weights(&NetworkConfig::default(), 9)).unwrap();
+    // 320x240, B1 stride 2, padded to 320x256: levels 1..5 of 160x128, 80x64, 40x32, 20x16, 10x8.
+    let pixels = [20480.0, 5120.0, 1280.0, 320.0, 80.0];
+    let mut want = 0.0;
+    for (k, p) in pixels.iter().enumerate() {
+        let c_in = if k == 0 { 3.0 } else { 35.0 };
+        want += 2.0 * 9.0 * p * 32.0 * (c_in + 64.0);
+        if k > 0 {
+            want += 2.0 * 25.0 * p * 32.0 * 32.0;
+        }
+    }
+    assert_eq!(net.flops(240, 320), want);
+}
+
+#[test]
+fn rejects_images_that_are_not_rgb() {
+    let net =
+        FeatureNet::new(weights(&NetworkConfig { channels: 2, ..NetworkConfig::default() }, 1)).unwrap();
+    assert!(net.forward(Array3::zeros((4, 4, 1)).view(), NetworkImpl::FAST).is_err());
+    assert!(net.forward(Array3::zeros((0, 4, 3)).view(), NetworkImpl::FAST).is_err());
+}

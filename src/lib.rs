@@ -31,6 +31,7 @@
 
 pub mod cli;
 pub mod costvolume;
+pub mod dtam;
 pub mod error;
 pub mod eval;
 pub mod geometry;

@@ -1,0 +1,211 @@
+//! The DTAM optimiser (Newcombe, Lovegrove and Davison, ICCV 2011) as the paper uses it (eq. 3,
+//! data term weighted by `1/λ`): a Huber-TV regularised inverse-depth map `d` from a cost volume.
+//!
+//! Energy over reference pixels `u`, with an auxiliary inverse-depth map `a` coupled to `d`:
+//!
+//! ```text
+//! E_θ(d, a) = Σ_u  g(u) ‖∇d(u)‖_ε  +  1/(2θ) (d(u) - a(u))²  +  1/λ · C(u, a(u))
+//! ```
+//!
+//! - `‖x‖_ε` is the Huber norm (`|x|²/(2ε)` for `|x| <= ε`, else `|x| - ε/2`), `∇` forward
+//!   differences with a zero difference across the last row/column (Neumann boundary);
+//! - `g = exp(-α ‖∇I‖^β)` down-weights smoothing across image edges (`I` = grey level / 255);
+//! - `C(u, ρ)` the averaged cost volume (`crate::costvolume`), sampled at hypotheses `ρ_k`.
+//!
+//! Each iteration `n`: one Chambolle-Pock primal-dual step on `(d, q)` for fixed `a`
+//! ([`huber_tv`]); then, for fixed `d`, a point-wise exhaustive search for `a` over the hypotheses
+//! with a sub-bin parabola refinement ([`search`]); then `θ` decreases geometrically from
+//! `θ_start` to `θ_end`. The iteration that reaches `θ_end` is the last (DTAM's stopping rule).
+//! SPEC.md §10 gives every formula and default.
+
+mod edge;
+pub mod huber_tv;
+pub mod search;
+
+use std::time::Instant;
+
+use ndarray::{Array2, ArrayView2, ArrayView3};
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::geometry::InverseDepthBins;
+
+pub use edge::edge_weights;
+pub use huber_tv::{HuberTv, HuberTvReport};
+pub use search::{exhaustive_search, CostRange};
+
+/// Parameters of [`solve`]. Every field has a CLI flag (`densefeat reconstruct --help`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct DtamParams {
+    /// Regularisation strength: the data term is weighted by `1/λ` (paper eq. 3).
+    pub lambda: f64,
+    /// Huber threshold `ε` on inverse-depth differences between neighbouring pixels, 1/m.
+    pub epsilon: f64,
+    /// Edge weight `g = exp(-α ‖∇I‖^β)`: `α`.
+    pub alpha: f64,
+    /// Edge weight exponent `β`.
+    pub beta: f64,
+    /// First coupling weight `θ` (1/m²-scaled inverse-depth units).
+    pub theta_start: f64,
+    /// Last coupling weight.
+    pub theta_end: f64,
+    /// Number of iterations (θ decays geometrically from `theta_start` to `theta_end` over them).
+    pub iterations: usize,
+}
+
+impl Default for DtamParams {
+    fn default() -> Self {
+        Self {
+            lambda: DEFAULT_LAMBDA,
+            epsilon: 1e-3,
+            alpha: 10.0,
+            beta: 1.0,
+            theta_start: 0.05,
+            theta_end: 1e-5,
+            iterations: 200,
+        }
+    }
+}
+
+/// Default `λ` for RGB cost volumes (mean L1 over 3 channels in grey levels), from a sweep on the
+/// hand-built plane scenes of tests/dtam.rs (SPEC.md §10); learned features need their own value.
+pub const DEFAULT_LAMBDA: f64 = 300.0;
+
+impl DtamParams {
+    /// Check every field.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming the first field out of range.
+    pub fn validate(&self) -> Result<()> {
+        let pos = |name: &str, v: f64| {
+            if v > 0.0 && v.is_finite() {
+                Ok(())
+            } else {
+                Err(Error::invalid_argument(name, format!("{v}: must be positive and finite")))
+            }
+        };
+        pos("lambda", self.lambda)?;
+        pos("epsilon", self.epsilon)?;
+        pos("theta-start", self.theta_start)?;
+        pos("theta-end", self.theta_end)?;
+        if !(self.alpha >= 0.0 && self.alpha.is_finite() && self.beta > 0.0 && self.beta.is_finite()) {
+            return Err(Error::invalid_argument(
+                "alpha/beta",
+                format!("α = {}, β = {}: need α >= 0, β > 0", self.alpha, self.beta),
+            ));
+        }
+        if self.theta_end > self.theta_start {
+            return Err(Error::invalid_argument(
+                "theta",
+                format!("theta-end {} > theta-start {}", self.theta_end, self.theta_start),
+            ));
+        }
+        if self.iterations == 0 {
+            return Err(Error::invalid_argument("iterations", "need at least 1"));
+        }
+        Ok(())
+    }
+
+    /// `θ` at iteration `n` (`0 <= n < iterations`): `θ_start (θ_end/θ_start)^(n/(N-1))`.
+    pub fn theta(&self, n: usize) -> f64 {
+        if self.iterations == 1 {
+            return self.theta_end;
+        }
+        let s = n as f64 / (self.iterations - 1) as f64;
+        self.theta_start * (self.theta_end / self.theta_start).powf(s)
+    }
+}
+
+/// What a [`solve`] did: solver outcomes are data, not errors.
+#[derive(Clone, Debug, Serialize)]
+pub struct DtamReport {
+    /// Iterations run.
+    pub iterations: usize,
+    /// Full energy `E_θ(d, a)` after each iteration (with that iteration's `θ`).
+    pub energy: Vec<f64>,
+    /// Wall time of the whole solve, seconds.
+    pub seconds: f64,
+}
+
+/// The regularised result.
+#[derive(Clone, Debug)]
+pub struct DtamResult {
+    /// Inverse depth `d`, 1/m, `[H, W]`.
+    pub inverse_depth: Array2<f32>,
+    /// The auxiliary `a` of the last iteration (the data-term solution near `d`).
+    pub auxiliary: Array2<f32>,
+}
+
+/// Run DTAM on `costs` (`[H, W, K]`, cells `>= crate::costvolume::UNSEEN_COST` are unseen and
+/// skipped), starting from `init` inverse depth (typically winner-take-all), with edge weights from
+/// the reference image's grey levels `grey` (`[H, W]`, 0-255).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for bad parameters or mismatched shapes.
+pub fn solve(
+    costs: ArrayView3<f32>,
+    bins: &InverseDepthBins,
+    grey: ArrayView2<f32>,
+    init: ArrayView2<f32>,
+    params: &DtamParams,
+) -> Result<(DtamResult, DtamReport)> {
+    params.validate()?;
+    let (h, w, k) = costs.dim();
+    if k != bins.count || grey.dim() != (h, w) || init.dim() != (h, w) {
+        return Err(Error::invalid_argument(
+            "DTAM inputs",
+            format!(
+                "cost volume {:?} with {} bins, image {:?}, initial depth {:?}: sizes must agree",
+                costs.dim(),
+                bins.count,
+                grey.dim(),
+                init.dim()
+            ),
+        ));
+    }
+    let start = Instant::now();
+    let g = edge_weights(grey, params.alpha, params.beta);
+    let range = CostRange::new(costs);
+    let mut tv = HuberTv::new(init.to_owned(), g, params.epsilon);
+    let mut a = init.to_owned();
+    let mut energy = Vec::with_capacity(params.iterations);
+    for n in 0..params.iterations {
+        let theta = params.theta(n);
+        tv.step(a.view(), theta);
+        a = exhaustive_search(costs, &range, bins, tv.primal(), theta, params.lambda);
+        energy.push(total_energy(&tv, costs, bins, a.view(), theta, params.lambda));
+    }
+    let report = DtamReport { iterations: params.iterations, energy, seconds: start.elapsed().as_secs_f64() };
+    Ok((DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report))
+}
+
+/// `E_θ(d, a)`, with `C(u, a)` linearly interpolated between hypotheses (unseen: 0). Summed per row
+/// in f64, rows in order: the same bits for any thread count.
+pub fn total_energy(
+    tv: &HuberTv,
+    costs: ArrayView3<f32>,
+    bins: &InverseDepthBins,
+    a: ArrayView2<f32>,
+    theta: f64,
+    lambda: f64,
+) -> f64 {
+    let d = tv.primal();
+    let (h, w, k) = costs.dim();
+    let mut data = 0.0;
+    let mut coupling = 0.0;
+    for y in 0..h {
+        for x in 0..w {
+            let diff = d[[y, x]] as f64 - a[[y, x]] as f64;
+            coupling += diff * diff / (2.0 * theta);
+            let b = bins.bin_of(a[[y, x]] as f64).clamp(0.0, (k - 1) as f64);
+            let k0 = (b.floor() as usize).min(k.saturating_sub(2));
+            let t = b - k0 as f64;
+            let c0 = costs[[y, x, k0]];
+            let c1 = costs[[y, x, (k0 + 1).min(k - 1)]];
+            if c0 < search::UNSEEN && c1 < search::UNSEEN {
+                data += ((1.0 - t) * c0 as f64 + t * c1 as f64) / lambda;
+            }
+        }
+    }
+    tv.regulariser_energy() + coupling + data
+}

@@ -192,6 +192,6 @@ pub fn run(args: BenchArgs) -> Result<()> {
     match &args.what {
         BenchCommand::Forward(a) => run_forward(a),
         BenchCommand::Gemm(a) => run_gemm(a),
-        BenchCommand::Costvolume(a) => super::bench_costvolume::run(a),
+        BenchCommand::Costvolume(a) => super::bench_costvolume::run(a.clone()),
     }
 }

@@ -37,6 +37,7 @@ pub mod eval;
 pub mod geometry;
 pub mod image;
 pub mod io;
+pub mod mapping;
 pub mod nn;
 pub mod sequence;
 pub mod synth;

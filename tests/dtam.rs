@@ -223,3 +223,20 @@ fn fronto_parallel_and_slanted_planes_are_recovered() {
         assert!(e_tv < e_wta / 3.0, "{name}: TV {e_tv} vs WTA {e_wta}");
     }
 }
+
+#[test]
+fn shipped_weights_are_built_in_and_rgb_matches_their_grid() {
+    use densefeat::mapping::{FeatureExtractor, FeatureKind};
+    let level = FeatureExtractor::network_level().unwrap();
+    let learned = FeatureExtractor::new(FeatureKind::Learned(None), 0).unwrap();
+    let rgb = FeatureExtractor::new(FeatureKind::Rgb, level).unwrap();
+    let img = Array3::from_shape_fn((24, 33, 3), |(y, x, c)| ((y * 7 + x * 3 + c * 50) % 256) as f32);
+    let (fl, fr) = (learned.extract(&img).unwrap(), rgb.extract(&img).unwrap());
+    assert_eq!((fl.level, fr.level), (level, level));
+    assert_eq!((fl.data.dim().0, fl.data.dim().1), (fr.data.dim().0, fr.data.dim().1));
+    assert_eq!(fl.data.dim().2, 32);
+    let k = PinholeCamera::new(30.0, 30.0, 16.0, 11.5, 33, 24).unwrap();
+    assert_eq!(learned.camera(&k).width, fl.data.dim().1);
+    assert!("learned=x.safetensors".parse::<FeatureKind>().is_ok());
+    assert!("sift".parse::<FeatureKind>().is_err());
+}

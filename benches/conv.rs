@@ -1,15 +1,23 @@
 //! Convolution benches over the network's shapes (SPEC.md §7). Names: `<impl>_<op>_<shape>`.
 //! Throughput is reported in elements = FLOPs (`2 · 9 c_in · h_out · w_out · c_out`), so criterion's
-//! "elem/s" reads as FLOP/s.
+//! "elem/s" reads as FLOP/s. Threads: rayon's global pool, so `RAYON_NUM_THREADS=1 cargo bench
+//! --bench conv` measures one thread.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use densefeat::nn::conv2d::{conv2d_im2col, im2col, scratch_len, PackedConv2d};
+use densefeat::nn::conv2d::{conv2d_direct, conv2d_im2col, direct, im2col, scratch_len, PackedConv2d};
 use densefeat::nn::{Activation, Conv2dGeometry};
 use ndarray::{Array1, Array3, Array4};
 use std::hint::black_box;
 
-/// The shapes we run: (h, w, c_in, c_out, stride).
-const SHAPES: [(usize, usize, usize, usize, usize); 2] = [(240, 320, 32, 32, 1), (120, 160, 35, 32, 2)];
+/// The shapes we run: (h, w, c_in, c_out, stride). B1's first layer is 3 -> 32; the 35-channel
+/// inputs are a coarser block's 32 features concatenated with the downsampled RGB image.
+const SHAPES: [(usize, usize, usize, usize, usize); 5] = [
+    (240, 320, 32, 32, 1),
+    (120, 160, 35, 32, 2),
+    (240, 320, 35, 32, 2),
+    (240, 320, 3, 32, 1),
+    (480, 640, 32, 32, 1),
+];
 
 fn pattern(n: usize, seed: u64) -> impl FnMut() -> f32 {
     let mut s = seed.wrapping_add(n as u64);
@@ -37,6 +45,13 @@ fn bench_conv(c: &mut Criterion) {
         group.bench_function(format!("im2col_conv2d_{h}x{w}_c{c_in}to{c_out}_s{stride}"), |bench| {
             bench.iter(|| {
                 conv2d_im2col(&packed, black_box(xs), Activation::Relu, &mut scratch, &mut out).expect("run");
+                black_box(&out);
+            })
+        });
+        let kernel = direct::kernel_name(&g);
+        group.bench_function(format!("direct_conv2d_{h}x{w}_c{c_in}to{c_out}_s{stride}_{kernel}"), |bench| {
+            bench.iter(|| {
+                conv2d_direct(&packed, black_box(xs), Activation::Relu, &mut out).expect("run");
                 black_box(&out);
             })
         });

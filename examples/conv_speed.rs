@@ -1,0 +1,79 @@
+//! Interleaved A/B timing of the conv2d implementations on the network's shapes, for a shared,
+//! noisy machine: each round runs every (shape, implementation, thread count) once, in turn, and
+//! the report gives the median and best GFLOP/s (`2 · 9 c_in · h_out · w_out · c_out / time`).
+//!
+//! `cargo run --release --example conv_speed [rounds]`
+
+use densefeat::nn::conv2d::{conv2d_direct, conv2d_im2col, direct, im2col, scratch_len, PackedConv2d};
+use densefeat::nn::{Activation, Conv2dGeometry};
+use ndarray::{Array1, Array3, Array4};
+use std::time::Instant;
+
+/// (h, w, c_in, c_out, stride), as in benches/conv.rs.
+const SHAPES: [(usize, usize, usize, usize, usize); 5] = [
+    (240, 320, 32, 32, 1),
+    (120, 160, 35, 32, 2),
+    (240, 320, 35, 32, 2),
+    (240, 320, 3, 32, 1),
+    (480, 640, 32, 32, 1),
+];
+
+fn main() {
+    let rounds: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(15);
+    let pools: Vec<_> = [1, 2]
+        .iter()
+        .map(|&n| rayon::ThreadPoolBuilder::new().num_threads(n).build().expect("pool"))
+        .collect();
+    println!("| shape | impl | threads | median GFLOP/s | best GFLOP/s | median ms |");
+    println!("|---|---|---|---|---|---|");
+    for (h, w, c_in, c_out, stride) in SHAPES {
+        let g = Conv2dGeometry::new(h, w, c_in, c_out, stride).expect("shape");
+        let mut s = 1u64;
+        let mut next = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 40) as f32 / (1u64 << 24) as f32) - 0.5
+        };
+        let x = Array3::from_shape_simple_fn(g.input_shape(), &mut next);
+        let wt = Array4::from_shape_simple_fn(g.weight_shape(), &mut next);
+        let b = Array1::from_shape_simple_fn(c_out, &mut next);
+        let packed = PackedConv2d::new(&g, wt.view(), b.view()).expect("pack");
+        let xs = x.as_slice().expect("contiguous");
+        let mut out = vec![0.0f32; g.output_shape().iter().product()];
+        let mut scratch = vec![0.0f32; 8 * scratch_len(&g)];
+        let lanes = 8.min(im2col::n_blocks(&g));
+        let names = ["im2col".to_string(), format!("direct ({})", direct::kernel_name(&g))];
+        // times[impl][pool]
+        let mut times = vec![vec![Vec::new(); pools.len()]; 2];
+        for _ in 0..rounds {
+            for (p, pool) in pools.iter().enumerate() {
+                for (i, ti) in times.iter_mut().enumerate() {
+                    let t0 = Instant::now();
+                    pool.install(|| {
+                        if i == 0 {
+                            let scr = &mut scratch[..lanes * scratch_len(&g)];
+                            conv2d_im2col(&packed, xs, Activation::Relu, scr, &mut out).expect("run");
+                        } else {
+                            conv2d_direct(&packed, xs, Activation::Relu, &mut out).expect("run");
+                        }
+                    });
+                    ti[p].push(t0.elapsed().as_secs_f64());
+                    std::hint::black_box(&out);
+                }
+            }
+        }
+        for (i, ti) in times.iter_mut().enumerate() {
+            for (p, t) in ti.iter_mut().enumerate() {
+                t.sort_by(f64::total_cmp);
+                let (med, best) = (t[t.len() / 2], t[0]);
+                println!(
+                    "| {h}x{w} {c_in}->{c_out} s{stride} | {} | {} | {:.0} | {:.0} | {:.2} |",
+                    names[i],
+                    p + 1,
+                    g.flops() / med * 1e-9,
+                    g.flops() / best * 1e-9,
+                    med * 1e3
+                );
+            }
+        }
+    }
+}

@@ -5,7 +5,8 @@
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use densefeat::nn::conv2d::{conv2d_direct, conv2d_im2col, direct, im2col, scratch_len, PackedConv2d};
-use densefeat::nn::{Activation, Conv2dGeometry};
+use densefeat::nn::{conv2d, Activation, Conv2dGeometry, Conv2dImpl};
+use densefeat::testing::within_budget;
 use ndarray::{Array1, Array3, Array4};
 use std::hint::black_box;
 
@@ -27,6 +28,23 @@ fn pattern(n: usize, seed: u64) -> impl FnMut() -> f32 {
     }
 }
 
+/// Correctness first: Direct and Im2colGemm agree within twice the §7.5 budget (each is within one
+/// budget of the reference; Σ|x||w| + |b| comes from Im2colGemm on the absolute values).
+fn check_direct_against_im2col(g: &Conv2dGeometry, x: &Array3<f32>, w: &Array4<f32>, b: &Array1<f32>) {
+    let run = |imp, x: &Array3<f32>, w: &Array4<f32>, b: &Array1<f32>, act| {
+        conv2d(imp, g, x.view(), w.view(), b.view(), act).expect("run")
+    };
+    let direct = run(Conv2dImpl::Direct, x, w, b, Activation::Relu);
+    let gemm = run(Conv2dImpl::Im2colGemm, x, w, b, Activation::Relu);
+    let abs = |a: f32| a.abs();
+    let magnitude = run(Conv2dImpl::Im2colGemm, &x.mapv(abs), &w.mapv(abs), &b.mapv(abs), Activation::None);
+    // 1.01: the magnitude itself is an f32 sum, slightly below Σ|x||w| + |b| at worst.
+    let budget = 2.0 * 2.0 * g.k() as f32 * f32::EPSILON * 1.01;
+    if let Err(e) = within_budget(direct.view(), gemm.view(), magnitude.view(), budget) {
+        panic!("direct disagrees with im2col on {g:?}: {e}");
+    }
+}
+
 fn bench_conv(c: &mut Criterion) {
     let mut group = c.benchmark_group("conv2d");
     group.sample_size(20);
@@ -41,6 +59,7 @@ fn bench_conv(c: &mut Criterion) {
         let mut scratch = vec![0.0; lanes * scratch_len(&g)];
         let mut out = vec![0.0; g.output_shape().iter().product()];
         let xs = x.as_slice().expect("contiguous");
+        check_direct_against_im2col(&g, &x, &wt, &b);
         group.throughput(Throughput::Elements(g.flops() as u64));
         group.bench_function(format!("im2col_conv2d_{h}x{w}_c{c_in}to{c_out}_s{stride}"), |bench| {
             bench.iter(|| {

@@ -2,7 +2,7 @@
 //! noisy machine: each round runs every (shape, implementation, thread count) once, in turn, and
 //! the report gives the median and best GFLOP/s (`2 · 9 c_in · h_out · w_out · c_out / time`).
 //!
-//! `cargo run --release --example conv_speed [rounds]`
+//! `cargo run --release --example conv_speed [rounds] [shape filter, e.g. 640]`
 
 use densefeat::nn::conv2d::{conv2d_direct, conv2d_im2col, direct, im2col, scratch_len, PackedConv2d};
 use densefeat::nn::{Activation, Conv2dGeometry};
@@ -20,6 +20,7 @@ const SHAPES: [(usize, usize, usize, usize, usize); 5] = [
 
 fn main() {
     let rounds: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(15);
+    let filter = std::env::args().nth(2).unwrap_or_default();
     let pools: Vec<_> = [1, 2]
         .iter()
         .map(|&n| rayon::ThreadPoolBuilder::new().num_threads(n).build().expect("pool"))
@@ -28,6 +29,9 @@ fn main() {
     println!("|---|---|---|---|---|---|");
     for (h, w, c_in, c_out, stride) in SHAPES {
         let g = Conv2dGeometry::new(h, w, c_in, c_out, stride).expect("shape");
+        if !format!("{h}x{w} {c_in}->{c_out} s{stride}").contains(&filter) {
+            continue;
+        }
         let mut s = 1u64;
         let mut next = || {
             s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);

@@ -1,6 +1,10 @@
 //! Interleaved A/B timing of the conv2d implementations on the network's shapes, for a shared,
 //! noisy machine: each round runs every (shape, implementation, thread count) once, in turn, and
 //! the report gives the median and best GFLOP/s (`2 · 9 c_in · h_out · w_out · c_out / time`).
+//! On Linux it also gives GFLOP per on-CPU second of the pool's threads (from
+//! `/proc/thread-self/schedstat`, summed over the threads): time the threads spent descheduled by
+//! other load does not count, so this column is the kernel's speed per core when it runs (rayon's
+//! brief spinning counts as CPU time, so it is a lower bound).
 //!
 //! `cargo run --release --example conv_speed [rounds] [shape filter, e.g. 640]`
 
@@ -18,6 +22,19 @@ const SHAPES: [(usize, usize, usize, usize, usize); 5] = [
     (480, 640, 32, 32, 1),
 ];
 
+/// Nanoseconds the calling thread has run on a CPU (Linux), or 0 where unknown.
+fn thread_cpu_ns() -> u64 {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().and_then(|v| v.parse().ok()))
+        .unwrap_or(0)
+}
+
+/// On-CPU nanoseconds of all of a pool's threads.
+fn pool_cpu_ns(pool: &rayon::ThreadPool) -> u64 {
+    pool.broadcast(|_| thread_cpu_ns()).iter().sum()
+}
+
 fn main() {
     let rounds: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(15);
     let filter = std::env::args().nth(2).unwrap_or_default();
@@ -25,8 +42,8 @@ fn main() {
         .iter()
         .map(|&n| rayon::ThreadPoolBuilder::new().num_threads(n).build().expect("pool"))
         .collect();
-    println!("| shape | impl | threads | median GFLOP/s | best GFLOP/s | median ms |");
-    println!("|---|---|---|---|---|---|");
+    println!("| shape | impl | threads | median GFLOP/s | best GFLOP/s | median ms | GFLOP per CPU-s per thread |");
+    println!("|---|---|---|---|---|---|---|");
     for (h, w, c_in, c_out, stride) in SHAPES {
         let g = Conv2dGeometry::new(h, w, c_in, c_out, stride).expect("shape");
         if !format!("{h}x{w} {c_in}->{c_out} s{stride}").contains(&filter) {
@@ -48,9 +65,11 @@ fn main() {
         let names = ["im2col".to_string(), format!("direct ({})", direct::kernel_name(&g))];
         // times[impl][pool]
         let mut times = vec![vec![Vec::new(); pools.len()]; 2];
+        let mut cpu = vec![vec![0u64; pools.len()]; 2];
         for _ in 0..rounds {
             for (p, pool) in pools.iter().enumerate() {
                 for (i, ti) in times.iter_mut().enumerate() {
+                    let c0 = pool_cpu_ns(pool);
                     let t0 = Instant::now();
                     pool.install(|| {
                         if i == 0 {
@@ -61,6 +80,7 @@ fn main() {
                         }
                     });
                     ti[p].push(t0.elapsed().as_secs_f64());
+                    cpu[i][p] += pool_cpu_ns(pool) - c0;
                     std::hint::black_box(&out);
                 }
             }
@@ -69,13 +89,15 @@ fn main() {
             for (p, t) in ti.iter_mut().enumerate() {
                 t.sort_by(f64::total_cmp);
                 let (med, best) = (t[t.len() / 2], t[0]);
+                let per_cpu_s = g.flops() * rounds as f64 / (cpu[i][p] as f64 * 1e-9) * 1e-9;
                 println!(
-                    "| {h}x{w} {c_in}->{c_out} s{stride} | {} | {} | {:.0} | {:.0} | {:.2} |",
+                    "| {h}x{w} {c_in}->{c_out} s{stride} | {} | {} | {:.0} | {:.0} | {:.2} | {:.0} |",
                     names[i],
                     p + 1,
                     g.flops() / med * 1e-9,
                     g.flops() / best * 1e-9,
-                    med * 1e3
+                    med * 1e3,
+                    per_cpu_s
                 );
             }
         }

@@ -46,9 +46,11 @@ pub const STRIP: usize = 14;
 /// Output channels of the AVX-512 micro-kernel (two zmm registers of f32).
 pub const AVX512_C_OUT: usize = 32;
 
-/// Output pixels per parallel work unit to aim for; the input rows a unit reads (`s · rows + 2`
-/// rows of `w · c_in` floats, 250 KB for 640 x 32 channels) stay in the 2 MB L2.
-const TARGET_BLOCK_PIXELS: usize = 1024;
+/// FLOPs per parallel work unit to aim for (about 10 µs on one core): enough units for two threads
+/// to balance even on the coarsest maps (60 x 80 output: 30 units), few enough that rayon's per-unit
+/// cost stays negligible. A unit reads `s · rows + 2` input rows (250 KB for 640 x 32 channels),
+/// which stay in the 2 MB L2.
+const TARGET_BLOCK_FLOPS: usize = 2_000_000;
 
 /// A micro-kernel of [`Conv2dImpl::Direct`](super::Conv2dImpl::Direct).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -111,7 +113,8 @@ pub(crate) fn avx512f_detected() -> bool {
 
 /// Output rows per parallel work unit (fixed by the geometry; results do not depend on it).
 pub fn rows_per_block(geom: &Conv2dGeometry) -> usize {
-    (TARGET_BLOCK_PIXELS / geom.w_out()).clamp(1, geom.h_out())
+    let row_flops = 2 * geom.k() * geom.w_out() * geom.c_out();
+    TARGET_BLOCK_FLOPS.div_ceil(row_flops).clamp(1, geom.h_out())
 }
 
 /// Valid taps `k_lo .. k_hi` along one axis for output index `o`: those with input index

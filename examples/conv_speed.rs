@@ -42,7 +42,9 @@ fn main() {
         .iter()
         .map(|&n| rayon::ThreadPoolBuilder::new().num_threads(n).build().expect("pool"))
         .collect();
-    println!("| shape | impl | threads | median GFLOP/s | best GFLOP/s | median ms | GFLOP per CPU-s per thread |");
+    println!(
+        "| shape | impl | threads | median GFLOP/s | best GFLOP/s | median ms | GFLOP per CPU-s per thread |"
+    );
     println!("|---|---|---|---|---|---|---|");
     for (h, w, c_in, c_out, stride) in SHAPES {
         let g = Conv2dGeometry::new(h, w, c_in, c_out, stride).expect("shape");

@@ -8,7 +8,9 @@
 //!
 //! `cargo run --release --example conv_speed [rounds] [shape filter, e.g. 640]`
 
-use densefeat::nn::conv2d::{conv2d_direct, conv2d_im2col, direct, im2col, scratch_len, PackedConv2d};
+use densefeat::nn::conv2d::{
+    conv2d_direct, conv2d_direct_with, conv2d_im2col, direct, im2col, scratch_len, DirectKernel, PackedConv2d,
+};
 use densefeat::nn::{Activation, Conv2dGeometry};
 use ndarray::{Array1, Array3, Array4};
 use std::time::Instant;
@@ -64,10 +66,14 @@ fn main() {
         let mut out = vec![0.0f32; g.output_shape().iter().product()];
         let mut scratch = vec![0.0f32; 8 * scratch_len(&g)];
         let lanes = 8.min(im2col::n_blocks(&g));
-        let names = ["im2col".to_string(), format!("direct ({})", direct::kernel_name(&g))];
+        let names = [
+            "im2col".to_string(),
+            format!("direct ({})", direct::kernel_name(&g)),
+            "direct (portable)".into(),
+        ];
         // times[impl][pool]
-        let mut times = vec![vec![Vec::new(); pools.len()]; 2];
-        let mut cpu = vec![vec![0u64; pools.len()]; 2];
+        let mut times = vec![vec![Vec::new(); pools.len()]; names.len()];
+        let mut cpu = vec![vec![0u64; pools.len()]; names.len()];
         for _ in 0..rounds {
             for (p, pool) in pools.iter().enumerate() {
                 for (i, ti) in times.iter_mut().enumerate() {
@@ -77,8 +83,12 @@ fn main() {
                         if i == 0 {
                             let scr = &mut scratch[..lanes * scratch_len(&g)];
                             conv2d_im2col(&packed, xs, Activation::Relu, scr, &mut out).expect("run");
-                        } else {
+                        } else if i == 1 {
                             conv2d_direct(&packed, xs, Activation::Relu, &mut out).expect("run");
+                        } else {
+                            let portable = DirectKernel::Portable;
+                            conv2d_direct_with(portable, &packed, xs, Activation::Relu, &mut out)
+                                .expect("run");
                         }
                     });
                     ti[p].push(t0.elapsed().as_secs_f64());

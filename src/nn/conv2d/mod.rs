@@ -67,8 +67,9 @@ impl Conv2dImpl {
 
     /// The fastest implementation for the network's layers (all with `c_out = 32`) on this CPU:
     /// [`Conv2dImpl::Direct`] when the CPU has AVX-512F (its micro-kernel then runs every
-    /// `c_out = 32` layer 2-4x faster than [`Conv2dImpl::Im2colGemm`], SPEC.md §7.7), otherwise
-    /// `Im2colGemm` (Direct's portable kernel is slower than the GEMM). [`Default`] returns this.
+    /// `c_out = 32` layer about 2x faster than [`Conv2dImpl::Im2colGemm`], 4x on the 3-channel first
+    /// layer, SPEC.md §7.7), otherwise `Im2colGemm` (Direct's portable kernel is 3-4x slower than
+    /// the GEMM). [`Default`] returns this.
     /// When the geometry is known, [`Conv2dImpl::fastest_for`] also accounts for `c_out`.
     pub fn fastest() -> Conv2dImpl {
         if direct::avx512f_detected() {

@@ -48,7 +48,7 @@ pub const AVX512_C_OUT: usize = 32;
 
 /// FLOPs per parallel work unit to aim for (about 10 µs on one core): enough units for two threads
 /// to balance even on the coarsest maps (60 x 80 output: 30 units), few enough that rayon's per-unit
-/// cost stays negligible. A unit reads `s · rows + 2` input rows (250 KB for 640 x 32 channels),
+/// cost stays negligible. A unit reads `s (rows - 1) + 3` input rows (250 KB for 640 x 32 channels),
 /// which stay in the 2 MB L2.
 const TARGET_BLOCK_FLOPS: usize = 2_000_000;
 

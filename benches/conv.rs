@@ -1,21 +1,47 @@
 //! Convolution benches over the network's shapes (SPEC.md §7). Names: `<impl>_<op>_<shape>`.
 //! Throughput is reported in elements = FLOPs (`2 · 9 c_in · h_out · w_out · c_out`), so criterion's
-//! "elem/s" reads as FLOP/s.
+//! "elem/s" reads as FLOP/s. Threads: rayon's global pool, so `RAYON_NUM_THREADS=1 cargo bench
+//! --bench conv` measures one thread.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use densefeat::nn::conv2d::{conv2d_im2col, im2col, scratch_len, PackedConv2d};
-use densefeat::nn::{Activation, Conv2dGeometry};
+use densefeat::nn::conv2d::{conv2d_direct, conv2d_im2col, direct, im2col, scratch_len, PackedConv2d};
+use densefeat::nn::{conv2d, Activation, Conv2dGeometry, Conv2dImpl};
+use densefeat::testing::within_budget;
 use ndarray::{Array1, Array3, Array4};
 use std::hint::black_box;
 
-/// The shapes we run: (h, w, c_in, c_out, stride).
-const SHAPES: [(usize, usize, usize, usize, usize); 2] = [(240, 320, 32, 32, 1), (120, 160, 35, 32, 2)];
+/// The shapes we run: (h, w, c_in, c_out, stride). B1's first layer is 3 -> 32; the 35-channel
+/// inputs are a coarser block's 32 features concatenated with the downsampled RGB image.
+const SHAPES: [(usize, usize, usize, usize, usize); 5] = [
+    (240, 320, 32, 32, 1),
+    (120, 160, 35, 32, 2),
+    (240, 320, 35, 32, 2),
+    (240, 320, 3, 32, 1),
+    (480, 640, 32, 32, 1),
+];
 
 fn pattern(n: usize, seed: u64) -> impl FnMut() -> f32 {
     let mut s = seed.wrapping_add(n as u64);
     move || {
         s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         ((s >> 40) as f32 / (1u64 << 24) as f32) - 0.5
+    }
+}
+
+/// Correctness first: Direct and Im2colGemm agree within twice the §7.5 budget (each is within one
+/// budget of the reference; Σ|x||w| + |b| comes from Im2colGemm on the absolute values).
+fn check_direct_against_im2col(g: &Conv2dGeometry, x: &Array3<f32>, w: &Array4<f32>, b: &Array1<f32>) {
+    let run = |imp, x: &Array3<f32>, w: &Array4<f32>, b: &Array1<f32>, act| {
+        conv2d(imp, g, x.view(), w.view(), b.view(), act).expect("run")
+    };
+    let direct = run(Conv2dImpl::Direct, x, w, b, Activation::Relu);
+    let gemm = run(Conv2dImpl::Im2colGemm, x, w, b, Activation::Relu);
+    let abs = |a: f32| a.abs();
+    let magnitude = run(Conv2dImpl::Im2colGemm, &x.mapv(abs), &w.mapv(abs), &b.mapv(abs), Activation::None);
+    // 1.01: the magnitude itself is an f32 sum, slightly below Σ|x||w| + |b| at worst.
+    let budget = 2.0 * 2.0 * g.k() as f32 * f32::EPSILON * 1.01;
+    if let Err(e) = within_budget(direct.view(), gemm.view(), magnitude.view(), budget) {
+        panic!("direct disagrees with im2col on {g:?}: {e}");
     }
 }
 
@@ -33,10 +59,18 @@ fn bench_conv(c: &mut Criterion) {
         let mut scratch = vec![0.0; lanes * scratch_len(&g)];
         let mut out = vec![0.0; g.output_shape().iter().product()];
         let xs = x.as_slice().expect("contiguous");
+        check_direct_against_im2col(&g, &x, &wt, &b);
         group.throughput(Throughput::Elements(g.flops() as u64));
         group.bench_function(format!("im2col_conv2d_{h}x{w}_c{c_in}to{c_out}_s{stride}"), |bench| {
             bench.iter(|| {
                 conv2d_im2col(&packed, black_box(xs), Activation::Relu, &mut scratch, &mut out).expect("run");
+                black_box(&out);
+            })
+        });
+        let kernel = direct::kernel_name(&g);
+        group.bench_function(format!("direct_conv2d_{h}x{w}_c{c_in}to{c_out}_s{stride}_{kernel}"), |bench| {
+            bench.iter(|| {
+                conv2d_direct(&packed, black_box(xs), Activation::Relu, &mut out).expect("run");
                 black_box(&out);
             })
         });

@@ -2,7 +2,9 @@
 //! §7.5 budget, bit-identical results for any thread count, and known answers pinning PyTorch's
 //! semantics.
 
-use densefeat::nn::conv2d::{conv2d_im2col, im2col, scratch_len, PackedConv2d};
+use densefeat::nn::conv2d::{
+    conv2d_direct, conv2d_direct_with, conv2d_im2col, direct, im2col, scratch_len, DirectKernel, PackedConv2d,
+};
 use densefeat::nn::deconv2d::{deconv2d_fast, scratch_len as deconv_scratch_len, PackedDeconv2d};
 use densefeat::nn::geometry::DownsampleGeometry;
 use densefeat::nn::{
@@ -59,6 +61,20 @@ impl ConvCase {
     }
     fn run(&self, imp: Conv2dImpl) -> Array3<f32> {
         conv2d(imp, &self.g, self.x.view(), self.w.view(), self.b.view(), self.act).unwrap()
+    }
+    /// Runs Direct with a chosen kernel.
+    fn run_direct(&self, kernel: DirectKernel) -> Array3<f32> {
+        let packed = PackedConv2d::new(&self.g, self.w.view(), self.b.view()).unwrap();
+        let mut out = Array3::from_elem(self.g.output_shape(), f32::NAN);
+        conv2d_direct_with(
+            kernel,
+            &packed,
+            self.x.as_slice().unwrap(),
+            self.act,
+            out.as_slice_mut().unwrap(),
+        )
+        .unwrap();
+        out
     }
     /// The same case on |x|, |w|, |b| without activation: its reference output is Σ|x||w| + |b|.
     fn abs(&self) -> Self {
@@ -147,6 +163,20 @@ proptest! {
     }
 
     #[test]
+    fn direct_matches_reference(case in conv_cases()) {
+        let oracle = case.run(Conv2dImpl::Reference);
+        let magnitude = case.abs().run(Conv2dImpl::Reference);
+        let fast = case.run(Conv2dImpl::Direct);
+        within_budget(fast.view(), oracle.view(), magnitude.view(), budget(case.g.k()))?;
+        // Every kernel this CPU can run, not only the one Direct picks.
+        for kernel in DirectKernel::ALL.into_iter().filter(|k| k.supports(&case.g)) {
+            let got = case.run_direct(kernel);
+            within_budget(got.view(), oracle.view(), magnitude.view(), budget(case.g.k()))
+                .map_err(|e| TestCaseError::fail(format!("kernel {}: {e}", kernel.name())))?;
+        }
+    }
+
+    #[test]
     fn deconv_parity_gemm_matches_reference(case in deconv_cases()) {
         let fast = case.run(Deconv2dImpl::ParityGemm);
         let oracle = case.run(Deconv2dImpl::Reference);
@@ -212,6 +242,61 @@ fn im2col_output_independent_of_thread_count() {
             assert_eq!(bits(&run(n)), bits(&one), "shape {shape:?}, threads = {n}");
         }
     }
+}
+
+#[test]
+fn direct_output_independent_of_thread_count() {
+    for (shape, seed) in [
+        ((37, 29, 35, 32, 1), 7),
+        ((41, 30, 32, 8, 2), 8),
+        ((5, 300, 3, 32, 1), 9),
+        ((66, 47, 32, 32, 2), 10),
+    ] {
+        let case = ConvCase::new(shape, Activation::Relu, seed);
+        for kernel in DirectKernel::ALL.into_iter().filter(|k| k.supports(&case.g)) {
+            let run = |n| thread_pool(n).install(|| case.run_direct(kernel));
+            let one = run(1);
+            for n in [2, 3, 8] {
+                assert_eq!(bits(&run(n)), bits(&one), "shape {shape:?}, {}, threads = {n}", kernel.name());
+            }
+        }
+        let auto = thread_pool(3).install(|| case.run(Conv2dImpl::Direct));
+        assert_eq!(bits(&auto), bits(&case.run_direct(DirectKernel::select(&case.g))), "shape {shape:?}");
+    }
+}
+
+#[test]
+fn direct_selects_the_avx512_kernel_exactly_when_available() {
+    let g32 = Conv2dGeometry::new(9, 40, 35, 32, 2).unwrap();
+    let g8 = Conv2dGeometry::new(9, 40, 35, 8, 2).unwrap();
+    let avx512 = cfg!(target_arch = "x86_64") && avx512f_available();
+    let want = if avx512 { "avx512f-14x32" } else { "portable" };
+    assert_eq!(direct::kernel_name(&g32), want);
+    assert_eq!(direct::kernel_name(&g8), "portable");
+    assert_eq!(DirectKernel::Avx512F.supports(&g32), avx512);
+    assert!(!DirectKernel::Avx512F.supports(&g8));
+    assert_eq!(Conv2dImpl::fastest(), if avx512 { Conv2dImpl::Direct } else { Conv2dImpl::Im2colGemm });
+    assert_eq!(Conv2dImpl::default(), Conv2dImpl::fastest());
+    assert_eq!(Conv2dImpl::fastest_for(&g8), Conv2dImpl::Im2colGemm);
+    // conv2d_direct reports the kernel that ran; an unavailable kernel is an error, not a fallback.
+    let case = ConvCase::new((9, 40, 35, 8, 2), Activation::None, 4);
+    let packed = PackedConv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
+    let mut out = vec![0.0; case.g.output_shape().iter().product()];
+    let x = case.x.as_slice().unwrap();
+    assert_eq!(conv2d_direct(&packed, x, Activation::None, &mut out).unwrap(), DirectKernel::Portable);
+    assert!(conv2d_direct_with(DirectKernel::Avx512F, &packed, x, Activation::None, &mut out).is_err());
+    // Machines that run the AVX-512 checks say so in the test log.
+    eprintln!("direct kernel for c_out = 32: {}", direct::kernel_name(&g32));
+}
+
+#[cfg(target_arch = "x86_64")]
+fn avx512f_available() -> bool {
+    std::arch::is_x86_feature_detected!("avx512f")
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn avx512f_available() -> bool {
+    false
 }
 
 #[test]
@@ -471,6 +556,9 @@ fn kernels_reject_mismatched_shapes_and_short_scratch() {
     }
     let packed = PackedConv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
     let mut out = vec![0.0; case.g.output_shape().iter().product()];
+    let x = case.x.as_slice().unwrap();
+    assert!(conv2d_direct(&packed, &x[1..], Activation::None, &mut out).is_err());
+    assert!(conv2d_direct(&packed, x, Activation::None, &mut out[1..]).is_err());
     let mut short = vec![0.0; scratch_len(&case.g) - 1];
     assert!(
         conv2d_im2col(&packed, case.x.as_slice().unwrap(), Activation::None, &mut short, &mut out).is_err()

@@ -32,9 +32,10 @@ pub struct NetworkImpl {
 }
 
 impl NetworkImpl {
-    /// The fast kernels (the default).
-    pub const FAST: NetworkImpl =
-        NetworkImpl { conv: Conv2dImpl::Im2colGemm, deconv: Deconv2dImpl::ParityGemm };
+    /// The fast kernels (the default). In a network, `conv: Direct` runs every layer with
+    /// [`Conv2dImpl::fastest_for`] its geometry: Direct's AVX-512 kernel where it applies
+    /// (`c_out = 32` on an AVX-512F CPU), `Im2colGemm` otherwise (SPEC.md §7.7, §8.1).
+    pub const FAST: NetworkImpl = NetworkImpl { conv: Conv2dImpl::Direct, deconv: Deconv2dImpl::ParityGemm };
     /// The f64 reference kernels (the oracle; single-threaded and slow).
     pub const REFERENCE: NetworkImpl =
         NetworkImpl { conv: Conv2dImpl::Reference, deconv: Deconv2dImpl::Reference };
@@ -114,7 +115,11 @@ impl Executor for KernelExecutor {
     ) -> Result<Array3<f32>> {
         let (h, w, c_in) = dims(x);
         let g = Conv2dGeometry::new(h, w, c_in, l.weight.shape()[0], stride)?;
-        conv2d(self.0.conv, &g, x.view(), l.weight.view(), l.bias.view(), act)
+        let imp = match self.0.conv {
+            Conv2dImpl::Direct => Conv2dImpl::fastest_for(&g),
+            other => other,
+        };
+        conv2d(imp, &g, x.view(), l.weight.view(), l.bias.view(), act)
     }
     fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
         let (h, w, c_in) = dims(x);

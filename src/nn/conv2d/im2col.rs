@@ -57,6 +57,15 @@ impl PackedConv2d {
     pub fn geometry(&self) -> &Conv2dGeometry {
         &self.geom
     }
+    /// The packed weights `[9 c_in, c_out]`, row `(3 ky + kx) c_in + c` (the direct kernels read
+    /// the same layout as `[ky][kx][c][c_out]`).
+    pub fn weights(&self) -> &[f32] {
+        &self.weights
+    }
+    /// The bias `[c_out]`.
+    pub fn bias(&self) -> &[f32] {
+        &self.bias
+    }
 }
 
 /// Output rows per block (fixed by the geometry, so results never depend on the thread count).

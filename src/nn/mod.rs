@@ -77,6 +77,15 @@ pub(crate) fn expect_len(name: &str, actual: usize, expected: usize) -> Result<(
     }
 }
 
+/// How many parallel lanes of `lane_len` floats fit in `scratch` (at least one, else an error).
+pub(crate) fn scratch_lanes(name: &str, scratch: &[f32], lane_len: usize) -> Result<usize> {
+    let lanes = scratch.len() / lane_len;
+    if lanes == 0 {
+        return Err(Error::invalid_argument(name, format!("length {}, need at least {lane_len}", scratch.len())));
+    }
+    Ok(lanes)
+}
+
 /// One parallel task of a fast kernel: a contiguous range of work units (blocks of output rows),
 /// the output they write and the task's own scratch.
 pub(crate) struct Lane<'a> {

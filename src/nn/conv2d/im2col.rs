@@ -16,7 +16,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::nn::geometry::{Conv2dGeometry, CONV_KERNEL, CONV_PADDING};
-use crate::nn::{expect_len, expect_shape, split_lanes, Activation};
+use crate::nn::{expect_len, expect_shape, scratch_lanes, split_lanes, Activation};
 
 /// Output pixels per block to aim for: big enough for an efficient GEMM, small enough for the
 /// im2col block (`pixels · 9 c_in` floats) to stay in L2.
@@ -187,13 +187,7 @@ pub fn conv2d_im2col(
     expect_len("conv2d input", input.len(), geom.input_shape().iter().product())?;
     expect_len("conv2d output", out.len(), h_out * w_out * c_out)?;
     let lane_len = scratch_len(geom);
-    let lanes = scratch.len() / lane_len;
-    if lanes == 0 {
-        return Err(Error::invalid_argument(
-            "conv2d scratch",
-            format!("length {}, need at least {lane_len}", scratch.len()),
-        ));
-    }
+    let lanes = scratch_lanes("conv2d scratch", scratch, lane_len)?;
     let rpb = rows_per_block(geom);
     let block_out = rpb * w_out * c_out;
     split_lanes(n_blocks(geom), lanes, block_out, out, lane_len, scratch).into_par_iter().for_each(|lane| {

@@ -19,7 +19,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::nn::geometry::{Deconv2dGeometry, DECONV_KERNEL, DECONV_PADDING, DECONV_STRIDE};
-use crate::nn::{expect_len, expect_shape, split_lanes};
+use crate::nn::{expect_len, expect_shape, scratch_lanes, split_lanes};
 
 /// Number of output parities along one axis (the stride).
 const PARITIES: usize = DECONV_STRIDE;
@@ -164,13 +164,7 @@ pub fn deconv2d_fast(
     expect_len("deconv2d input", input.len(), geom.input_shape().iter().product())?;
     expect_len("deconv2d output", out.len(), h_out * w_out * c_out)?;
     let lane_len = scratch_len(geom);
-    let lanes = scratch.len() / lane_len;
-    if lanes == 0 {
-        return Err(Error::invalid_argument(
-            "deconv2d scratch",
-            format!("length {}, need at least {lane_len}", scratch.len()),
-        ));
-    }
+    let lanes = scratch_lanes("deconv2d scratch", scratch, lane_len)?;
     let pair_len = PARITIES * w_out * c_out;
     split_lanes(geom.h(), lanes, pair_len, out, lane_len, scratch).into_par_iter().for_each(|lane| {
         for (m, pair) in lane.units.zip(lane.out.chunks_exact_mut(pair_len)) {

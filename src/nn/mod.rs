@@ -81,7 +81,10 @@ pub(crate) fn expect_len(name: &str, actual: usize, expected: usize) -> Result<(
 pub(crate) fn scratch_lanes(name: &str, scratch: &[f32], lane_len: usize) -> Result<usize> {
     let lanes = scratch.len() / lane_len;
     if lanes == 0 {
-        return Err(Error::invalid_argument(name, format!("length {}, need at least {lane_len}", scratch.len())));
+        return Err(Error::invalid_argument(
+            name,
+            format!("length {}, need at least {lane_len}", scratch.len()),
+        ));
     }
     Ok(lanes)
 }

@@ -14,7 +14,7 @@
 use ndarray::{ArrayView1, ArrayView4};
 use rayon::prelude::*;
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::nn::geometry::{Conv2dGeometry, CONV_KERNEL, CONV_PADDING};
 use crate::nn::{expect_len, expect_shape, scratch_lanes, split_lanes, Activation};
 

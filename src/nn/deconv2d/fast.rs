@@ -17,7 +17,7 @@
 use ndarray::{ArrayView1, ArrayView4};
 use rayon::prelude::*;
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::nn::geometry::{Deconv2dGeometry, DECONV_KERNEL, DECONV_PADDING, DECONV_STRIDE};
 use crate::nn::{expect_len, expect_shape, scratch_lanes, split_lanes};
 

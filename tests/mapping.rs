@@ -41,7 +41,10 @@ fn tv_improves_on_wta_for_rgb() {
     assert_eq!((r.camera.width, r.camera.height), (160, 120));
     let wta = r.metrics(&r.wta).unwrap();
     let tv = r.metrics(r.tv.as_ref().unwrap()).unwrap();
-    eprintln!("WTA rms {:.4} δ<1.25 {:.4}; TV rms {:.4} δ<1.25 {:.4}", wta.rms, wta.delta_1_25, tv.rms, tv.delta_1_25);
+    eprintln!(
+        "WTA rms {:.4} δ<1.25 {:.4}; TV rms {:.4} δ<1.25 {:.4}",
+        wta.rms, wta.delta_1_25, tv.rms, tv.delta_1_25
+    );
     assert!(tv.rms < wta.rms, "TV rms {} >= WTA rms {}", tv.rms, wta.rms);
     assert!(tv.delta_1_25 > wta.delta_1_25);
     let report = r.dtam.as_ref().unwrap();
@@ -82,8 +85,10 @@ fn outputs_parse_back_and_leave_no_temp_files() {
     for f in &files {
         assert!(f.exists(), "{}", f.display());
     }
-    let names: Vec<String> =
-        std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
     assert!(names.iter().all(|n| !n.starts_with('.') && !n.contains(".tmp")), "{names:?}");
     assert_eq!(names.len(), files.len());
     for want in ["metrics.json", "keyframe.png", "depth_tv.pfm", "depth_wta_color.png", "cloud_tv.ply"] {
@@ -115,12 +120,7 @@ fn outputs_parse_back_and_leave_no_temp_files() {
     let end = ply.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
     let header = String::from_utf8(ply[..end].to_vec()).unwrap();
     assert!(header.starts_with("ply\nformat binary_little_endian 1.0\n"), "{header}");
-    let n: usize = header
-        .lines()
-        .find_map(|l| l.strip_prefix("element vertex "))
-        .unwrap()
-        .parse()
-        .unwrap();
+    let n: usize = header.lines().find_map(|l| l.strip_prefix("element vertex ")).unwrap().parse().unwrap();
     assert_eq!(n, tv.depth.iter().filter(|z| **z > 0.0).count());
     assert!(n > 0);
     assert_eq!(ply.len() - end, n * 15);

@@ -49,9 +49,14 @@ pub fn run(args: DemoArgs) -> Result<()> {
         args.mapping.depth_range.0,
         args.mapping.depth_range.1
     );
-    let table = run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &args.out, true, EvalOptions::default)?;
+    let table =
+        run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &args.out, true, EvalOptions::default)?;
     print_table(&table, &args.out);
     let out = args.out.canonicalize().unwrap_or(args.out.clone());
-    println!("pictures: {}/kf_{:05}_{{rgb,learned}}/ (depth_*_color.png, cloud_*.ply, keyframe.png)", out.display(), args.keyframe);
+    println!(
+        "pictures: {}/kf_{:05}_{{rgb,learned}}/ (depth_*_color.png, cloud_*.ply, keyframe.png)",
+        out.display(),
+        args.keyframe
+    );
     Ok(())
 }

@@ -97,7 +97,15 @@ pub fn run_eval(
     for (k, m, d) in &table.per_keyframe {
         per += &format!(
             "{k},{m},{},{},{},{},{},{},{},{},{}\n",
-            d.rms, d.log_rms, d.abs_rel, d.sq_rel, d.delta_1_1, d.delta_1_25, d.delta_1_25_2, d.delta_1_25_3, d.coverage
+            d.rms,
+            d.log_rms,
+            d.abs_rel,
+            d.sq_rel,
+            d.delta_1_1,
+            d.delta_1_25,
+            d.delta_1_25_2,
+            d.delta_1_25_3,
+            d.coverage
         );
     }
     write_text(&out.join("per_keyframe.csv"), &per)?;

@@ -7,7 +7,9 @@ use std::path::PathBuf;
 
 use crate::error::{Error, Result};
 use crate::eval::DepthMetrics;
-use crate::mapping::keyframe::{reconstruct, KeyframeConfig, KeyframeResult, Regularizer, Stage, StageTimings};
+use crate::mapping::keyframe::{
+    reconstruct, KeyframeConfig, KeyframeResult, Regularizer, Stage, StageTimings,
+};
 use crate::mapping::FeatureKind;
 use crate::sequence::Sequence;
 

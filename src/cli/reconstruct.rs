@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use crate::error::Result;
+use crate::eval::DepthMetrics;
 use crate::mapping::{reconstruct, write_outputs, FeatureKind, Regularizer};
 use crate::sequence::open;
 
@@ -47,12 +48,29 @@ pub fn run(args: ReconstructArgs) -> Result<()> {
     println!("{}", summary(&result));
     if result.gt_depth.is_some() {
         println!("metrics (level-{} ground truth):", result.level);
-        println!("  wta: {:?}", result.metrics(&result.wta)?);
+        println!("  wta: {}", metrics_line(&result.metrics(&result.wta)?));
         if let Some(tv) = &result.tv {
-            println!("  tv:  {:?}", result.metrics(tv)?);
+            println!("  tv:  {}", metrics_line(&result.metrics(tv)?));
         }
     }
     let files = write_outputs(&result, &args.out)?;
     println!("wrote {} files to {}", files.len(), args.out.display());
     Ok(())
+}
+
+fn metrics_line(m: &DepthMetrics) -> String {
+    format!(
+        "rms {:.4} m, log {:.4}, abs rel {:.4}, sq rel {:.4}, δ<1.1 {:.4}, δ<1.25 {:.4}, δ<1.25² {:.4}, \
+         δ<1.25³ {:.4} ({} px, coverage {:.3})",
+        m.rms,
+        m.log_rms,
+        m.abs_rel,
+        m.sq_rel,
+        m.delta_1_1,
+        m.delta_1_25,
+        m.delta_1_25_2,
+        m.delta_1_25_3,
+        m.count,
+        m.coverage
+    )
 }

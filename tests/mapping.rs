@@ -280,3 +280,21 @@ fn cli_reconstruct_rejects_bad_flags() {
     let out = run(&["--keyframe", "1", "--window", "3"]);
     assert!(!out.status.success());
 }
+
+#[test]
+fn cli_eval_writes_tables_for_the_requested_methods() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["eval", "--sequence", FIXTURE, "--keyframes", "10:10:20", "--window", "2,2", "--bins", "16"])
+        .args(["--iterations", "20", "--methods", "rgb-wta,rgb-tv", "--out"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let md = std::fs::read_to_string(dir.path().join("table.md")).unwrap();
+    let csv = std::fs::read_to_string(dir.path().join("table.csv")).unwrap();
+    assert!(md.contains("| rgb-wta |") && md.contains("| rgb-tv |") && !md.contains("learned"), "{md}");
+    assert_eq!(csv.lines().count(), 3, "{csv}");
+    let per = std::fs::read_to_string(dir.path().join("per_keyframe.csv")).unwrap();
+    assert_eq!(per.lines().count(), 5, "{per}");
+}

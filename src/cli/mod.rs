@@ -7,9 +7,13 @@ use crate::error::Result;
 
 pub mod bench;
 pub mod bench_costvolume;
+pub mod demo;
+pub mod eval;
 pub mod features;
 pub mod init_weights;
 pub mod inspect;
+pub mod mapping_args;
+pub mod reconstruct;
 pub mod synth;
 
 /// Dense monocular reconstruction with learned good features to match.
@@ -34,6 +38,12 @@ pub enum Command {
     InitWeights(init_weights::InitWeightsArgs),
     /// Time the network's forward pass or the SGEMM peak.
     Bench(bench::BenchArgs),
+    /// Reconstruct one keyframe's depth (cost volume, winner-take-all, optional DTAM TV).
+    Reconstruct(reconstruct::ReconstructArgs),
+    /// Evaluate methods over keyframes against ground truth: the paper's table.
+    Eval(eval::EvalArgs),
+    /// Reconstruct a keyframe of the shipped synthetic fixture with every method.
+    Demo(demo::DemoArgs),
 }
 
 /// Parse the process arguments and run the subcommand.
@@ -47,5 +57,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Features(args) => features::run(args),
         Command::InitWeights(args) => init_weights::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Reconstruct(args) => reconstruct::run(args),
+        Command::Eval(args) => eval::run(args),
+        Command::Demo(args) => demo::run(args),
     }
 }

@@ -1,6 +1,16 @@
-//! Keyframe mapping: the features that fill the cost volume, and (with the cost volume of
-//! [`crate::costvolume`] and the regulariser of [`crate::dtam`]) the keyframe reconstruction.
+//! Keyframe mapping: the features that fill the cost volume, the keyframe reconstruction (cost
+//! volume of [`crate::costvolume`], regulariser of [`crate::dtam`]), its output files, and the
+//! evaluation table over keyframes and methods (SPEC.md §11).
 
+pub mod evaluate;
 pub mod features;
+pub mod keyframe;
+pub mod output;
 
+pub use evaluate::{evaluate, EvalOptions, EvalTable, Method};
 pub use features::{FeatureExtractor, FeatureKind, FeatureMap};
+pub use keyframe::{
+    memory_estimate, reconstruct, DepthEstimate, KeyframeConfig, KeyframeResult, Regularizer, Stage,
+    StageTimings,
+};
+pub use output::write_outputs;

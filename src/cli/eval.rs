@@ -1,0 +1,124 @@
+//! `densefeat eval`: every method on every keyframe, the paper's table (SPEC.md §11.5).
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+
+use crate::error::{Error, Result};
+use crate::io::write_atomic_with;
+use crate::mapping::evaluate::{evaluate, EvalOptions, EvalTable, Method};
+use crate::mapping::keyframe::Regularizer;
+use crate::mapping::{write_outputs, FeatureKind};
+use crate::sequence::{open, Sequence};
+
+use super::mapping_args::{parse_keyframes, progress_bar, show_stage, summary, MappingArgs};
+
+/// Arguments of `densefeat eval`.
+#[derive(Debug, Clone, Args)]
+pub struct EvalArgs {
+    /// Sequence folder with ground-truth depth.
+    #[arg(long)]
+    pub sequence: PathBuf,
+    /// Keyframes `START:STEP:END`, END inclusive.
+    #[arg(long)]
+    pub keyframes: String,
+    /// Comma-separated methods.
+    #[arg(long, default_value = "rgb-wta,rgb-tv,learned-wta,learned-tv", value_delimiter = ',')]
+    pub methods: Vec<Method>,
+    /// Learned-feature weights (default: the shipped ones).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// DTAM λ for the learned features (default: --lambda).
+    #[arg(long)]
+    pub lambda_learned: Option<f64>,
+    /// Mapping flags.
+    #[command(flatten)]
+    pub mapping: MappingArgs,
+    /// Also write every keyframe's depth files into OUT/kf_I_FEATURES/.
+    #[arg(long)]
+    pub save_depth: bool,
+    /// Output folder (table.csv, table.md, per_keyframe.csv, timings.md).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Runs the command.
+///
+/// # Errors
+/// Bad arguments, missing ground truth, reading or writing errors.
+pub fn run(args: EvalArgs) -> Result<()> {
+    let seq = open(&args.sequence)?;
+    let keyframes = parse_keyframes(&args.keyframes)?;
+    let table = run_eval(&seq, &args.mapping, &keyframes, &args.methods, &args.out, args.save_depth, || {
+        EvalOptions { weights: args.weights.clone(), lambda_learned: args.lambda_learned }
+    })?;
+    print_table(&table, &args.out);
+    Ok(())
+}
+
+/// Evaluate and write the tables into `out`; shared with `demo`.
+///
+/// # Errors
+/// As [`evaluate`], and write errors.
+pub fn run_eval(
+    seq: &Sequence,
+    mapping: &MappingArgs,
+    keyframes: &[usize],
+    methods: &[Method],
+    out: &Path,
+    save_depth: bool,
+    options: impl FnOnce() -> EvalOptions,
+) -> Result<EvalTable> {
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let base = mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv);
+    let bar = progress_bar();
+    let result = evaluate(
+        seq,
+        &base,
+        keyframes,
+        methods,
+        &options(),
+        |r| {
+            bar.println(summary(r));
+            if save_depth {
+                write_outputs(r, &out.join(format!("kf_{:05}_{}", r.keyframe, r.features)))?;
+            }
+            Ok(())
+        },
+        |k, s, d, t| show_stage(&bar, &format!("keyframe {k}: "), s, d, t),
+    );
+    bar.finish_and_clear();
+    let table = result?;
+    write_text(&out.join("table.md"), &table.markdown())?;
+    write_text(&out.join("table.csv"), &table.csv())?;
+    write_text(&out.join("timings.md"), &table.timings_markdown())?;
+    let mut per = String::from("keyframe,method,rms,log_rms,abs_rel,sq_rel,delta_1.1,delta_1.25,delta_1.25^2,delta_1.25^3,coverage\n");
+    for (k, m, d) in &table.per_keyframe {
+        per += &format!(
+            "{k},{m},{},{},{},{},{},{},{},{},{}\n",
+            d.rms,
+            d.log_rms,
+            d.abs_rel,
+            d.sq_rel,
+            d.delta_1_1,
+            d.delta_1_25,
+            d.delta_1_25_2,
+            d.delta_1_25_3,
+            d.coverage
+        );
+    }
+    write_text(&out.join("per_keyframe.csv"), &per)?;
+    Ok(table)
+}
+
+/// Print the table and timings.
+pub fn print_table(table: &EvalTable, out: &Path) {
+    println!("\n{}", table.markdown());
+    println!("mean wall time per keyframe:\n{}", table.timings_markdown());
+    println!("wrote table.md, table.csv, per_keyframe.csv, timings.md to {}", out.display());
+}
+
+fn write_text(path: &Path, text: &str) -> Result<()> {
+    write_atomic_with(path, |w| w.write_all(text.as_bytes()))
+}

@@ -1,0 +1,167 @@
+//! Flags shared by `reconstruct`, `eval` and `demo`: window, depth range, bins, every DTAM
+//! parameter and the memory limit; and the progress bar.
+
+use std::time::Duration;
+
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::dtam::{DtamParams, DEFAULT_LAMBDA};
+use crate::error::{Error, Result};
+use crate::mapping::keyframe::{KeyframeConfig, Regularizer, Stage, DEFAULT_MAX_MEMORY_MB};
+use crate::mapping::{FeatureKind, KeyframeResult};
+
+/// Mapping flags (SPEC.md §10, §11).
+#[derive(Debug, Clone, Args)]
+pub struct MappingArgs {
+    /// Live frames before and after the keyframe, `P,F` (clamped to the sequence).
+    #[arg(long, default_value = "30,30", value_parser = parse_pair_usize)]
+    pub window: (usize, usize),
+    /// Depth range of the hypotheses, metres, `NEAR,FAR`.
+    #[arg(long, default_value = "0.4,10", value_parser = parse_pair_f64)]
+    pub depth_range: (f64, f64),
+    /// Number of inverse-depth hypotheses.
+    #[arg(long, default_value_t = 64)]
+    pub bins: usize,
+    /// DTAM `λ` (data term weighted by 1/λ).
+    #[arg(long, default_value_t = DEFAULT_LAMBDA)]
+    pub lambda: f64,
+    /// Huber threshold ε, 1/m.
+    #[arg(long, default_value_t = DtamParams::default().epsilon)]
+    pub epsilon: f64,
+    /// Edge weight α of `g = exp(-α ‖∇I‖^β)`.
+    #[arg(long, default_value_t = DtamParams::default().alpha)]
+    pub alpha: f64,
+    /// Edge weight exponent β.
+    #[arg(long, default_value_t = DtamParams::default().beta)]
+    pub beta: f64,
+    /// First coupling weight θ.
+    #[arg(long, default_value_t = DtamParams::default().theta_start)]
+    pub theta_start: f64,
+    /// Last coupling weight θ.
+    #[arg(long, default_value_t = DtamParams::default().theta_end)]
+    pub theta_end: f64,
+    /// DTAM iterations.
+    #[arg(long, default_value_t = DtamParams::default().iterations)]
+    pub iterations: usize,
+    /// Refuse to run when the estimated memory exceeds this many MiB.
+    #[arg(long, default_value_t = DEFAULT_MAX_MEMORY_MB)]
+    pub max_memory_mb: usize,
+}
+
+impl MappingArgs {
+    /// A configuration for `keyframe` with these flags.
+    pub fn config(&self, keyframe: usize, features: FeatureKind, regularizer: Regularizer) -> KeyframeConfig {
+        KeyframeConfig {
+            keyframe,
+            past: self.window.0,
+            future: self.window.1,
+            features,
+            near: self.depth_range.0,
+            far: self.depth_range.1,
+            bins: self.bins,
+            regularizer,
+            dtam: DtamParams {
+                lambda: self.lambda,
+                epsilon: self.epsilon,
+                alpha: self.alpha,
+                beta: self.beta,
+                theta_start: self.theta_start,
+                theta_end: self.theta_end,
+                iterations: self.iterations,
+            },
+            max_memory_mb: self.max_memory_mb,
+        }
+    }
+}
+
+fn pair<T: std::str::FromStr>(s: &str) -> std::result::Result<(T, T), String> {
+    let (a, b) = s.split_once(',').ok_or_else(|| format!("{s:?}: expected two values A,B"))?;
+    let p = |v: &str| v.trim().parse::<T>().map_err(|_| format!("{v:?} is not a number"));
+    Ok((p(a)?, p(b)?))
+}
+
+/// Parses `P,F`.
+///
+/// # Errors
+/// A message for clap.
+pub fn parse_pair_usize(s: &str) -> std::result::Result<(usize, usize), String> {
+    pair(s)
+}
+
+/// Parses `A,B` reals.
+///
+/// # Errors
+/// A message for clap.
+pub fn parse_pair_f64(s: &str) -> std::result::Result<(f64, f64), String> {
+    pair(s)
+}
+
+/// Parses `START:STEP:END` (END inclusive) into keyframe indices.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for a malformed range, a zero step or `END < START`.
+pub fn parse_keyframes(s: &str) -> Result<Vec<usize>> {
+    let bad = |what: &str| Error::invalid_argument("--keyframes", format!("{s:?}: {what}"));
+    let parts: Vec<&str> = s.split(':').collect();
+    let nums: Vec<usize> = parts
+        .iter()
+        .map(|p| p.trim().parse::<usize>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| bad("expected START:STEP:END (non-negative integers)"))?;
+    let [start, step, end] = nums[..] else {
+        return Err(bad("expected START:STEP:END"));
+    };
+    if step == 0 || end < start {
+        return Err(bad("need STEP > 0 and END >= START"));
+    }
+    Ok((start..=end).step_by(step).collect())
+}
+
+/// A progress bar on stderr (hidden when stderr is not a terminal).
+pub fn progress_bar() -> ProgressBar {
+    let bar = ProgressBar::new(1);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg:32} {bar:30} {pos}/{len}")
+            .expect("valid template"),
+    );
+    bar.enable_steady_tick(Duration::from_millis(200));
+    bar
+}
+
+/// Update `bar` for a stage event.
+pub fn show_stage(bar: &ProgressBar, prefix: &str, stage: Stage, done: usize, total: usize) {
+    bar.set_message(format!("{prefix}{stage}"));
+    bar.set_length(total as u64);
+    bar.set_position(done as u64);
+}
+
+/// One line of timings and the DTAM summary.
+pub fn summary(r: &KeyframeResult) -> String {
+    let t = &r.timings;
+    let mut s = format!(
+        "keyframe {} ({}, {} live frames, {}x{} level {}): load {:.2} s, features {:.2} s, cost volume {:.2} s, \
+         WTA {:.2} s, TV {:.2} s, total {:.2} s",
+        r.keyframe,
+        r.features,
+        r.live_frames.len(),
+        r.camera.width,
+        r.camera.height,
+        r.level,
+        t.load,
+        t.features,
+        t.cost_volume,
+        t.wta,
+        t.tv,
+        t.total()
+    );
+    if let Some(d) = &r.dtam {
+        s += &format!(
+            "\n  DTAM: {} iterations, energy {:.4e} -> {:.4e}",
+            d.iterations,
+            d.energy.first().copied().unwrap_or(f64::NAN),
+            d.energy.last().copied().unwrap_or(f64::NAN)
+        );
+    }
+    s
+}

@@ -1,0 +1,76 @@
+//! `densefeat reconstruct`: one keyframe's depth from a window of live frames (SPEC.md §11).
+
+use std::path::PathBuf;
+
+use clap::Args;
+
+use crate::error::Result;
+use crate::eval::DepthMetrics;
+use crate::mapping::{reconstruct, write_outputs, FeatureKind, Regularizer};
+use crate::sequence::open;
+
+use super::mapping_args::{progress_bar, show_stage, summary, MappingArgs};
+
+/// Arguments of `densefeat reconstruct`.
+#[derive(Debug, Clone, Args)]
+pub struct ReconstructArgs {
+    /// Sequence folder (any format `densefeat inspect` reads).
+    #[arg(long)]
+    pub sequence: PathBuf,
+    /// Keyframe index.
+    #[arg(long)]
+    pub keyframe: usize,
+    /// `rgb`, `learned` (shipped weights) or `learned=WEIGHTS.safetensors`.
+    #[arg(long, default_value = "rgb")]
+    pub features: FeatureKind,
+    /// `none` (winner-take-all) or `tv` (DTAM, initialised by winner-take-all).
+    #[arg(long, default_value = "tv")]
+    pub regularizer: Regularizer,
+    /// Mapping flags.
+    #[command(flatten)]
+    pub mapping: MappingArgs,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Runs the command.
+///
+/// # Errors
+/// Bad arguments, reading or writing errors.
+pub fn run(args: ReconstructArgs) -> Result<()> {
+    let seq = open(&args.sequence)?;
+    let cfg = args.mapping.config(args.keyframe, args.features.clone(), args.regularizer);
+    let bar = progress_bar();
+    let result = reconstruct(&seq, &cfg, |s, d, t| show_stage(&bar, "", s, d, t));
+    bar.finish_and_clear();
+    let result = result?;
+    println!("{}", summary(&result));
+    if result.gt_depth.is_some() {
+        println!("metrics (level-{} ground truth):", result.level);
+        println!("  wta: {}", metrics_line(&result.metrics(&result.wta)?));
+        if let Some(tv) = &result.tv {
+            println!("  tv:  {}", metrics_line(&result.metrics(tv)?));
+        }
+    }
+    let files = write_outputs(&result, &args.out)?;
+    println!("wrote {} files to {}", files.len(), args.out.display());
+    Ok(())
+}
+
+fn metrics_line(m: &DepthMetrics) -> String {
+    format!(
+        "rms {:.4} m, log {:.4}, abs rel {:.4}, sq rel {:.4}, δ<1.1 {:.4}, δ<1.25 {:.4}, δ<1.25² {:.4}, \
+         δ<1.25³ {:.4} ({} px, coverage {:.3})",
+        m.rms,
+        m.log_rms,
+        m.abs_rel,
+        m.sq_rel,
+        m.delta_1_1,
+        m.delta_1_25,
+        m.delta_1_25_2,
+        m.delta_1_25_3,
+        m.count,
+        m.coverage
+    )
+}

@@ -1,0 +1,265 @@
+//! The paper's evaluation table (SPEC.md §11.5): each method on each keyframe, metrics averaged
+//! over keyframes (the mean of per-keyframe metrics; every keyframe weighs the same).
+//! Winner-take-all and TV of one feature kind come from the same cost volume.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use crate::error::{Error, Result};
+use crate::eval::DepthMetrics;
+use crate::mapping::keyframe::{
+    reconstruct, KeyframeConfig, KeyframeResult, Regularizer, Stage, StageTimings,
+};
+use crate::mapping::FeatureKind;
+use crate::sequence::Sequence;
+
+/// A row of the table: features and regulariser.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// RGB, winner-take-all.
+    RgbWta,
+    /// RGB, DTAM Huber-TV.
+    RgbTv,
+    /// Learned features, winner-take-all.
+    LearnedWta,
+    /// Learned features, DTAM Huber-TV.
+    LearnedTv,
+}
+
+impl Method {
+    /// The four methods in table order.
+    pub const ALL: [Method; 4] = [Method::RgbWta, Method::RgbTv, Method::LearnedWta, Method::LearnedTv];
+
+    /// `rgb-wta`, `rgb-tv`, `learned-wta` or `learned-tv`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::RgbWta => "rgb-wta",
+            Method::RgbTv => "rgb-tv",
+            Method::LearnedWta => "learned-wta",
+            Method::LearnedTv => "learned-tv",
+        }
+    }
+
+    /// Whether it uses the learned features.
+    pub fn learned(self) -> bool {
+        matches!(self, Method::LearnedWta | Method::LearnedTv)
+    }
+
+    /// Whether it runs DTAM.
+    pub fn tv(self) -> bool {
+        matches!(self, Method::RgbTv | Method::LearnedTv)
+    }
+}
+
+impl std::str::FromStr for Method {
+    type Err = Error;
+
+    fn from_str(s: &str) -> Result<Self> {
+        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| {
+            Error::invalid_argument(
+                "--methods",
+                format!("{s:?}: expected rgb-wta, rgb-tv, learned-wta or learned-tv"),
+            )
+        })
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// One method's averaged result.
+#[derive(Clone, Debug)]
+pub struct EvalRow {
+    /// The method.
+    pub method: Method,
+    /// Metrics averaged over keyframes (`count` summed, every other field the mean).
+    pub metrics: DepthMetrics,
+    /// Mean wall time per keyframe and stage of the run that produced it (TV zero for WTA rows,
+    /// whose volume is shared with the TV row).
+    pub timings: StageTimings,
+}
+
+/// The evaluation: averaged rows and every per-keyframe result.
+#[derive(Clone, Debug)]
+pub struct EvalTable {
+    /// One row per requested method, in the requested order.
+    pub rows: Vec<EvalRow>,
+    /// `(keyframe, method, metrics)` for every run.
+    pub per_keyframe: Vec<(usize, Method, DepthMetrics)>,
+}
+
+/// Settings [`evaluate`] adds to a base [`KeyframeConfig`].
+#[derive(Clone, Debug, Default)]
+pub struct EvalOptions {
+    /// Weights of the learned features (`None`: the shipped ones).
+    pub weights: Option<PathBuf>,
+    /// `λ` for the learned features' DTAM (`None`: the base config's).
+    pub lambda_learned: Option<f64>,
+}
+
+/// Run `methods` on every keyframe. `base` gives the window, range, bins, DTAM parameters and
+/// memory limit (its keyframe, features and regulariser are replaced). `on_result` sees each
+/// reconstruction (to print or write it); `progress(keyframe, stage, done, total)`.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for no keyframe or method, a keyframe without ground truth; any
+/// [`reconstruct`] error.
+pub fn evaluate(
+    seq: &Sequence,
+    base: &KeyframeConfig,
+    keyframes: &[usize],
+    methods: &[Method],
+    options: &EvalOptions,
+    mut on_result: impl FnMut(&KeyframeResult) -> Result<()>,
+    mut progress: impl FnMut(usize, Stage, usize, usize),
+) -> Result<EvalTable> {
+    if keyframes.is_empty() || methods.is_empty() {
+        return Err(Error::invalid_argument("evaluation", "need at least one keyframe and one method"));
+    }
+    let mut per_keyframe = Vec::new();
+    let mut timing_sums: Vec<StageTimings> = vec![StageTimings::default(); methods.len()];
+    for learned in [false, true] {
+        let wanted: Vec<usize> = (0..methods.len()).filter(|&i| methods[i].learned() == learned).collect();
+        if wanted.is_empty() {
+            continue;
+        }
+        let mut cfg = base.clone();
+        cfg.features = if learned { FeatureKind::Learned(options.weights.clone()) } else { FeatureKind::Rgb };
+        if learned {
+            if let Some(l) = options.lambda_learned {
+                cfg.dtam.lambda = l;
+            }
+        }
+        cfg.regularizer =
+            if wanted.iter().any(|&i| methods[i].tv()) { Regularizer::Tv } else { Regularizer::None };
+        for &k in keyframes {
+            cfg.keyframe = k;
+            let result = reconstruct(seq, &cfg, |s, d, t| progress(k, s, d, t))?;
+            for &i in &wanted {
+                let m = methods[i];
+                let estimate = if m.tv() { result.tv.as_ref().expect("TV was run") } else { &result.wta };
+                per_keyframe.push((k, m, result.metrics(estimate)?));
+                let mut t = result.timings;
+                if !m.tv() {
+                    t.tv = 0.0;
+                }
+                add_timings(&mut timing_sums[i], &t);
+            }
+            on_result(&result)?;
+        }
+    }
+    let n = keyframes.len() as f64;
+    let rows = methods
+        .iter()
+        .zip(&timing_sums)
+        .map(|(&m, t)| {
+            let ms: Vec<DepthMetrics> =
+                per_keyframe.iter().filter(|(_, pm, _)| *pm == m).map(|(_, _, d)| *d).collect();
+            let timings = StageTimings {
+                load: t.load / n,
+                features: t.features / n,
+                cost_volume: t.cost_volume / n,
+                wta: t.wta / n,
+                tv: t.tv / n,
+            };
+            EvalRow { method: m, metrics: mean_metrics(&ms), timings }
+        })
+        .collect();
+    Ok(EvalTable { rows, per_keyframe })
+}
+
+fn add_timings(sum: &mut StageTimings, t: &StageTimings) {
+    sum.load += t.load;
+    sum.features += t.features;
+    sum.cost_volume += t.cost_volume;
+    sum.wta += t.wta;
+    sum.tv += t.tv;
+}
+
+/// Mean of per-keyframe metrics (`count` summed).
+///
+/// # Panics
+/// If `ms` is empty.
+pub fn mean_metrics(ms: &[DepthMetrics]) -> DepthMetrics {
+    assert!(!ms.is_empty(), "mean of no metrics");
+    let n = ms.len() as f64;
+    let mean = |f: fn(&DepthMetrics) -> f64| ms.iter().map(f).sum::<f64>() / n;
+    DepthMetrics {
+        rms: mean(|m| m.rms),
+        log_rms: mean(|m| m.log_rms),
+        abs_rel: mean(|m| m.abs_rel),
+        sq_rel: mean(|m| m.sq_rel),
+        delta_1_1: mean(|m| m.delta_1_1),
+        delta_1_25: mean(|m| m.delta_1_25),
+        delta_1_25_2: mean(|m| m.delta_1_25_2),
+        delta_1_25_3: mean(|m| m.delta_1_25_3),
+        count: ms.iter().map(|m| m.count).sum(),
+        coverage: mean(|m| m.coverage),
+    }
+}
+
+const COLUMNS: [&str; 10] =
+    ["method", "rms", "log", "abs rel", "sq rel", "δ<1.1", "δ<1.25", "δ<1.25²", "δ<1.25³", "coverage"];
+
+fn cells(r: &EvalRow) -> [String; 10] {
+    let m = &r.metrics;
+    [
+        r.method.name().to_string(),
+        format!("{:.4}", m.rms),
+        format!("{:.4}", m.log_rms),
+        format!("{:.4}", m.abs_rel),
+        format!("{:.4}", m.sq_rel),
+        format!("{:.4}", m.delta_1_1),
+        format!("{:.4}", m.delta_1_25),
+        format!("{:.4}", m.delta_1_25_2),
+        format!("{:.4}", m.delta_1_25_3),
+        format!("{:.4}", m.coverage),
+    ]
+}
+
+impl EvalTable {
+    /// The table as Markdown (the paper's columns plus coverage).
+    pub fn markdown(&self) -> String {
+        let mut s = format!("| {} |\n|{}\n", COLUMNS.join(" | "), "---|".repeat(COLUMNS.len()));
+        for r in &self.rows {
+            let _ = writeln!(s, "| {} |", cells(r).join(" | "));
+        }
+        s
+    }
+
+    /// The table as CSV (ASCII column names).
+    pub fn csv(&self) -> String {
+        let mut s = String::from(
+            "method,rms,log_rms,abs_rel,sq_rel,delta_1.1,delta_1.25,delta_1.25^2,delta_1.25^3,coverage\n",
+        );
+        for r in &self.rows {
+            let _ = writeln!(s, "{}", cells(r).join(","));
+        }
+        s
+    }
+
+    /// Mean wall time per keyframe by stage, as Markdown, one row per method.
+    pub fn timings_markdown(&self) -> String {
+        let mut s = String::from(
+            "| method | load s | features s | cost volume s | WTA s | TV s | total s |\n|---|---|---|---|---|---|---|\n",
+        );
+        for r in &self.rows {
+            let t = &r.timings;
+            let _ = writeln!(
+                s,
+                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                r.method,
+                t.load,
+                t.features,
+                t.cost_volume,
+                t.wta,
+                t.tv,
+                t.total()
+            );
+        }
+        s
+    }
+}

@@ -1,0 +1,366 @@
+//! One keyframe's dense reconstruction (SPEC.md §11): load the keyframe and a window of live frames,
+//! extract features on the common level-`L` grid, stream the live frames into a cost volume,
+//! take the winner-take-all depth and, with [`Regularizer::Tv`], regularise it with DTAM.
+//!
+//! Memory: only the keyframe's and one live frame's images and features are held at a time; the
+//! volume's `[H_L, W_L, K]` sums, counts and the costs copy DTAM reads dominate and are estimated
+//! up front ([`memory_estimate`]).
+
+use std::time::Instant;
+
+use ndarray::{Array2, Array3};
+use serde::Serialize;
+
+use crate::costvolume::CostVolume;
+use crate::dtam::{self, DtamParams, DtamReport};
+use crate::error::{Error, Result};
+use crate::eval::{depth_metrics, DepthMetrics};
+use crate::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
+use crate::image::{to_gray, DepthMap, RgbImage};
+use crate::mapping::features::downsample_to;
+use crate::mapping::{FeatureExtractor, FeatureKind};
+use crate::sequence::Sequence;
+
+/// Which regulariser runs after winner-take-all.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Regularizer {
+    /// Winner-take-all only.
+    None,
+    /// Winner-take-all, then DTAM's Huber-TV solve initialised by it (SPEC.md §10).
+    Tv,
+}
+
+impl std::str::FromStr for Regularizer {
+    type Err = Error;
+
+    /// `none` or `tv`.
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "none" => Ok(Regularizer::None),
+            "tv" => Ok(Regularizer::Tv),
+            _ => Err(Error::invalid_argument("--regularizer", format!("{s:?}: expected none or tv"))),
+        }
+    }
+}
+
+/// Everything [`reconstruct`] needs.
+#[derive(Clone, Debug)]
+pub struct KeyframeConfig {
+    /// Index of the keyframe in the sequence.
+    pub keyframe: usize,
+    /// Live frames before the keyframe (the paper: 30).
+    pub past: usize,
+    /// Live frames after the keyframe (the paper: 30).
+    pub future: usize,
+    /// What fills the cost volume.
+    pub features: FeatureKind,
+    /// Nearest depth hypothesis, metres.
+    pub near: f64,
+    /// Farthest depth hypothesis, metres.
+    pub far: f64,
+    /// Number of inverse-depth hypotheses `K`.
+    pub bins: usize,
+    /// Regulariser after winner-take-all.
+    pub regularizer: Regularizer,
+    /// DTAM parameters (used with [`Regularizer::Tv`]).
+    pub dtam: DtamParams,
+    /// Refuse to start when [`memory_estimate`] exceeds this many MiB.
+    pub max_memory_mb: usize,
+}
+
+/// Default of [`KeyframeConfig::max_memory_mb`].
+pub const DEFAULT_MAX_MEMORY_MB: usize = 2048;
+
+impl KeyframeConfig {
+    /// The paper's window (30, 30), RGB, 64 bins over `[near, far]`, TV with default parameters.
+    pub fn new(keyframe: usize, near: f64, far: f64) -> Self {
+        Self {
+            keyframe,
+            past: 30,
+            future: 30,
+            features: FeatureKind::Rgb,
+            near,
+            far,
+            bins: 64,
+            regularizer: Regularizer::Tv,
+            dtam: DtamParams::default(),
+            max_memory_mb: DEFAULT_MAX_MEMORY_MB,
+        }
+    }
+
+    /// The live frames of the window `[keyframe - past, keyframe + future]` clamped to the
+    /// sequence, keyframe excluded, in index order.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] if the keyframe is out of range or no live frame remains.
+    pub fn live_frames(&self, len: usize) -> Result<Vec<usize>> {
+        if self.keyframe >= len {
+            return Err(Error::invalid_argument(
+                "keyframe",
+                format!("{} is out of range: the sequence has {len} frames", self.keyframe),
+            ));
+        }
+        let first = self.keyframe.saturating_sub(self.past);
+        let last = self.keyframe.saturating_add(self.future).min(len - 1);
+        let live: Vec<usize> = (first..=last).filter(|&i| i != self.keyframe).collect();
+        if live.is_empty() {
+            return Err(Error::invalid_argument(
+                "window",
+                format!(
+                    "{},{} around keyframe {} of a {len}-frame sequence leaves no live frame",
+                    self.past, self.future, self.keyframe
+                ),
+            ));
+        }
+        Ok(live)
+    }
+
+    fn validate(&self) -> Result<InverseDepthBins> {
+        if self.bins < 2 {
+            return Err(Error::invalid_argument("bins", format!("{}: need at least 2", self.bins)));
+        }
+        if self.regularizer == Regularizer::Tv {
+            self.dtam.validate()?;
+        }
+        InverseDepthBins::from_depth_range(self.near, self.far, self.bins)
+    }
+}
+
+/// Bytes [`reconstruct`] needs for a `height x width` grid with `bins` hypotheses and `channels`
+/// feature channels: `H·W·K·(4 + 4 + 2)` (f32 sums, the f32 costs copy DTAM reads, u16 counts)
+/// plus two feature maps `2·H·W·C·4` (keyframe and the live frame being added).
+pub fn memory_estimate(height: usize, width: usize, bins: usize, channels: usize) -> u64 {
+    let (h, w, k, c) = (height as u64, width as u64, bins as u64, channels as u64);
+    h * w * k * (4 + 4 + 2) + 2 * h * w * c * 4
+}
+
+/// A depth estimate on the level-`L` grid.
+#[derive(Clone, Debug)]
+pub struct DepthEstimate {
+    /// Inverse depth, 1/m.
+    pub inverse_depth: Array2<f32>,
+    /// Depth, metres; 0 where invalid (SPEC.md §2.2).
+    pub depth: Array2<f32>,
+}
+
+/// Wall time of each stage, seconds. Loading and feature extraction are summed over frames.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct StageTimings {
+    /// Reading and decoding images and depth.
+    pub load: f64,
+    /// Feature extraction (network forward or tent downsampling).
+    pub features: f64,
+    /// Adding the live frames to the cost volume.
+    pub cost_volume: f64,
+    /// Winner-take-all.
+    pub wta: f64,
+    /// DTAM (0 without TV).
+    pub tv: f64,
+}
+
+impl StageTimings {
+    /// Sum of the stages.
+    pub fn total(&self) -> f64 {
+        self.load + self.features + self.cost_volume + self.wta + self.tv
+    }
+}
+
+/// Stages reported to the progress callback.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// Loading the keyframe and extracting its features.
+    Keyframe,
+    /// Loading, extracting and adding live frames (`done` of `total` frames).
+    CostVolume,
+    /// Winner-take-all.
+    Wta,
+    /// DTAM.
+    Tv,
+}
+
+impl std::fmt::Display for Stage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Stage::Keyframe => "keyframe",
+            Stage::CostVolume => "cost volume",
+            Stage::Wta => "winner-take-all",
+            Stage::Tv => "DTAM",
+        })
+    }
+}
+
+/// What [`reconstruct`] returns; every map is on the level-`L` grid.
+#[derive(Clone, Debug)]
+pub struct KeyframeResult {
+    /// The keyframe's index.
+    pub keyframe: usize,
+    /// Indices of the live frames used.
+    pub live_frames: Vec<usize>,
+    /// Feature name (`rgb` or `learned`).
+    pub features: &'static str,
+    /// Pyramid level of the grid.
+    pub level: u32,
+    /// The level-`L` camera (SPEC.md §2.6).
+    pub camera: PinholeCamera,
+    /// The hypotheses.
+    pub bins: InverseDepthBins,
+    /// The keyframe's colour at level `L` (tent-downsampled), `[H_L, W_L, 3]`, 0-255.
+    pub colour: RgbImage,
+    /// Pixels with at least one seen hypothesis; both estimates are 0 elsewhere.
+    pub valid: Array2<bool>,
+    /// Winner-take-all.
+    pub wta: DepthEstimate,
+    /// DTAM's result, with [`Regularizer::Tv`].
+    pub tv: Option<DepthEstimate>,
+    /// Ground truth at level `L` (level-0 depth at pixels `2^L j`), if the keyframe has depth.
+    pub gt_depth: Option<DepthMap>,
+    /// Wall time per stage.
+    pub timings: StageTimings,
+    /// DTAM's report, with [`Regularizer::Tv`].
+    pub dtam: Option<DtamReport>,
+    /// [`memory_estimate`] of this run, bytes.
+    pub memory_estimate: u64,
+}
+
+impl KeyframeResult {
+    /// The regularised estimate if there is one, else winner-take-all.
+    pub fn best(&self) -> &DepthEstimate {
+        self.tv.as_ref().unwrap_or(&self.wta)
+    }
+
+    /// Metrics of an estimate against the ground truth.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] if the keyframe has no ground truth, or no pixel is valid in both.
+    pub fn metrics(&self, estimate: &DepthEstimate) -> Result<DepthMetrics> {
+        let gt = self.gt_depth.as_ref().ok_or_else(|| {
+            Error::invalid_argument(
+                "evaluation",
+                format!("keyframe {} has no ground-truth depth to evaluate against", self.keyframe),
+            )
+        })?;
+        depth_metrics(estimate.depth.view(), gt.view())
+    }
+}
+
+/// The level-`level` ground truth: level-0 depth at pixels `2^level j` (SPEC.md §2.6).
+pub fn depth_at_level(depth: &DepthMap, level: u32) -> DepthMap {
+    let (h, w) = depth.dim();
+    let s = 1usize << level;
+    Array2::from_shape_fn((h.div_ceil(s), w.div_ceil(s)), |(y, x)| depth[[y * s, x * s]])
+}
+
+/// Reconstruct one keyframe. `progress(stage, done, total)` is called as work completes.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for a keyframe out of range, a window with no live frame,
+/// `near >= far`, fewer than 2 bins, bad DTAM parameters, or a memory estimate above
+/// `max_memory_mb`; loading and shape errors naming the file.
+pub fn reconstruct(
+    seq: &Sequence,
+    cfg: &KeyframeConfig,
+    mut progress: impl FnMut(Stage, usize, usize),
+) -> Result<KeyframeResult> {
+    let bins = cfg.validate()?;
+    let live = cfg.live_frames(seq.len())?;
+    let level = FeatureExtractor::network_level()?;
+    let camera = seq.camera.at_level(level);
+    let extractor = FeatureExtractor::new(cfg.features.clone(), level)?;
+    if extractor.level() != level {
+        return Err(Error::invalid_argument(
+            "features",
+            format!("the weights output level {}, the shipped network level {level}", extractor.level()),
+        ));
+    }
+    let mut timings = StageTimings::default();
+    progress(Stage::Keyframe, 0, 1);
+    let t = Instant::now();
+    let key = seq.load_frame(cfg.keyframe)?;
+    timings.load += t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let key_features = extractor.extract(&key.rgb)?.data;
+    timings.features += t.elapsed().as_secs_f64();
+    let channels = key_features.dim().2;
+    let estimate = memory_estimate(camera.height, camera.width, cfg.bins, channels);
+    let limit = cfg.max_memory_mb as u64 * 1024 * 1024;
+    if estimate > limit {
+        return Err(Error::invalid_argument(
+            "max-memory-mb",
+            format!(
+                "the cost volume {}x{}x{} with {channels} feature channels needs about {} MiB, over the \
+                 limit of {} MiB: use fewer --bins, or raise --max-memory-mb",
+                camera.height,
+                camera.width,
+                cfg.bins,
+                estimate.div_ceil(1024 * 1024),
+                cfg.max_memory_mb
+            ),
+        ));
+    }
+    let colour = downsample_to(key.rgb.view(), level)?;
+    let gt_depth = key.depth.as_ref().map(|d| depth_at_level(d, level));
+    progress(Stage::Keyframe, 1, 1);
+
+    let mut cv = CostVolume::new(key_features, camera, bins)?;
+    for (i, &n) in live.iter().enumerate() {
+        let t = Instant::now();
+        let frame = seq.load_frame(n)?;
+        timings.load += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let f = extractor.extract(&frame.rgb)?.data;
+        timings.features += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        cv.add_frame(f.view(), &relative_pose(&key.pose, &frame.pose))?;
+        timings.cost_volume += t.elapsed().as_secs_f64();
+        progress(Stage::CostVolume, i + 1, live.len());
+    }
+
+    progress(Stage::Wta, 0, 1);
+    let t = Instant::now();
+    let w = cv.winner_take_all();
+    timings.wta = t.elapsed().as_secs_f64();
+    progress(Stage::Wta, 1, 1);
+    let wta = DepthEstimate { inverse_depth: w.inverse_depth, depth: w.depth };
+
+    let (tv, dtam) = match cfg.regularizer {
+        Regularizer::None => (None, None),
+        Regularizer::Tv => {
+            progress(Stage::Tv, 0, 1);
+            let t = Instant::now();
+            let costs: Array3<f32> = cv.costs();
+            drop(cv);
+            let grey = to_gray(&colour);
+            let (res, report) =
+                dtam::solve(costs.view(), &bins, grey.view(), wta.inverse_depth.view(), &cfg.dtam)?;
+            let inverse_depth = res.inverse_depth;
+            let depth = Array2::from_shape_fn(inverse_depth.dim(), |(y, x)| {
+                let rho = inverse_depth[[y, x]];
+                if w.valid[[y, x]] && rho > 0.0 {
+                    1.0 / rho
+                } else {
+                    0.0
+                }
+            });
+            timings.tv = t.elapsed().as_secs_f64();
+            progress(Stage::Tv, 1, 1);
+            (Some(DepthEstimate { inverse_depth, depth }), Some(report))
+        }
+    };
+
+    Ok(KeyframeResult {
+        keyframe: cfg.keyframe,
+        live_frames: live,
+        features: extractor.name(),
+        level,
+        camera,
+        bins,
+        colour,
+        valid: w.valid,
+        wta,
+        tv,
+        gt_depth,
+        timings,
+        dtam,
+        memory_estimate: estimate,
+    })
+}

@@ -1,0 +1,300 @@
+//! Keyframe reconstruction end to end on the shipped synthetic fixture (SPEC.md §11): TV improves
+//! on winner-take-all, output files parse back, bad input gives clear errors, the eval table and
+//! the `demo` command.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use densefeat::error::Error;
+use densefeat::mapping::evaluate::{evaluate, EvalOptions, Method};
+use densefeat::mapping::keyframe::{memory_estimate, reconstruct, KeyframeConfig, Regularizer};
+use densefeat::mapping::{write_outputs, FeatureKind};
+use densefeat::sequence::{open, Sequence};
+
+const FIXTURE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");
+
+fn fixture() -> Sequence {
+    open(Path::new(FIXTURE)).unwrap()
+}
+
+/// Keyframe 20, five frames either side, 32 bins over 0.4..10 m, RGB, TV.
+fn small_config() -> KeyframeConfig {
+    let mut cfg = KeyframeConfig::new(20, 0.4, 10.0);
+    cfg.past = 5;
+    cfg.future = 5;
+    cfg.bins = 32;
+    cfg
+}
+
+fn invalid_argument(e: Error) -> (String, String) {
+    match e {
+        Error::InvalidArgument { name, what } => (name, what),
+        other => panic!("expected InvalidArgument, got {other}"),
+    }
+}
+
+#[test]
+fn tv_improves_on_wta_for_rgb() {
+    let seq = fixture();
+    let r = reconstruct(&seq, &small_config(), |_, _, _| {}).unwrap();
+    assert_eq!(r.live_frames, vec![15, 16, 17, 18, 19, 21, 22, 23, 24, 25]);
+    assert_eq!((r.camera.width, r.camera.height), (160, 120));
+    let wta = r.metrics(&r.wta).unwrap();
+    let tv = r.metrics(r.tv.as_ref().unwrap()).unwrap();
+    eprintln!(
+        "WTA rms {:.4} δ<1.25 {:.4}; TV rms {:.4} δ<1.25 {:.4}",
+        wta.rms, wta.delta_1_25, tv.rms, tv.delta_1_25
+    );
+    assert!(tv.rms < wta.rms, "TV rms {} >= WTA rms {}", tv.rms, wta.rms);
+    assert!(tv.delta_1_25 > wta.delta_1_25);
+    let report = r.dtam.as_ref().unwrap();
+    assert_eq!(report.energy.len(), report.iterations);
+}
+
+#[test]
+fn ground_truth_is_level0_depth_at_scaled_pixels() {
+    let seq = fixture();
+    let mut cfg = small_config();
+    cfg.regularizer = Regularizer::None;
+    let r = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    let d0 = seq.load_frame(20).unwrap().depth.unwrap();
+    let gt = r.gt_depth.as_ref().unwrap();
+    let s = 1usize << r.level;
+    for ((y, x), &z) in gt.indexed_iter() {
+        assert_eq!(z.to_bits(), d0[[y * s, x * s]].to_bits());
+    }
+    assert!(r.tv.is_none() && r.dtam.is_none());
+}
+
+fn read_npy_shape_and_data(path: &Path) -> (String, Vec<f32>) {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00");
+    let len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+    let header = String::from_utf8(bytes[10..10 + len].to_vec()).unwrap();
+    assert_eq!((10 + len) % 64, 0);
+    let data = bytes[10 + len..].chunks(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+    (header, data)
+}
+
+#[test]
+fn outputs_parse_back_and_leave_no_temp_files() {
+    let seq = fixture();
+    let r = reconstruct(&seq, &small_config(), |_, _, _| {}).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let files = write_outputs(&r, dir.path()).unwrap();
+    for f in &files {
+        assert!(f.exists(), "{}", f.display());
+    }
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(names.iter().all(|n| !n.starts_with('.') && !n.contains(".tmp")), "{names:?}");
+    assert_eq!(names.len(), files.len());
+    for want in ["metrics.json", "keyframe.png", "depth_tv.pfm", "depth_wta_color.png", "cloud_tv.ply"] {
+        assert!(names.iter().any(|n| n == want), "{want} missing from {names:?}");
+    }
+    let tv = r.tv.as_ref().unwrap();
+    // npy: header and values.
+    let (header, data) = read_npy_shape_and_data(&dir.path().join("depth_tv.npy"));
+    assert!(header.contains("'shape': (120, 160)") && header.contains("'<f4'"), "{header}");
+    assert_eq!(data, tv.depth.iter().copied().collect::<Vec<_>>());
+    // PFM: header, bottom row first.
+    let pfm = std::fs::read(dir.path().join("depth_tv.pfm")).unwrap();
+    let head = b"Pf\n160 120\n-1.0\n";
+    assert_eq!(&pfm[..head.len()], head);
+    assert_eq!(pfm.len(), head.len() + 160 * 120 * 4);
+    let first = f32::from_le_bytes(pfm[head.len()..head.len() + 4].try_into().unwrap());
+    assert_eq!(first, tv.depth[[119, 0]]);
+    // 16-bit PNG in millimetres, within 1 mm.
+    let mm = densefeat::image::load_depth_png(&dir.path().join("depth_tv_mm.png"), 1e-3, None).unwrap();
+    for (a, b) in mm.iter().zip(tv.depth.iter()) {
+        if *b > 0.0 && *b < 65.0 {
+            assert!((a - b).abs() <= 1e-3, "{a} vs {b}");
+        } else {
+            assert_eq!(*a, 0.0);
+        }
+    }
+    // PLY: header vertex count equals the valid pixels, body size matches.
+    let ply = std::fs::read(dir.path().join("cloud_tv.ply")).unwrap();
+    let end = ply.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+    let header = String::from_utf8(ply[..end].to_vec()).unwrap();
+    assert!(header.starts_with("ply\nformat binary_little_endian 1.0\n"), "{header}");
+    let n: usize = header.lines().find_map(|l| l.strip_prefix("element vertex ")).unwrap().parse().unwrap();
+    assert_eq!(n, tv.depth.iter().filter(|z| **z > 0.0).count());
+    assert!(n > 0);
+    assert_eq!(ply.len() - end, n * 15);
+    // metrics.json
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("metrics.json")).unwrap()).unwrap();
+    assert!(json["metrics"]["tv"]["rms"].as_f64().unwrap() > 0.0);
+    assert!(json["metrics"]["wta"]["rms"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn bad_inputs_are_clear_errors() {
+    let seq = fixture();
+    let run = |f: &dyn Fn(&mut KeyframeConfig)| {
+        let mut cfg = small_config();
+        f(&mut cfg);
+        invalid_argument(reconstruct(&seq, &cfg, |_, _, _| {}).unwrap_err())
+    };
+    let (name, what) = run(&|c| c.keyframe = 40);
+    assert_eq!(name, "keyframe");
+    assert!(what.contains("40 frames"), "{what}");
+    let (name, _) = run(&|c| {
+        c.past = 0;
+        c.future = 0;
+    });
+    assert_eq!(name, "window");
+    let (name, what) = run(&|c| {
+        c.near = 5.0;
+        c.far = 2.0;
+    });
+    assert_eq!(name, "depth range");
+    assert!(what.contains("near < far"), "{what}");
+    let (name, _) = run(&|c| c.bins = 1);
+    assert_eq!(name, "bins");
+    let (name, _) = run(&|c| c.dtam.iterations = 0);
+    assert_eq!(name, "iterations");
+    // A window larger than the sequence is clamped, not an error.
+    let mut cfg = small_config();
+    cfg.past = 1000;
+    cfg.future = 1000;
+    assert_eq!(cfg.live_frames(seq.len()).unwrap().len(), 39);
+    // The learned features from a file that does not exist.
+    let mut cfg = small_config();
+    cfg.features = FeatureKind::Learned(Some(PathBuf::from("/nonexistent/w.safetensors")));
+    let e = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap_err();
+    assert!(e.to_string().contains("/nonexistent/w.safetensors"), "{e}");
+}
+
+#[test]
+fn memory_limit_fails_up_front() {
+    assert_eq!(memory_estimate(120, 160, 32, 3), 120 * 160 * 32 * 10 + 2 * 120 * 160 * 3 * 4);
+    let seq = fixture();
+    let mut cfg = small_config();
+    cfg.bins = 4096; // 120·160·4096·10 B = 750 MiB
+    cfg.max_memory_mb = 100;
+    let (name, what) = invalid_argument(reconstruct(&seq, &cfg, |_, _, _| {}).unwrap_err());
+    assert_eq!(name, "max-memory-mb");
+    assert!(what.contains("MiB") && what.contains("100"), "{what}");
+}
+
+#[test]
+fn eval_without_ground_truth_is_an_error() {
+    // The fixture without its depth folder.
+    let dir = tempfile::tempdir().unwrap();
+    let src = Path::new(FIXTURE);
+    std::fs::create_dir(dir.path().join("images")).unwrap();
+    for f in ["K.txt", "poses.txt"] {
+        std::fs::copy(src.join(f), dir.path().join(f)).unwrap();
+    }
+    for e in std::fs::read_dir(src.join("images")).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), dir.path().join("images").join(e.file_name())).unwrap();
+    }
+    let seq = open(dir.path()).unwrap();
+    let mut cfg = small_config();
+    cfg.regularizer = Regularizer::None;
+    let r = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    assert!(r.gt_depth.is_none());
+    let (name, what) = invalid_argument(r.metrics(&r.wta).unwrap_err());
+    assert_eq!(name, "evaluation");
+    assert!(what.contains("no ground-truth"), "{what}");
+    // Outputs without ground truth: no metrics.json.
+    let out = tempfile::tempdir().unwrap();
+    let files = write_outputs(&r, out.path()).unwrap();
+    assert!(files.iter().all(|f| !f.ends_with("metrics.json")));
+}
+
+#[test]
+fn eval_table_contains_every_method() {
+    let seq = fixture();
+    let mut base = small_config();
+    base.past = 3;
+    base.future = 3;
+    base.bins = 16;
+    base.dtam.iterations = 20;
+    let mut seen = Vec::new();
+    let table = evaluate(
+        &seq,
+        &base,
+        &[10, 20],
+        &Method::ALL,
+        &EvalOptions::default(),
+        |r| {
+            seen.push((r.keyframe, r.features));
+            Ok(())
+        },
+        |_, _, _, _| {},
+    )
+    .unwrap();
+    // One volume per keyframe and feature kind: WTA and TV share it.
+    assert_eq!(seen, vec![(10, "rgb"), (20, "rgb"), (10, "learned"), (20, "learned")]);
+    assert_eq!(table.rows.len(), 4);
+    assert_eq!(table.per_keyframe.len(), 8);
+    let md = table.markdown();
+    let csv = table.csv();
+    for m in Method::ALL {
+        assert!(md.contains(&format!("| {} |", m.name())), "{md}");
+        assert!(csv.lines().any(|l| l.starts_with(&format!("{},", m.name()))), "{csv}");
+    }
+    assert!(md.contains("δ<1.25³"));
+    assert_eq!(csv.lines().count(), 5);
+}
+
+#[test]
+fn demo_runs_on_the_fixture() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["demo", "--bins", "16", "--window", "3,3", "--iterations", "30", "--out"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}\n{}", stdout, String::from_utf8_lossy(&out.stderr));
+    for m in Method::ALL {
+        assert!(stdout.contains(m.name()), "{stdout}");
+    }
+    for f in ["table.md", "table.csv", "kf_00020_rgb/depth_tv_color.png", "kf_00020_learned/cloud_wta.ply"] {
+        assert!(dir.path().join(f).exists(), "{f} missing");
+    }
+}
+
+#[test]
+fn cli_reconstruct_rejects_bad_flags() {
+    let run = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_densefeat"))
+            .args(["reconstruct", "--sequence", FIXTURE, "--out", "/tmp/unused-densefeat-out"])
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let out = run(&["--keyframe", "99"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("keyframe"));
+    let out = run(&["--keyframe", "1", "--features", "sift"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("sift"));
+    let out = run(&["--keyframe", "1", "--window", "3"]);
+    assert!(!out.status.success());
+}
+
+#[test]
+fn cli_eval_writes_tables_for_the_requested_methods() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["eval", "--sequence", FIXTURE, "--keyframes", "10:10:20", "--window", "2,2", "--bins", "16"])
+        .args(["--iterations", "20", "--methods", "rgb-wta,rgb-tv", "--out"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let md = std::fs::read_to_string(dir.path().join("table.md")).unwrap();
+    let csv = std::fs::read_to_string(dir.path().join("table.csv")).unwrap();
+    assert!(md.contains("| rgb-wta |") && md.contains("| rgb-tv |") && !md.contains("learned"), "{md}");
+    assert_eq!(csv.lines().count(), 3, "{csv}");
+    let per = std::fs::read_to_string(dir.path().join("per_keyframe.csv")).unwrap();
+    assert_eq!(per.lines().count(), 5, "{per}");
+}

@@ -7,6 +7,7 @@ use crate::error::Result;
 
 pub mod bench;
 pub mod bench_costvolume;
+pub mod costcurve;
 pub mod features;
 pub mod init_weights;
 pub mod inspect;
@@ -34,6 +35,8 @@ pub enum Command {
     InitWeights(init_weights::InitWeightsArgs),
     /// Time the network's forward pass or the SGEMM peak.
     Bench(bench::BenchArgs),
+    /// Plot the cost curves of a few keyframe pixels (RGB vs learned) as the volume fills (PNG + CSV).
+    Costcurve(costcurve::CostcurveArgs),
 }
 
 /// Parse the process arguments and run the subcommand.
@@ -47,5 +50,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Features(args) => features::run(args),
         Command::InitWeights(args) => init_weights::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Costcurve(args) => costcurve::run(args),
     }
 }

@@ -145,7 +145,7 @@ pub fn grid_of_plots_png(path: &Path, title: &str, rows: &[Vec<Panel>]) -> Resul
     let mut buf = vec![255u8; (size.0 * size.1 * 3) as usize];
     draw(&mut buf, size, |root| {
         let (band, body) = root.split_vertically(TITLE_BAND);
-        band.draw(&Text::new(title.to_string(), (10, 8), (FAMILY, 22).into_font().color(&BLACK)))
+        band.draw(&Text::new(title.to_string(), (10, 8), (FAMILY, 18).into_font().color(&BLACK)))
             .map_err(s)?;
         let areas = body.split_evenly((rows.len(), cols));
         for (r, row) in rows.iter().enumerate() {
@@ -209,6 +209,17 @@ fn range(values: impl Iterator<Item = f64>, pad: f64) -> (f64, f64) {
     }
 }
 
+/// A tick value with at most 3 decimals and no trailing zeros (`0.5`, `2`, `0.125`).
+fn tick_text(x: f64) -> String {
+    let t = format!("{x:.3}");
+    let t = if t.contains('.') { t.trim_end_matches('0').trim_end_matches('.') } else { &t };
+    if t == "-0" {
+        "0".to_string()
+    } else {
+        t.to_string()
+    }
+}
+
 fn rgb((r, g, b): (u8, u8, u8)) -> RGBColor {
     RGBColor(r, g, b)
 }
@@ -229,7 +240,7 @@ fn draw_panel(area: &Area<'_>, panel: &Panel, caption_px: u32) -> std::result::R
     let log_x = panel.log_x;
     let x_fmt = move |v: &f64| {
         let x = if log_x { 10f64.powf(*v) } else { *v };
-        format!("{x:.3}")
+        tick_text(x)
     };
     chart
         .configure_mesh()

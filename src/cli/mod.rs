@@ -7,6 +7,7 @@ use crate::error::Result;
 
 pub mod bench;
 pub mod bench_costvolume;
+pub mod bench_tv;
 pub mod costcurve;
 pub mod features;
 pub mod init_weights;

@@ -43,20 +43,18 @@ pub struct TvInputs {
 }
 
 /// Width of the pseudo-noise in the synthetic cost curves, grey levels.
-const NOISE: f64 = 8.0;
+pub const NOISE: f64 = 8.0;
 /// Depth of a cost curve's valley, grey levels (RGB mean L1 costs are of this order).
-const VALLEY: f64 = 30.0;
+pub const VALLEY: f64 = 30.0;
 /// Width of the valley in inverse depth, 1/m.
-const VALLEY_WIDTH: f64 = 0.15;
+pub const VALLEY_WIDTH: f64 = 0.15;
 
 /// A smooth synthetic cost volume with the statistics of an RGB volume: hypotheses over depths
 /// `[0.4, 10]` m; the true inverse depth is a slanted plane plus a sine and two rectangles in front
-/// (depth discontinuities); each curve is an inverted Gaussian valley of depth [`VALUE`] grey levels
-/// at the truth plus uniform noise of [`NOISE`] levels; the left twentieth of the image has its
+/// (depth discontinuities); each curve is an inverted Gaussian valley of depth [`VALLEY`] grey levels
+/// and width [`VALLEY_WIDTH`] at the truth plus uniform noise of [`NOISE`] levels; the left twentieth of the image has its
 /// nearest quarter of hypotheses unseen (out of the live frames' view). The grey image has the
 /// rectangles' edges plus texture noise. Deterministic (SplitMix64 seed 11).
-///
-/// [`VALUE`]: VALLEY
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] for an empty size or fewer than 2 bins.

@@ -13,6 +13,7 @@
 //! - [`sequence`]: posed RGB-D sequences (TUM, ICL-NUIM, DeepVideoMVS / 7-Scenes, stereo pairs).
 //! - [`eval`]: depth metrics and the photometric warp check.
 //! - [`nn`]: the feature network's kernels (conv 3x3, transposed conv 5x5, 2x downsampling).
+//! - [`plot`]: line plots and grids of them as PNG (diagnostics such as cost curves).
 //! - [`testing`]: error-budget comparisons shared by the test suites.
 //! - [`synth`]: a deterministic renderer of textured rooms with exact depth.
 //!
@@ -39,6 +40,7 @@ pub mod image;
 pub mod io;
 pub mod mapping;
 pub mod nn;
+pub mod plot;
 pub mod sequence;
 pub mod synth;
 pub mod testing;

@@ -37,3 +37,17 @@ fn inspect_rejects_bad_max_gap() {
         .unwrap();
     assert!(!out.status.success());
 }
+
+#[test]
+fn bench_tv_prints_iteration_and_solve_times() {
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["bench", "tv", "--size", "40x30", "--bins", "8", "--threads", "2", "--runs", "5"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("one iteration") && text.contains("a-search") && text.contains("full solve"),
+        "{text}"
+    );
+}

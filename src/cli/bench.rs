@@ -1,5 +1,5 @@
-//! `densefeat bench`: timing of the feature network's forward pass and of the machine's SGEMM
-//! peak, each inside a rayon pool of `--threads` threads.
+//! `densefeat bench`: timing of the feature network's forward pass, the machine's SGEMM peak, the
+//! cost volume and the DTAM solver, each inside a rayon pool of `--threads` threads.
 
 use std::time::Instant;
 
@@ -28,6 +28,8 @@ pub enum BenchCommand {
     Gemm(GemmArgs),
     /// Time adding one live frame to a cost volume (median ms per frame, hypotheses per second).
     Costvolume(super::bench_costvolume::BenchCostvolumeArgs),
+    /// Time the DTAM Huber-TV solver: one iteration (with its parts) and a full default solve.
+    Tv(super::bench_tv::BenchTvArgs),
 }
 
 /// Arguments of `densefeat bench forward`.
@@ -71,7 +73,7 @@ const WARMUP: usize = 2;
 /// Fewest timed forward runs.
 const MIN_RUNS: usize = 20;
 
-fn pool(threads: usize) -> Result<rayon::ThreadPool> {
+pub(crate) fn pool(threads: usize) -> Result<rayon::ThreadPool> {
     if threads == 0 {
         return Err(Error::invalid_argument("--threads", "must be at least 1"));
     }
@@ -193,5 +195,6 @@ pub fn run(args: BenchArgs) -> Result<()> {
         BenchCommand::Forward(a) => run_forward(a),
         BenchCommand::Gemm(a) => run_gemm(a),
         BenchCommand::Costvolume(a) => super::bench_costvolume::run(a.clone()),
+        BenchCommand::Tv(a) => super::bench_tv::run(a),
     }
 }

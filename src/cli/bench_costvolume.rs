@@ -8,9 +8,10 @@ use nalgebra::{Translation3, UnitQuaternion};
 use ndarray::Array3;
 
 use super::synth::parse_size;
-use crate::costvolume::{fast_kernel_name, CostVolume, CostVolumeImpl};
+use crate::costvolume::{fast_kernel_name, CostVolume, CostVolumeImpl, UNSEEN_COST};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
+use crate::io::{write_atomic, write_npy_f32};
 use crate::synth::rng::SplitMix64;
 
 /// Arguments of `densefeat bench costvolume`.
@@ -34,6 +35,12 @@ pub struct BenchCostvolumeArgs {
     /// Time the single-threaded reference instead of the fast kernel.
     #[arg(long)]
     pub reference: bool,
+    /// Also write the inputs and one frame's volume to this folder for an external check
+    /// (`benches/compare/`): `ref.npy`, `live.npy` `[H, W, C]`; `costs.npy`, `counts.npy`,
+    /// `magnitude.npy` `[H, W, K]` (f32; unseen costs are `UNSEEN_COST`; magnitude is SPEC.md §9.6's
+    /// `M̄`); `meta.json` (camera, `T_nr`, hypotheses, kernel, timing).
+    #[arg(long)]
+    pub dump: Option<std::path::PathBuf>,
 }
 
 /// Inputs of [`bench_inputs`].
@@ -130,6 +137,10 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
         hyps / median / 1e6,
         seen * 100.0
     );
+    if let Some(dir) = &args.dump {
+        dump(dir, &bench_inputs(width, height, args.channels, args.bins)?, kernel, args.threads, median)?;
+        println!("  inputs and one frame's volume written to {}", dir.display());
+    }
     if let Some(cpu) = cpu {
         // On a shared machine the wall time includes waiting for a core; CPU time does not.
         println!(
@@ -142,6 +153,37 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Write the bench inputs, one frame's volume (the fast kernel), its counts and the magnitude `M̄`
+/// (the reference on `|f_r|`, `-|f_n|`, SPEC.md §9.6) and `meta.json` to `dir` (created).
+fn dump(
+    dir: &std::path::Path,
+    inputs: &BenchInputs,
+    kernel: &str,
+    threads: usize,
+    median_s: f64,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let BenchInputs { reference, live, camera, bins, t_nr } = inputs;
+    let mut cv = CostVolume::new(reference.clone(), *camera, *bins)?;
+    cv.add_frame(live.view(), t_nr)?;
+    let mut mag = CostVolume::with_impl(reference.mapv(f32::abs), *camera, *bins, CostVolumeImpl::Reference)?;
+    mag.add_frame(live.mapv(|v| -v.abs()).view(), t_nr)?;
+    write_npy_f32(&dir.join("ref.npy"), reference.view())?;
+    write_npy_f32(&dir.join("live.npy"), live.view())?;
+    write_npy_f32(&dir.join("costs.npy"), cv.costs().view())?;
+    write_npy_f32(&dir.join("counts.npy"), cv.counts().mapv(f32::from).view())?;
+    write_npy_f32(&dir.join("magnitude.npy"), mag.costs().view())?;
+    let m = t_nr.to_homogeneous();
+    let meta = serde_json::json!({
+        "width": camera.width, "height": camera.height, "channels": reference.dim().2,
+        "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
+        "T_nr": (0..4).map(|r| (0..4).map(|c| m[(r, c)]).collect::<Vec<f64>>()).collect::<Vec<_>>(),
+        "rhos": bins.values(), "unseen_cost": UNSEEN_COST, "kernel": kernel, "threads": threads,
+        "median_ms_per_frame": median_s * 1e3,
+    });
+    write_atomic(&dir.join("meta.json"), meta.to_string().as_bytes())
 }
 
 /// User + system CPU time of this process from `/proc/self/stat` (Linux; 100 Hz ticks), or `None`.

@@ -7,6 +7,8 @@ use crate::error::Result;
 
 pub mod bench;
 pub mod bench_costvolume;
+pub mod bench_tv;
+pub mod costcurve;
 pub mod demo;
 pub mod eval;
 pub mod features;
@@ -44,6 +46,8 @@ pub enum Command {
     Eval(eval::EvalArgs),
     /// Reconstruct a keyframe of the shipped synthetic fixture with every method.
     Demo(demo::DemoArgs),
+    /// Plot the cost curves of a few keyframe pixels (RGB vs learned) as the volume fills (PNG + CSV).
+    Costcurve(costcurve::CostcurveArgs),
 }
 
 /// Parse the process arguments and run the subcommand.
@@ -60,5 +64,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Reconstruct(args) => reconstruct::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Demo(args) => demo::run(args),
+        Command::Costcurve(args) => costcurve::run(args),
     }
 }

@@ -1,0 +1,170 @@
+//! `densefeat bench tv`: time the DTAM Huber-TV solver (SPEC.md §10, §12.2) on a synthetic cost
+//! volume: one iteration (median, with its parts) and a full solve with default [`DtamParams`].
+
+use std::time::Instant;
+
+use clap::Args;
+use ndarray::{Array2, Array3};
+
+use super::synth::parse_size;
+use crate::dtam::{exhaustive_search, solve, total_energy, CostRange, DtamParams, HuberTv};
+use crate::error::{Error, Result};
+use crate::geometry::InverseDepthBins;
+use crate::synth::rng::SplitMix64;
+
+/// Arguments of `densefeat bench tv`.
+#[derive(Debug, Clone, Args)]
+pub struct BenchTvArgs {
+    /// Cost-volume size WIDTHxHEIGHT.
+    #[arg(long, default_value = "320x240")]
+    pub size: String,
+    /// Number of inverse-depth hypotheses K.
+    #[arg(long, default_value_t = 64)]
+    pub bins: usize,
+    /// Worker threads (rayon pool size).
+    #[arg(long, default_value_t = 2)]
+    pub threads: usize,
+    /// Timed iterations (at least 5) after two warm-up iterations; the full solve runs 3 times.
+    #[arg(long, default_value_t = 20)]
+    pub runs: usize,
+}
+
+/// Inputs of the DTAM benchmark (see [`tv_inputs`]).
+#[derive(Clone, Debug)]
+pub struct TvInputs {
+    /// Cost volume `[H, W, K]`.
+    pub costs: Array3<f32>,
+    /// The hypotheses.
+    pub bins: InverseDepthBins,
+    /// Reference grey image `[H, W]`, 0-255.
+    pub grey: Array2<f32>,
+    /// Initial inverse depth (the per-pixel argmin).
+    pub init: Array2<f32>,
+}
+
+/// Width of the pseudo-noise in the synthetic cost curves, grey levels.
+pub const NOISE: f64 = 8.0;
+/// Depth of a cost curve's valley, grey levels (RGB mean L1 costs are of this order).
+pub const VALLEY: f64 = 30.0;
+/// Width of the valley in inverse depth, 1/m.
+pub const VALLEY_WIDTH: f64 = 0.15;
+
+/// A smooth synthetic cost volume with the statistics of an RGB volume: hypotheses over depths
+/// `[0.4, 10]` m; the true inverse depth is a slanted plane plus a sine and two rectangles in front
+/// (depth discontinuities); each curve is an inverted Gaussian valley of depth [`VALLEY`] grey levels
+/// and width [`VALLEY_WIDTH`] at the truth plus uniform noise of [`NOISE`] levels; the left twentieth of the image has its
+/// nearest quarter of hypotheses unseen (out of the live frames' view). The grey image has the
+/// rectangles' edges plus texture noise. Deterministic (SplitMix64 seed 11).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for an empty size or fewer than 2 bins.
+pub fn tv_inputs(width: usize, height: usize, bins: usize) -> Result<TvInputs> {
+    if width == 0 || height == 0 {
+        return Err(Error::invalid_argument("--size", "empty"));
+    }
+    let bins = InverseDepthBins::from_depth_range(0.4, 10.0, bins)?;
+    let (w, h) = (width as f64, height as f64);
+    let in_box = |x: usize, y: usize| {
+        let (u, v) = (x as f64 / w, y as f64 / h);
+        (0.2..0.4).contains(&u) && (0.3..0.7).contains(&v)
+            || (0.6..0.85).contains(&u) && (0.1..0.5).contains(&v)
+    };
+    let truth = |x: usize, y: usize| {
+        let base = 0.3 + 1.2 * x as f64 / w + 0.2 * (std::f64::consts::PI * y as f64 / h).sin();
+        if in_box(x, y) {
+            base + 0.6
+        } else {
+            base
+        }
+    };
+    let mut rng = SplitMix64::new(11);
+    let k = bins.count;
+    let costs = Array3::from_shape_fn((height, width, k), |(y, x, i)| {
+        let noise = NOISE * rng.unit();
+        if x * 20 < width && i * 4 >= 3 * k {
+            return crate::costvolume::UNSEEN_COST;
+        }
+        let d = bins.rho(i) - truth(x, y);
+        (VALLEY * (1.0 - (-d * d / (2.0 * VALLEY_WIDTH * VALLEY_WIDTH)).exp()) + noise) as f32
+    });
+    let grey = Array2::from_shape_fn((height, width), |(y, x)| {
+        (if in_box(x, y) { 180.0 } else { 80.0 } + 20.0 * rng.unit()) as f32
+    });
+    let init = Array2::from_shape_fn((height, width), |(y, x)| {
+        let curve = costs.slice(ndarray::s![y, x, ..]);
+        let (kmin, _) =
+            curve.iter().enumerate().fold((0, f32::INFINITY), |b, (i, &c)| if c < b.1 { (i, c) } else { b });
+        bins.rho(kmin) as f32
+    });
+    Ok(TvInputs { costs, bins, grey, init })
+}
+
+fn median_ms(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2] * 1e3
+}
+
+/// Runs the benchmark and prints one iteration's parts and a full solve.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for bad arguments.
+pub fn run(args: &BenchTvArgs) -> Result<()> {
+    let (width, height) = parse_size(&args.size)?;
+    if args.runs < 5 {
+        return Err(Error::invalid_argument("--runs", format!("{}: must be at least 5", args.runs)));
+    }
+    let pool = super::bench::pool(args.threads)?;
+    let TvInputs { costs, bins, grey, init } = tv_inputs(width, height, args.bins)?;
+    let params = DtamParams::default();
+    let lambda = params.lambda;
+    let (mut step, mut search, mut energy, mut iter) = (vec![], vec![], vec![], vec![]);
+    let mut solves = vec![];
+    pool.install(|| -> Result<()> {
+        let g = crate::dtam::edge_weights(grey.view(), params.alpha, params.beta);
+        let range = CostRange::new(costs.view());
+        // Iterations at θ_start: the widest pruned search, the slowest iteration of a solve.
+        let theta = params.theta_start;
+        let mut tv = HuberTv::new(init.clone(), g, params.epsilon);
+        let mut a = init.clone();
+        for run in 0..args.runs + 2 {
+            let t0 = Instant::now();
+            tv.step(a.view(), theta);
+            let t1 = Instant::now();
+            a = exhaustive_search(costs.view(), &range, &bins, tv.primal(), theta, lambda);
+            let t2 = Instant::now();
+            std::hint::black_box(total_energy(&tv, costs.view(), &bins, a.view(), theta, lambda));
+            let t3 = Instant::now();
+            if run >= 2 {
+                step.push((t1 - t0).as_secs_f64());
+                search.push((t2 - t1).as_secs_f64());
+                energy.push((t3 - t2).as_secs_f64());
+                iter.push((t3 - t0).as_secs_f64());
+            }
+        }
+        for _ in 0..3 {
+            let t = Instant::now();
+            std::hint::black_box(solve(costs.view(), &bins, grey.view(), init.view(), &params)?);
+            solves.push(t.elapsed().as_secs_f64());
+        }
+        Ok(())
+    })?;
+    let solve_ms = median_ms(solves);
+    println!(
+        "dtam {width}x{height}, K={}, {} thread(s): one iteration (θ = θ_start) median {:.2} ms \
+         = primal-dual step {:.2} + a-search {:.2} + energy {:.2} ms ({} runs)",
+        args.bins,
+        args.threads,
+        median_ms(iter),
+        median_ms(step),
+        median_ms(search),
+        median_ms(energy),
+        args.runs
+    );
+    println!(
+        "  full solve, default parameters ({} iterations): median {solve_ms:.1} ms over 3 solves \
+         ({:.2} ms per iteration)",
+        params.iterations,
+        solve_ms / params.iterations as f64
+    );
+    Ok(())
+}

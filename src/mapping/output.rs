@@ -31,7 +31,7 @@ pub fn write_outputs(result: &KeyframeResult, dir: &Path) -> Result<Vec<PathBuf>
         p
     };
     save_rgb_png(&push(dir.join("keyframe.png")), &result.colour)?;
-    let (near, far) = (1.0 / result.bins.rho_max, 1.0 / result.bins.rho_min);
+    let (near, far) = colour_range(result);
     let mut estimates: Vec<(&str, &DepthEstimate)> = vec![("wta", &result.wta)];
     if let Some(tv) = &result.tv {
         estimates.push(("tv", tv));
@@ -58,7 +58,8 @@ pub fn write_outputs(result: &KeyframeResult, dir: &Path) -> Result<Vec<PathBuf>
             "level": result.level,
             "size": [result.camera.width, result.camera.height],
             "bins": result.bins.count,
-            "depth_range_m": [near, far],
+            "depth_range_m": [1.0 / result.bins.rho_max, 1.0 / result.bins.rho_min],
+            "colour_range_m": [near, far],
             "metrics": metrics,
             "timings_s": result.timings,
             "dtam": result.dtam.as_ref().map(|r| json!({
@@ -157,6 +158,26 @@ pub fn turbo(t: f64) -> [f32; 3] {
         (v.clamp(0.0, 1.0) * 255.0) as f32
     };
     [poly(&R), poly(&G), poly(&B)]
+}
+
+/// Depth range of the colour maps: the 2nd to 98th percentile of the valid ground-truth depths
+/// (else of the regularised, else the WTA estimate), within the search range; the same for every
+/// picture of a keyframe so that they can be compared.
+pub fn colour_range(result: &KeyframeResult) -> (f64, f64) {
+    let (lo, hi) = (1.0 / result.bins.rho_max, 1.0 / result.bins.rho_min);
+    let source = result.gt_depth.as_ref().unwrap_or(&result.tv.as_ref().unwrap_or(&result.wta).depth);
+    let mut z: Vec<f32> = source.iter().copied().filter(|&v| is_valid_depth(v)).collect();
+    if z.len() < 2 {
+        return (lo, hi.min(lo * 100.0));
+    }
+    z.sort_by(f32::total_cmp);
+    let pick = |q: f64| z[((z.len() - 1) as f64 * q).round() as usize] as f64;
+    let (near, far) = (pick(0.02).max(lo), pick(0.98).min(hi));
+    if near < far {
+        (near, far)
+    } else {
+        (lo, hi.min(lo * 100.0))
+    }
 }
 
 /// Colour of depth `z` on the map: turbo of `(1/z - 1/far) / (1/near - 1/far)` (near red, far blue).

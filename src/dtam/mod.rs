@@ -189,23 +189,33 @@ pub fn total_energy(
     theta: f64,
     lambda: f64,
 ) -> f64 {
+    use rayon::prelude::*;
     let d = tv.primal();
     let (h, w, k) = costs.dim();
-    let mut data = 0.0;
-    let mut coupling = 0.0;
-    for y in 0..h {
-        for x in 0..w {
-            let diff = d[[y, x]] as f64 - a[[y, x]] as f64;
-            coupling += diff * diff / (2.0 * theta);
-            let b = bins.bin_of(a[[y, x]] as f64).clamp(0.0, (k - 1) as f64);
-            let k0 = (b.floor() as usize).min(k.saturating_sub(2));
-            let t = b - k0 as f64;
-            let c0 = costs[[y, x, k0]];
-            let c1 = costs[[y, x, (k0 + 1).min(k - 1)]];
-            if c0 < search::UNSEEN && c1 < search::UNSEEN {
-                data += ((1.0 - t) * c0 as f64 + t * c1 as f64) / lambda;
+    // Per-row sums in parallel, then summed over rows in order: the same bits for any thread count.
+    let rows: Vec<(f64, f64)> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            let (mut coupling, mut data) = (0.0, 0.0);
+            for x in 0..w {
+                let diff = d[[y, x]] as f64 - a[[y, x]] as f64;
+                coupling += diff * diff / (2.0 * theta);
+                let b = bins.bin_of(a[[y, x]] as f64).clamp(0.0, (k - 1) as f64);
+                let k0 = (b.floor() as usize).min(k.saturating_sub(2));
+                let t = b - k0 as f64;
+                let c0 = costs[[y, x, k0]];
+                let c1 = costs[[y, x, (k0 + 1).min(k - 1)]];
+                if c0 < search::UNSEEN && c1 < search::UNSEEN {
+                    data += ((1.0 - t) * c0 as f64 + t * c1 as f64) / lambda;
+                }
             }
-        }
+            (coupling, data)
+        })
+        .collect();
+    let (mut coupling, mut data) = (0.0, 0.0);
+    for (c, dt) in rows {
+        coupling += c;
+        data += dt;
     }
     tv.regulariser_energy() + coupling + data
 }

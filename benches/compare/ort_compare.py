@@ -184,8 +184,12 @@ def build_model(cfg: Config, h: int, w: int) -> onnx.ModelProto:
     return model
 
 
-def session(model: onnx.ModelProto, threads: int) -> ort.InferenceSession:
+def session(model: onnx.ModelProto, threads: int, spin: bool = True) -> ort.InferenceSession:
     so = ort.SessionOptions()
+    if not spin:
+        # ORT's intra-op workers busy-wait by default; on an oversubscribed machine that steals
+        # the CPU its own other thread needs.
+        so.add_session_config_entry("session.intra_op.allow_spinning", "0")
     so.intra_op_num_threads = threads
     so.inter_op_num_threads = 1
     so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
@@ -296,10 +300,11 @@ def ort_median_ms(sess: ort.InferenceSession, x: np.ndarray, runs: int, warmup: 
 
 def timing(exe: Path, weights_by_stride: dict, runs: int, rounds: int) -> None:
     sizes = [(320, 240), (640, 480)]
-    print(f"## Timing: median ms, {runs} runs after warm-up, best-of-{rounds} rounds "
-          "(interleaved per configuration)\n")
-    print("| size | b1 stride | threads | densefeat ms | ORT ms | densefeat / ORT |")
-    print("|---|---|---|---|---|---|")
+    print(f"## Timing: median ms, {runs} runs after warm-up, best (lowest median) of {rounds} "
+          "rounds, interleaved per configuration\n")
+    print("| size | b1 stride | threads | densefeat ms | ORT ms | densefeat / ORT "
+          "| ORT no-spin ms | densefeat / ORT no-spin | load (1 min) |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for w, h in sizes:
         for stride in (2, 1):
             cfg = Config(weights_by_stride[stride])
@@ -307,14 +312,24 @@ def timing(exe: Path, weights_by_stride: dict, runs: int, rounds: int) -> None:
             x = to_nchw(bench_pattern(h, w))
             for threads in (1, 2):
                 sess = session(model, threads)
-                ours, theirs = [], []
-                for _ in range(rounds):
-                    theirs.append(ort_median_ms(sess, x, runs))
+                # with one thread there is nothing to spin for
+                quiet = session(model, threads, spin=False) if threads > 1 else None
+                ours, theirs, theirs_quiet = [], [], []
+                for r in range(rounds):
+                    # alternate which goes first, so a load change does not favour one side
+                    if r % 2 == 0:
+                        theirs.append(ort_median_ms(sess, x, runs))
                     ours.append(bench_forward_ms(exe, w, h, stride, threads, runs))
+                    if quiet is not None:
+                        theirs_quiet.append(ort_median_ms(quiet, x, runs))
+                    if r % 2 == 1:
+                        theirs.append(ort_median_ms(sess, x, runs))
                 d, o = min(ours), min(theirs)
-                print(f"| {w}x{h} | {stride} | {threads} | {d:.2f} | {o:.2f} | {d / o:.2f} |",
-                      flush=True)
-                del sess
+                q = f"{min(theirs_quiet):.2f} | {d / min(theirs_quiet):.2f}" if theirs_quiet else "— | —"
+                load = os.getloadavg()[0]
+                print(f"| {w}x{h} | {stride} | {threads} | {d:.2f} | {o:.2f} | {d / o:.2f} | {q} | "
+                      f"{load:.1f} |", flush=True)
+                del sess, quiet
     print()
 
 

@@ -161,7 +161,7 @@ impl Executor for Recorder {
         self.0.push(format!("add {:?} {:?}", a.shape(), b.shape()));
         Ok(a + b)
     }
-    fn crop(&mut self, x: &Self::Map, h: usize, w: usize) -> Self::Map {
+    fn crop(&mut self, x: Self::Map, h: usize, w: usize) -> Self::Map {
         x.slice(ndarray::s![..h, ..w, ..]).to_owned()
     }
 }

@@ -123,7 +123,7 @@ impl Executor for LayerCheckExecutor {
     fn add(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
         KernelExecutor(self.imp).add(a, b)
     }
-    fn crop(&mut self, x: &Array3<f32>, h: usize, w: usize) -> Array3<f32> {
+    fn crop(&mut self, x: Array3<f32>, h: usize, w: usize) -> Array3<f32> {
         KernelExecutor(self.imp).crop(x, h, w)
     }
 }

@@ -88,8 +88,8 @@ pub trait Executor {
     fn concat(&mut self, a: &Self::Map, b: &Self::Map) -> Result<Self::Map>;
     /// Elementwise sum.
     fn add(&mut self, a: &Self::Map, b: &Self::Map) -> Result<Self::Map>;
-    /// The top-left `h x w` window.
-    fn crop(&mut self, x: &Self::Map, h: usize, w: usize) -> Self::Map;
+    /// The top-left `h x w` window (takes the map, so nothing is copied when it already fits).
+    fn crop(&mut self, x: Self::Map, h: usize, w: usize) -> Self::Map;
 }
 
 /// Shape of a map from its dimensions, for kernels' geometries.
@@ -132,8 +132,12 @@ impl Executor for KernelExecutor {
     fn add(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
         add(a.view(), b.view())
     }
-    fn crop(&mut self, x: &Array3<f32>, h: usize, w: usize) -> Array3<f32> {
-        x.slice(s![..h, ..w, ..]).to_owned()
+    fn crop(&mut self, x: Array3<f32>, h: usize, w: usize) -> Array3<f32> {
+        if (x.dim().0, x.dim().1) == (h, w) {
+            x
+        } else {
+            x.slice(s![..h, ..w, ..]).to_owned()
+        }
     }
 }
 
@@ -216,10 +220,13 @@ pub fn run_network<E: Executor>(
     }
     aggregated.reverse();
     let shapes = config.output_shapes(h, w);
-    let crop_all = |exec: &mut E, maps: &[E::Map]| -> Vec<E::Map> {
-        maps.iter().zip(&shapes).map(|(m, &[hl, wl, _])| exec.crop(m, hl, wl)).collect()
+    // Maps are moved through the crop: at sizes that need no cropping nothing is copied.
+    let crop_all = |exec: &mut E, maps: Vec<E::Map>| -> Vec<E::Map> {
+        maps.into_iter().zip(&shapes).map(|(m, &[hl, wl, _])| exec.crop(m, hl, wl)).collect()
     };
-    Ok(ForwardOutput { blocks: crop_all(exec, &outs), aggregated: crop_all(exec, &aggregated) })
+    let blocks = crop_all(exec, outs);
+    let aggregated = crop_all(exec, aggregated);
+    Ok(ForwardOutput { blocks, aggregated })
 }
 
 /// The feature network with its weights.

@@ -50,6 +50,9 @@ pub struct ForwardArgs {
     /// Size of the GEMM used to measure the peak.
     #[arg(long, default_value_t = 1024)]
     pub gemm_size: usize,
+    /// Also print where the time goes: mean ms and GFLOP/s per kind of operation.
+    #[arg(long)]
+    pub profile: bool,
 }
 
 /// Arguments of `densefeat bench gemm`.
@@ -172,6 +175,22 @@ fn run_forward(args: &ForwardArgs) -> Result<()> {
         args.runs,
         100.0 * gflops / peak
     );
+    if args.profile {
+        let (rows, total) = pool.install(|| crate::nn::profile_forward(&net, image.view(), args.runs))?;
+        println!("\nprofile (mean per forward pass, {} passes):", args.runs);
+        println!("| operation | calls | ms | share | GFLOP/s |");
+        println!("|---|---|---|---|---|");
+        let mut accounted = 0.0;
+        for (op, t) in &rows {
+            accounted += t.ms;
+            let rate =
+                if t.flops > 0.0 { format!("{:.1}", t.flops / 1e9 / (t.ms / 1e3)) } else { "-".into() };
+            println!("| {op} | {} | {:.2} | {:.0} % | {rate} |", t.calls, t.ms, 100.0 * t.ms / total);
+        }
+        let rest = total - accounted;
+        println!("| pad, mean, image pyramid | - | {rest:.2} | {:.0} % | - |", 100.0 * rest / total);
+        println!("| total | - | {total:.2} | 100 % | {:.1} |", gflop / (total / 1e3));
+    }
     Ok(())
 }
 

@@ -10,6 +10,7 @@ use crate::io::write_atomic_with;
 use crate::mapping::evaluate::{evaluate, EvalOptions, EvalTable, Method};
 use crate::mapping::keyframe::Regularizer;
 use crate::mapping::{write_outputs, FeatureKind};
+use crate::plot::{line_plot_png, Series};
 use crate::sequence::{open, Sequence};
 
 use super::mapping_args::{parse_keyframes, progress_bar, show_stage, summary, MappingArgs};
@@ -38,6 +39,10 @@ pub struct EvalArgs {
     /// Also write every keyframe's depth files into OUT/kf_I_FEATURES/.
     #[arg(long)]
     pub save_depth: bool,
+    /// Comma-separated DTAM λ values: also run every TV method at each λ (the same λ for RGB and
+    /// learned features) and write `lambda_sweep.csv` and `lambda_sweep.png` (RMSE against λ).
+    #[arg(long, value_delimiter = ',')]
+    pub lambda_sweep: Vec<f64>,
     /// Output folder (table.csv, table.md, per_keyframe.csv, timings.md).
     #[arg(long)]
     pub out: PathBuf,
@@ -54,6 +59,79 @@ pub fn run(args: EvalArgs) -> Result<()> {
         EvalOptions { weights: args.weights.clone(), lambda_learned: args.lambda_learned }
     })?;
     print_table(&table, &args.out);
+    if !args.lambda_sweep.is_empty() {
+        lambda_sweep(&seq, &args, &keyframes)?;
+    }
+    Ok(())
+}
+
+/// RMSE of every TV method at each λ of `--lambda-sweep` (the paper's λ-sensitivity figure).
+fn lambda_sweep(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<()> {
+    let methods: Vec<Method> = args.methods.iter().copied().filter(|m| m.tv()).collect();
+    if methods.is_empty() {
+        return Err(Error::invalid_argument("--lambda-sweep", "needs at least one TV method in --methods"));
+    }
+    if let Some(bad) = args.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
+        return Err(Error::invalid_argument("--lambda-sweep", format!("λ = {bad}: must be positive")));
+    }
+    let mut lambdas = args.lambda_sweep.clone();
+    lambdas.sort_by(f64::total_cmp);
+    let bar = progress_bar();
+    let mut rms: Vec<Vec<(f64, f64)>> = vec![Vec::new(); methods.len()];
+    for &lambda in &lambdas {
+        let mut mapping = args.mapping.clone();
+        mapping.lambda = lambda;
+        let base = mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv);
+        let options = EvalOptions { weights: args.weights.clone(), lambda_learned: Some(lambda) };
+        let table = evaluate(
+            seq,
+            &base,
+            keyframes,
+            &methods,
+            &options,
+            |_| Ok(()),
+            |k, s, d, t| show_stage(&bar, &format!("λ = {lambda}, keyframe {k}: "), s, d, t),
+        )?;
+        for (i, row) in table.rows.iter().enumerate() {
+            rms[i].push((lambda, row.metrics.rms));
+        }
+    }
+    bar.finish_and_clear();
+    let mut csv = String::from("lambda");
+    for m in &methods {
+        csv += &format!(",{}_rms", m.name());
+    }
+    csv.push('\n');
+    for (j, &lambda) in lambdas.iter().enumerate() {
+        csv += &format!("{lambda}");
+        for r in &rms {
+            csv += &format!(",{}", r[j].1);
+        }
+        csv.push('\n');
+    }
+    write_text(&args.out.join("lambda_sweep.csv"), &csv)?;
+    const COLOURS: [(u8, u8, u8); 4] = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189)];
+    let series: Vec<Series> = methods
+        .iter()
+        .zip(rms)
+        .enumerate()
+        .map(|(i, (m, points))| Series {
+            name: m.name().to_string(),
+            points,
+            colour: COLOURS[i % COLOURS.len()],
+        })
+        .collect();
+    let png = args.out.join("lambda_sweep.png");
+    line_plot_png(
+        &png,
+        "Keyframe RMSE against regularisation strength",
+        "λ (data term weighted by 1/λ)",
+        "rms (m)",
+        &series,
+        &[],
+        true,
+    )?;
+    println!("\nλ sweep (rms, m):\n{csv}wrote {} and lambda_sweep.csv", png.display());
     Ok(())
 }
 

@@ -1,7 +1,7 @@
 //! 2x image downsampling (SPEC.md §2.1, §7.4) and the network's elementwise helpers on
 //! channels-last `[H, W, C]` arrays.
 
-use ndarray::{concatenate, Array3, ArrayView3, Axis};
+use ndarray::{Array3, ArrayView3};
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
@@ -71,7 +71,27 @@ pub fn concat_channels(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<
             format!("spatial sizes differ: {:?} and {:?}", a.shape(), b.shape()),
         ));
     }
-    concatenate(Axis(2), &[a, b]).map_err(|e| Error::invalid_argument("concat_channels", e.to_string()))
+    let (h, w, ca) = a.dim();
+    let cb = b.dim().2;
+    let (a, b) = (a.as_standard_layout(), b.as_standard_layout());
+    let (sa, sb) = (
+        a.as_slice().expect("standard layout is contiguous"),
+        b.as_slice().expect("standard layout is contiguous"),
+    );
+    let mut out = Array3::<f32>::zeros((h, w, ca + cb));
+    let c = ca + cb;
+    if w * c > 0 {
+        // Each output row is written by one task: a pure copy of contiguous channel runs.
+        let dst = out.as_slice_mut().expect("freshly allocated arrays are contiguous");
+        dst.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
+            for (x, px) in row.chunks_exact_mut(c).enumerate() {
+                let p = y * w + x;
+                px[..ca].copy_from_slice(&sa[p * ca..(p + 1) * ca]);
+                px[ca..].copy_from_slice(&sb[p * cb..(p + 1) * cb]);
+            }
+        });
+    }
+    Ok(out)
 }
 
 /// Elementwise sum of two maps of the same shape.
@@ -85,5 +105,20 @@ pub fn add(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<f32>> {
             format!("shapes differ: {:?} and {:?}", a.shape(), b.shape()),
         ));
     }
-    Ok(&a + &b)
+    let (a, b) = (a.as_standard_layout(), b.as_standard_layout());
+    let (sa, sb) = (
+        a.as_slice().expect("standard layout is contiguous"),
+        b.as_slice().expect("standard layout is contiguous"),
+    );
+    let mut out = Array3::<f32>::zeros(a.dim());
+    let dst = out.as_slice_mut().expect("freshly allocated arrays are contiguous");
+    // Elementwise, in parallel over fixed chunks: each output written once, no reduction.
+    const CHUNK: usize = 1 << 14;
+    dst.par_chunks_mut(CHUNK).enumerate().for_each(|(i, o)| {
+        let start = i * CHUNK;
+        for ((o, &x), &y) in o.iter_mut().zip(&sa[start..]).zip(&sb[start..]) {
+            *o = x + y;
+        }
+    });
+    Ok(out)
 }

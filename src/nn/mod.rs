@@ -18,6 +18,7 @@ pub mod deconv2d;
 pub mod downsample;
 pub mod geometry;
 pub mod network;
+pub mod profile;
 pub mod viz;
 pub mod weights;
 
@@ -27,6 +28,7 @@ pub use deconv2d::{deconv2d, Deconv2dImpl};
 pub use downsample::{add, concat_channels, downsample2x};
 pub use geometry::{Conv2dGeometry, Deconv2dGeometry, DownsampleGeometry};
 pub use network::{FeatureNet, ForwardOutput, NetworkImpl};
+pub use profile::{profile_forward, OpTotals};
 pub use weights::NetworkWeights;
 
 use crate::error::{Error, Result};

@@ -1,0 +1,110 @@
+//! Where a forward pass spends its time: an [`Executor`] that runs the fast kernels and times each
+//! operation, grouped by kind (`densefeat bench forward --profile`).
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use ndarray::{Array3, ArrayView3};
+
+use super::network::{run_network, Executor, KernelExecutor, NetworkImpl};
+use super::weights::LayerParams;
+use super::{Activation, FeatureNet};
+use crate::error::Result;
+
+/// Accumulated time and FLOPs of one kind of operation.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct OpTotals {
+    /// Calls.
+    pub calls: usize,
+    /// Wall time, milliseconds.
+    pub ms: f64,
+    /// Floating-point operations (multiply and add each count one).
+    pub flops: f64,
+}
+
+/// Times every operation of the fast kernels.
+#[derive(Debug)]
+pub struct ProfileExecutor {
+    inner: KernelExecutor,
+    /// Totals per operation kind (e.g. `conv s1 32->32`).
+    pub totals: BTreeMap<String, OpTotals>,
+}
+
+impl ProfileExecutor {
+    /// A profiler around `imp`'s kernels.
+    pub fn new(imp: NetworkImpl) -> Self {
+        Self { inner: KernelExecutor(imp), totals: BTreeMap::new() }
+    }
+
+    fn record<T>(&mut self, kind: String, flops: f64, f: impl FnOnce(&mut KernelExecutor) -> T) -> T {
+        let start = Instant::now();
+        let out = f(&mut self.inner);
+        let e = self.totals.entry(kind).or_default();
+        e.calls += 1;
+        e.ms += start.elapsed().as_secs_f64() * 1e3;
+        e.flops += flops;
+        out
+    }
+}
+
+impl Executor for ProfileExecutor {
+    type Map = Array3<f32>;
+    fn image(&mut self, image: &Array3<f32>) -> Result<Array3<f32>> {
+        self.record("image copy".into(), 0.0, |e| e.image(image))
+    }
+    fn conv(
+        &mut self,
+        x: &Array3<f32>,
+        l: &LayerParams,
+        stride: usize,
+        act: Activation,
+    ) -> Result<Array3<f32>> {
+        let (h, w, c_in) = x.dim();
+        let c_out = l.weight.shape()[0];
+        let flops = 2.0 * 9.0 * (c_in * c_out) as f64 * (h.div_ceil(stride) * w.div_ceil(stride)) as f64;
+        self.record(format!("conv s{stride} {c_in}->{c_out}"), flops, |e| e.conv(x, l, stride, act))
+    }
+    fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
+        let (h, w, c_in) = x.dim();
+        let c_out = l.weight.shape()[1];
+        // Each of the 4 h w outputs per input pixel sums 9, 6, 6 or 4 taps: 25 taps per input pixel.
+        let flops = 2.0 * 25.0 * (c_in * c_out) as f64 * (h * w) as f64;
+        self.record("deconv 5x5 s2".into(), flops, |e| e.deconv(x, l))
+    }
+    fn concat(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
+        self.record("concat".into(), 0.0, |e| e.concat(a, b))
+    }
+    fn add(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
+        self.record("add".into(), 0.0, |e| e.add(a, b))
+    }
+    fn crop(&mut self, x: Array3<f32>, h: usize, w: usize) -> Array3<f32> {
+        self.record("crop".into(), 0.0, |e| e.crop(x, h, w))
+    }
+}
+
+/// Run `runs` forward passes under the profiler; returns the per-kind totals divided by `runs`
+/// and the mean total wall time per pass (the difference to the sum of the kinds is the input
+/// padding, mean subtraction and image pyramid).
+///
+/// # Errors
+/// As [`FeatureNet::forward`].
+pub fn profile_forward(
+    net: &FeatureNet,
+    image: ArrayView3<f32>,
+    runs: usize,
+) -> Result<(Vec<(String, OpTotals)>, f64)> {
+    let mut exec = ProfileExecutor::new(NetworkImpl::FAST);
+    let runs = runs.max(1);
+    let start = Instant::now();
+    for _ in 0..runs {
+        std::hint::black_box(run_network(&mut exec, net.weights(), image)?);
+    }
+    let total = start.elapsed().as_secs_f64() * 1e3 / runs as f64;
+    let n = runs as f64;
+    let rows = exec
+        .totals
+        .into_iter()
+        .map(|(k, t)| (k, OpTotals { calls: t.calls / runs, ms: t.ms / n, flops: t.flops / n }))
+        .collect();
+    Ok((rows, total))
+}

@@ -298,3 +298,37 @@ fn cli_eval_writes_tables_for_the_requested_methods() {
     let per = std::fs::read_to_string(dir.path().join("per_keyframe.csv")).unwrap();
     assert_eq!(per.lines().count(), 5, "{per}");
 }
+
+#[test]
+fn cli_eval_lambda_sweep_writes_csv_and_plot() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["eval", "--sequence", FIXTURE, "--keyframes", "20:10:20", "--window", "2,2", "--bins", "16"])
+        .args(["--iterations", "20", "--methods", "rgb-wta,rgb-tv", "--lambda-sweep", "1000,10,100", "--out"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let csv = std::fs::read_to_string(dir.path().join("lambda_sweep.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines[0], "lambda,rgb-tv_rms");
+    // Sorted by λ, one row each, finite positive rms.
+    let lambdas: Vec<f64> =
+        lines[1..].iter().map(|l| l.split(',').next().unwrap().parse().unwrap()).collect();
+    assert_eq!(lambdas, vec![10.0, 100.0, 1000.0]);
+    for l in &lines[1..] {
+        let rms: f64 = l.split(',').nth(1).unwrap().parse().unwrap();
+        assert!(rms.is_finite() && rms > 0.0, "{l}");
+    }
+    let png = image::open(dir.path().join("lambda_sweep.png")).unwrap();
+    assert!(png.width() > 100 && png.height() > 100);
+    // A sweep needs a TV method.
+    let bad = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["eval", "--sequence", FIXTURE, "--keyframes", "20:10:20", "--methods", "rgb-wta"])
+        .args(["--lambda-sweep", "10", "--out"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--lambda-sweep"));
+}

@@ -35,7 +35,7 @@ impl PackedConv2d {
     /// Repacks PyTorch-layout weights `[c_out, c_in, 3, 3]` and a bias `[c_out]`.
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`] if a shape disagrees with `geom`.
+    /// [`crate::Error::InvalidArgument`] if a shape disagrees with `geom`.
     pub fn new(geom: &Conv2dGeometry, weight: ArrayView4<f32>, bias: ArrayView1<f32>) -> Result<Self> {
         expect_shape("conv2d weight", weight.shape(), &geom.weight_shape())?;
         expect_shape("conv2d bias", bias.shape(), &[geom.c_out()])?;
@@ -173,7 +173,7 @@ fn conv_block(
 /// `scratch.len() / scratch_len(geom)` tasks.
 ///
 /// # Errors
-/// [`Error::InvalidArgument`] if `input` or `out` has the wrong length, or `scratch` is shorter
+/// [`crate::Error::InvalidArgument`] if `input` or `out` has the wrong length, or `scratch` is shorter
 /// than [`scratch_len`].
 pub fn conv2d_im2col(
     packed: &PackedConv2d,

@@ -50,7 +50,7 @@ impl PackedDeconv2d {
     /// Repacks PyTorch-layout weights `[c_in, c_out, 5, 5]` and a bias `[c_out]`.
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`] if a shape disagrees with `geom`.
+    /// [`crate::Error::InvalidArgument`] if a shape disagrees with `geom`.
     pub fn new(geom: &Deconv2dGeometry, weight: ArrayView4<f32>, bias: ArrayView1<f32>) -> Result<Self> {
         expect_shape("deconv2d weight", weight.shape(), &geom.weight_shape())?;
         expect_shape("deconv2d bias", bias.shape(), &[geom.c_out()])?;
@@ -151,7 +151,7 @@ fn deconv_row_pair(packed: &PackedDeconv2d, input: &[f32], m: usize, cols: &mut 
 /// `scratch.len() / scratch_len(geom)` tasks.
 ///
 /// # Errors
-/// [`Error::InvalidArgument`] if `input` or `out` has the wrong length, or `scratch` is shorter
+/// [`crate::Error::InvalidArgument`] if `input` or `out` has the wrong length, or `scratch` is shorter
 /// than [`scratch_len`].
 pub fn deconv2d_fast(
     packed: &PackedDeconv2d,

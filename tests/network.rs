@@ -295,3 +295,23 @@ fn rejects_images_that_are_not_rgb() {
     assert!(net.forward(Array3::zeros((4, 4, 1)).view(), NetworkImpl::FAST).is_err());
     assert!(net.forward(Array3::zeros((0, 4, 3)).view(), NetworkImpl::FAST).is_err());
 }
+
+#[test]
+fn profile_counts_every_operation_of_the_paper_network() {
+    use densefeat::nn::{profile_forward, FeatureNet, NetworkConfig, NetworkWeights};
+    let config = NetworkConfig::default();
+    let net = FeatureNet::new(NetworkWeights::xavier_uniform(&config, 1).unwrap()).unwrap();
+    let img = ndarray::Array3::from_shape_fn((37, 45, 3), |(y, x, c)| ((y * 5 + x * 3 + c) % 255) as f32);
+    let (rows, total_ms) = profile_forward(&net, img.view(), 2).unwrap();
+    let calls = |prefix: &str| {
+        rows.iter().filter(|(k, _)| k.starts_with(prefix)).map(|(_, t)| t.calls).sum::<usize>()
+    };
+    let blocks = config.blocks;
+    assert_eq!(calls("conv"), 3 * blocks);
+    assert_eq!(calls("deconv"), blocks - 1);
+    assert_eq!(calls("concat"), blocks - 1);
+    assert_eq!(calls("add"), blocks - 1);
+    let accounted: f64 = rows.iter().map(|(_, t)| t.ms).sum();
+    assert!(accounted <= total_ms * 1.001 && accounted > 0.0, "{accounted} of {total_ms} ms");
+    assert!(rows.iter().filter(|(k, _)| k.starts_with("conv")).all(|(_, t)| t.flops > 0.0));
+}

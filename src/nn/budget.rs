@@ -19,7 +19,7 @@ use crate::nn::conv2d::conv2d_reference;
 use crate::nn::deconv2d::deconv2d_reference;
 use crate::nn::network::{Executor, KernelExecutor, NetworkImpl};
 use crate::nn::weights::LayerParams;
-use crate::nn::{Activation, Conv2dGeometry, Deconv2dGeometry};
+use crate::nn::Activation;
 use crate::testing::within_budget;
 
 /// Relative budget of one layer with `k` products per output (SPEC.md §7.5).
@@ -95,8 +95,7 @@ impl Executor for LayerCheckExecutor {
         act: Activation,
     ) -> Result<Array3<f32>> {
         let got = KernelExecutor(self.imp).conv(x, l, stride, act)?;
-        let (h, w, c_in) = x.dim();
-        let g = Conv2dGeometry::new(h, w, c_in, l.weight.shape()[0], stride)?;
+        let g = crate::nn::network::conv_geometry(x, l, stride)?;
         let (xf, xa) = f64_and_abs(x);
         let (aw, ab) = abs_params(l);
         let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));
@@ -107,8 +106,7 @@ impl Executor for LayerCheckExecutor {
     }
     fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
         let got = KernelExecutor(self.imp).deconv(x, l)?;
-        let (h, w, c_in) = x.dim();
-        let g = Deconv2dGeometry::new(h, w, c_in, l.weight.shape()[1])?;
+        let g = crate::nn::network::deconv_geometry(x, l)?;
         let (xf, xa) = f64_and_abs(x);
         let (aw, ab) = abs_params(l);
         let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));

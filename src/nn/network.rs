@@ -92,9 +92,22 @@ pub trait Executor {
     fn crop(&mut self, x: Self::Map, h: usize, w: usize) -> Self::Map;
 }
 
-/// Shape of a map from its dimensions, for kernels' geometries.
-fn dims(x: &Array3<f32>) -> (usize, usize, usize) {
-    x.dim()
+/// The validated geometry of `layer` (a 3x3 conv, weight `[c_out, c_in, 3, 3]`) applied to `x`.
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] for an empty map or a bad stride.
+pub fn conv_geometry(x: &Array3<f32>, layer: &LayerParams, stride: usize) -> Result<Conv2dGeometry> {
+    let (h, w, c_in) = x.dim();
+    Conv2dGeometry::new(h, w, c_in, layer.weight.shape()[0], stride)
+}
+
+/// The validated geometry of `layer` (a 5x5 transposed conv, weight `[c_in, c_out, 5, 5]`) on `x`.
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] for an empty map.
+pub fn deconv_geometry(x: &Array3<f32>, layer: &LayerParams) -> Result<Deconv2dGeometry> {
+    let (h, w, c_in) = x.dim();
+    Deconv2dGeometry::new(h, w, c_in, layer.weight.shape()[1])
 }
 
 /// Runs the network's kernels on f32 maps with the chosen implementations.
@@ -113,8 +126,7 @@ impl Executor for KernelExecutor {
         stride: usize,
         act: Activation,
     ) -> Result<Array3<f32>> {
-        let (h, w, c_in) = dims(x);
-        let g = Conv2dGeometry::new(h, w, c_in, l.weight.shape()[0], stride)?;
+        let g = conv_geometry(x, l, stride)?;
         let imp = match self.0.conv {
             Conv2dImpl::Direct => Conv2dImpl::fastest_for(&g),
             other => other,
@@ -122,8 +134,7 @@ impl Executor for KernelExecutor {
         conv2d(imp, &g, x.view(), l.weight.view(), l.bias.view(), act)
     }
     fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
-        let (h, w, c_in) = dims(x);
-        let g = Deconv2dGeometry::new(h, w, c_in, l.weight.shape()[1])?;
+        let g = deconv_geometry(x, l)?;
         deconv2d(self.0.deconv, &g, x.view(), l.weight.view(), l.bias.view())
     }
     fn concat(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use ndarray::{Array3, ArrayView3};
 
-use super::network::{run_network, Executor, KernelExecutor, NetworkImpl};
+use super::network::{conv_geometry, deconv_geometry, run_network, Executor, KernelExecutor, NetworkImpl};
 use super::weights::LayerParams;
 use super::{Activation, FeatureNet};
 use crate::error::Result;
@@ -59,16 +59,15 @@ impl Executor for ProfileExecutor {
         stride: usize,
         act: Activation,
     ) -> Result<Array3<f32>> {
-        let (h, w, c_in) = x.dim();
-        let c_out = l.weight.shape()[0];
-        let flops = 2.0 * 9.0 * (c_in * c_out) as f64 * (h.div_ceil(stride) * w.div_ceil(stride)) as f64;
-        self.record(format!("conv s{stride} {c_in}->{c_out}"), flops, |e| e.conv(x, l, stride, act))
+        let g = conv_geometry(x, l, stride)?;
+        let kind = format!("conv s{stride} {}->{}", g.c_in(), g.c_out());
+        self.record(kind, g.flops(), |e| e.conv(x, l, stride, act))
     }
     fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
-        let (h, w, c_in) = x.dim();
-        let c_out = l.weight.shape()[1];
-        // Each of the 4 h w outputs per input pixel sums 9, 6, 6 or 4 taps: 25 taps per input pixel.
-        let flops = 2.0 * 25.0 * (c_in * c_out) as f64 * (h * w) as f64;
+        // Each input pixel's 4 outputs sum 9, 6, 6 and 4 taps: 25 products per input pixel and pair
+        // of channels.
+        let g = deconv_geometry(x, l)?;
+        let flops = 2.0 * 25.0 * (g.c_in() * g.c_out() * g.h() * g.w()) as f64;
         self.record("deconv 5x5 s2".into(), flops, |e| e.deconv(x, l))
     }
     fn concat(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {

@@ -7,12 +7,14 @@
 //! (SPEC.md): pixel centres at integer coordinates, channels-last `[H, W, C]` `f32` tensors,
 //! camera-to-world poses in metres, inverse depth `ρ = 1/z`.
 //!
-//! - [`costvolume`]: the photometric cost volume (paper eq. 4) and winner-take-all depth.
+//! - [`costvolume`]: the multi-view feature cost volume (paper eq. 4) and winner-take-all depth.
+//! - [`dtam`]: Huber-TV regularisation of inverse depth (DTAM's primal-dual optimiser).
+//! - [`mapping`]: keyframe reconstruction with RGB or learned features, outputs and evaluation.
 //! - [`geometry`]: pinhole cameras, distortion, SE(3), the inverse-depth warp.
 //! - [`image`]: image types, PNG I/O, bilinear sampling, undistortion.
 //! - [`sequence`]: posed RGB-D sequences (TUM, ICL-NUIM, DeepVideoMVS / 7-Scenes, stereo pairs).
 //! - [`eval`]: depth metrics and the photometric warp check.
-//! - [`nn`]: the feature network's kernels (conv 3x3, transposed conv 5x5, 2x downsampling).
+//! - [`nn`]: the feature network (the paper's CNN), its kernels and PyTorch-compatible weights.
 //! - [`plot`]: line plots and grids of them as PNG (diagnostics such as cost curves).
 //! - [`testing`]: error-budget comparisons shared by the test suites.
 //! - [`synth`]: a deterministic renderer of textured rooms with exact depth.

@@ -30,6 +30,7 @@
 //! assert_eq!(y.into_raw_vec_and_offset().0, vec![12.0, 21.0, 16.0, 27.0, 45.0, 33.0, 24.0, 39.0, 28.0]);
 //! ```
 
+pub mod backward;
 pub mod direct;
 #[cfg(target_arch = "x86_64")]
 mod direct_avx512;
@@ -38,6 +39,10 @@ pub mod reference;
 
 use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};
 
+pub use backward::{
+    conv2d_backward_input, conv2d_backward_input_reference, conv2d_backward_weight,
+    conv2d_backward_weight_reference, relu_backward,
+};
 pub use direct::{conv2d_direct, conv2d_direct_with, DirectKernel};
 pub use im2col::{conv2d_im2col, scratch_len, PackedConv2d};
 pub use reference::conv2d_reference;

@@ -7,7 +7,11 @@ use densefeat::nn::conv2d::{
     conv2d_backward_input, conv2d_backward_input_reference, conv2d_backward_weight,
     conv2d_backward_weight_reference, conv2d_reference, relu_backward,
 };
-use densefeat::nn::{Activation, Conv2dGeometry};
+use densefeat::nn::deconv2d::{
+    deconv2d_backward_input, deconv2d_backward_input_reference, deconv2d_backward_weight,
+    deconv2d_backward_weight_reference, deconv2d_reference,
+};
+use densefeat::nn::{Activation, Conv2dGeometry, Deconv2dGeometry};
 use densefeat::testing::within_budget;
 use ndarray::{array, Array, Array1, Array3, Array4, Dimension};
 use proptest::prelude::*;
@@ -260,4 +264,164 @@ fn conv_backward_rejects_mismatched_shapes() {
     assert!(conv2d_backward_input(&geom, bad_g.view(), w.view()).is_err());
     assert!(conv2d_backward_weight(&geom, x.view(), bad_g.view()).is_err());
     assert!(conv2d_backward_weight(&geom, bad_g.view(), bad_g.view()).is_err());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Transposed convolution
+
+/// A transposed convolution with its operands, an upstream gradient and probe directions.
+#[derive(Clone, Debug)]
+struct DeconvCase {
+    geom: Deconv2dGeometry,
+    x: Array3<f64>,
+    w: Array4<f64>,
+    b: Array1<f64>,
+    g: Array3<f64>,
+    vx: Array3<f64>,
+    vw: Array4<f64>,
+    vb: Array1<f64>,
+}
+
+impl DeconvCase {
+    fn new(h: usize, w: usize, c_in: usize, c_out: usize, seed: u64) -> Self {
+        let geom = Deconv2dGeometry::new(h, w, c_in, c_out).unwrap();
+        let mut next = lcg(seed);
+        DeconvCase {
+            geom,
+            x: Array3::from_shape_simple_fn(geom.input_shape(), &mut next),
+            w: Array4::from_shape_simple_fn(geom.weight_shape(), &mut next),
+            b: Array1::from_shape_simple_fn(c_out, &mut next),
+            g: Array3::from_shape_simple_fn(geom.output_shape(), &mut next),
+            vx: Array3::from_shape_simple_fn(geom.input_shape(), &mut next),
+            vw: Array4::from_shape_simple_fn(geom.weight_shape(), &mut next),
+            vb: Array1::from_shape_simple_fn(c_out, &mut next),
+        }
+    }
+
+    /// `L = <g, deconv(x, w, b)>` by the f64 forward reference.
+    fn loss(&self, x: &Array3<f64>, w: &Array4<f64>, b: &Array1<f64>) -> f64 {
+        dot(&self.g, &deconv2d_reference(&self.geom, x.view(), w.view(), b.view()).unwrap())
+    }
+}
+
+fn small_deconv_cases() -> impl Strategy<Value = DeconvCase> {
+    (
+        1usize..6,
+        1usize..6,
+        prop::sample::select(vec![1usize, 3, 4]),
+        prop::sample::select(vec![1usize, 2, 5]),
+        any::<u64>(),
+    )
+        .prop_map(|(h, w, c_in, c_out, seed)| DeconvCase::new(h, w, c_in, c_out, seed))
+}
+
+fn fast_deconv_cases() -> impl Strategy<Value = DeconvCase> {
+    (
+        prop::sample::select(SIZES.to_vec()),
+        prop::sample::select(SIZES.to_vec()),
+        prop::sample::select(C_INS.to_vec()),
+        prop::sample::select(C_OUTS.to_vec()),
+        any::<u64>(),
+    )
+        .prop_map(|(h, w, c_in, c_out, seed)| DeconvCase::new(h, w, c_in, c_out, seed))
+}
+
+proptest! {
+    #[test]
+    fn deconv_backward_input_matches_central_difference(case in small_deconv_cases()) {
+        let c = &case;
+        let numeric = (c.loss(&(&c.x + &(H * &c.vx)), &c.w, &c.b) - c.loss(&(&c.x - &(H * &c.vx)), &c.w, &c.b))
+            / (2.0 * H);
+        let d_x = deconv2d_backward_input_reference(&c.geom, c.g.view(), c.w.view()).unwrap();
+        let analytic = dot(&d_x, &c.vx);
+        prop_assert!(close(numeric, analytic), "numeric {numeric:e} vs analytic {analytic:e}");
+    }
+
+    #[test]
+    fn deconv_backward_weight_matches_central_difference(case in small_deconv_cases()) {
+        let c = &case;
+        let numeric = (c.loss(&c.x, &(&c.w + &(H * &c.vw)), &c.b) - c.loss(&c.x, &(&c.w - &(H * &c.vw)), &c.b))
+            / (2.0 * H);
+        let (d_w, _) = deconv2d_backward_weight_reference(&c.geom, c.x.view(), c.g.view()).unwrap();
+        let analytic = dot(&d_w, &c.vw);
+        prop_assert!(close(numeric, analytic), "numeric {numeric:e} vs analytic {analytic:e}");
+    }
+
+    #[test]
+    fn deconv_backward_bias_matches_central_difference(case in small_deconv_cases()) {
+        let c = &case;
+        let numeric = (c.loss(&c.x, &c.w, &(&c.b + &(H * &c.vb))) - c.loss(&c.x, &c.w, &(&c.b - &(H * &c.vb))))
+            / (2.0 * H);
+        let (_, d_b) = deconv2d_backward_weight_reference(&c.geom, c.x.view(), c.g.view()).unwrap();
+        let analytic = dot(&d_b, &c.vb);
+        prop_assert!(close(numeric, analytic), "numeric {numeric:e} vs analytic {analytic:e}");
+    }
+
+    #[test]
+    fn deconv_backward_input_fast_matches_reference(case in fast_deconv_cases()) {
+        let c = &case;
+        let fast = deconv2d_backward_input(&c.geom, f32s(&c.g).view(), f32s(&c.w).view()).unwrap();
+        let oracle = deconv2d_backward_input_reference(&c.geom, c.g.view(), c.w.view()).unwrap();
+        let magnitude =
+            deconv2d_backward_input_reference(&c.geom, abs(&c.g).view(), abs(&c.w).view()).unwrap();
+        let k = 25 * c.geom.c_out();
+        within_budget(fast.view(), f32s(&oracle).view(), f32s(&magnitude).view(), budget(k))?;
+    }
+
+    #[test]
+    fn deconv_backward_weight_fast_matches_reference(case in fast_deconv_cases()) {
+        let c = &case;
+        let (fast_w, fast_b) =
+            deconv2d_backward_weight(&c.geom, f32s(&c.x).view(), f32s(&c.g).view()).unwrap();
+        let (ref_w, ref_b) = deconv2d_backward_weight_reference(&c.geom, c.x.view(), c.g.view()).unwrap();
+        let (mag_w, mag_b) =
+            deconv2d_backward_weight_reference(&c.geom, abs(&c.x).view(), abs(&c.g).view()).unwrap();
+        let (hw, k_b) = (c.geom.h() * c.geom.w(), c.geom.h_out() * c.geom.w_out());
+        within_budget(fast_w.view(), f32s(&ref_w).view(), f32s(&mag_w).view(), budget(hw))?;
+        within_budget(fast_b.view(), f32s(&ref_b).view(), f32s(&mag_b).view(), budget(k_b))?;
+    }
+}
+
+#[test]
+fn deconv_backward_independent_of_thread_count() {
+    for (h, w, c_in, c_out, seed) in [(19, 23, 32, 32, 3), (7, 150, 35, 8, 4)] {
+        let c = DeconvCase::new(h, w, c_in, c_out, seed);
+        let (x, wt, g) = (f32s(&c.x), f32s(&c.w), f32s(&c.g));
+        let run = |n| {
+            thread_pool(n).install(|| {
+                let d_x = deconv2d_backward_input(&c.geom, g.view(), wt.view()).unwrap();
+                let (d_w, d_b) = deconv2d_backward_weight(&c.geom, x.view(), g.view()).unwrap();
+                (d_x, d_w, d_b)
+            })
+        };
+        let (one_x, one_w, one_b) = run(1);
+        for n in [2, 3, 8] {
+            let (d_x, d_w, d_b) = run(n);
+            assert_eq!(bits(&d_x), bits(&one_x), "input, shape {:?}, threads = {n}", (h, w, c_in, c_out));
+            assert_eq!(bits(&d_w), bits(&one_w), "weight, shape {:?}, threads = {n}", (h, w, c_in, c_out));
+            assert_eq!(bits(&d_b), bits(&one_b), "bias, shape {:?}, threads = {n}", (h, w, c_in, c_out));
+        }
+    }
+}
+
+#[test]
+fn deconv_backward_input_is_a_strided_5x5_convolution_of_the_gradient() {
+    // An impulse of g at output (oy, ox) reaches input (iy, ix) through tap (oy - 2iy + 2, ox - 2ix + 2).
+    let geom = Deconv2dGeometry::new(3, 3, 1, 1).unwrap();
+    let w = Array4::from_shape_fn(geom.weight_shape(), |(_, _, ky, kx)| (5 * ky + kx) as f32);
+    let mut g = Array3::<f32>::zeros(geom.output_shape());
+    g[[3, 2, 0]] = 1.0;
+    let d_x = deconv2d_backward_input(&geom, g.view(), w.view()).unwrap();
+    let want = Array3::from_shape_fn(geom.input_shape(), |(iy, ix, _)| {
+        let (ky, kx) = (3 + 2 - 2 * iy as isize, 2 + 2 - 2 * ix as isize);
+        if (0..5).contains(&ky) && (0..5).contains(&kx) {
+            (5 * ky + kx) as f32
+        } else {
+            0.0
+        }
+    });
+    assert_eq!(d_x, want);
+    // Input rows 1 and 2 reach output row 3 through ky = 3 and 1; columns 0, 1, 2 reach column 2
+    // through kx = 4, 2, 0.
+    assert_eq!(d_x[[1, 1, 0]], 17.0);
 }

@@ -23,11 +23,16 @@
 //! `input [h, w, c_in]`, `weight [c_in, c_out, 5, 5]` (PyTorch layout), `bias [c_out]`, output
 //! `[2h, 2w, c_out]` ([`Deconv2dGeometry`]).
 
+pub mod backward;
 pub mod fast;
 pub mod reference;
 
 use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};
 
+pub use backward::{
+    deconv2d_backward_input, deconv2d_backward_input_reference, deconv2d_backward_weight,
+    deconv2d_backward_weight_reference,
+};
 pub use fast::{deconv2d_fast, scratch_len, PackedDeconv2d};
 pub use reference::deconv2d_reference;
 

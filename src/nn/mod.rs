@@ -79,6 +79,26 @@ pub(crate) fn expect_len(name: &str, actual: usize, expected: usize) -> Result<(
     }
 }
 
+/// `acc[c] += alpha · x[c]` for every channel (the same operation order everywhere it is used, so
+/// backward passes built on it stay bit-identical).
+#[inline]
+pub(crate) fn axpy(acc: &mut [f32], alpha: f32, x: &[f32]) {
+    for (a, &v) in acc.iter_mut().zip(x) {
+        *a += alpha * v;
+    }
+}
+
+/// `acc[c] += Σ_o g[o] · w_tap[o, c]` with `w_tap` row-major `[o][c]`, summed over `o` in order:
+/// one tap of a transposed (gathered) convolution.
+#[inline]
+pub(crate) fn add_transposed_tap(acc: &mut [f32], g: &[f32], w_tap: &[f32]) {
+    for (&gv, w_row) in g.iter().zip(w_tap.chunks_exact(acc.len())) {
+        for (a, &wv) in acc.iter_mut().zip(w_row) {
+            *a += wv * gv;
+        }
+    }
+}
+
 /// How many parallel lanes of `lane_len` floats fit in `scratch` (at least one, else an error).
 pub(crate) fn scratch_lanes(name: &str, scratch: &[f32], lane_len: usize) -> Result<usize> {
     let lanes = scratch.len() / lane_len;

@@ -20,8 +20,8 @@ use ndarray::{Array1, Array3, Array4, ArrayView, ArrayView3, ArrayView4, Dimensi
 use rayon::prelude::*;
 
 use crate::error::Result;
-use crate::nn::expect_shape;
 use crate::nn::geometry::{Conv2dGeometry, CONV_KERNEL, CONV_PADDING};
+use crate::nn::{add_transposed_tap, axpy, expect_shape};
 
 /// Input pixel read by output pixel `j` through tap `k` along one axis: `s j + k - 1`, or `None`
 /// in the zero padding.
@@ -153,11 +153,7 @@ pub fn conv2d_backward_input(
                     let Some(x) = tap_target(ix, kx, s, w_out) else { continue };
                     let g_px = &g[(y * w_out + x) * c_out..][..c_out];
                     let w_tap = &packed[(ky * CONV_KERNEL + kx) * c_out * c_in..][..c_out * c_in];
-                    for (&gv, w_oc) in g_px.iter().zip(w_tap.chunks_exact(c_in)) {
-                        for (acc, &wv) in px.iter_mut().zip(w_oc) {
-                            *acc += wv * gv;
-                        }
-                    }
+                    add_transposed_tap(px, g_px, w_tap);
                 }
             }
         }
@@ -206,9 +202,7 @@ pub fn conv2d_backward_weight(
                             let Some(ix) = tap_source(x, kx, s, w) else { continue };
                             let px = &x_in[(iy * w + ix) * c_in..][..c_in];
                             let a = &mut acc[(ky * CONV_KERNEL + kx) * c_in..][..c_in];
-                            for (a, &v) in a.iter_mut().zip(px) {
-                                *a += gv * v;
-                            }
+                            axpy(a, gv, px);
                         }
                     }
                 }

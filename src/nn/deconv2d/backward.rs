@@ -18,8 +18,8 @@ use ndarray::{Array1, Array3, Array4, ArrayView3, ArrayView4};
 use rayon::prelude::*;
 
 use crate::error::Result;
-use crate::nn::expect_shape;
 use crate::nn::geometry::{Deconv2dGeometry, DECONV_KERNEL, DECONV_PADDING, DECONV_STRIDE};
+use crate::nn::{add_transposed_tap, axpy, expect_shape};
 
 /// Output pixel `2 i - 2 + k` that input pixel `i` reaches through tap `k`, if inside `0..n_out`.
 fn tap_target(i: usize, k: usize, n_out: usize) -> Option<usize> {
@@ -143,11 +143,7 @@ pub fn deconv2d_backward_input(
                     let Some(ox) = tap_target(ix, kx, w_out) else { continue };
                     let g_px = &g[(oy * w_out + ox) * c_out..][..c_out];
                     let w_tap = &packed[(ky * DECONV_KERNEL + kx) * c_out * c_in..][..c_out * c_in];
-                    for (&gv, w_ci) in g_px.iter().zip(w_tap.chunks_exact(c_in)) {
-                        for (acc, &wv) in px.iter_mut().zip(w_ci) {
-                            *acc += wv * gv;
-                        }
-                    }
+                    add_transposed_tap(px, g_px, w_tap);
                 }
             }
         }
@@ -194,9 +190,7 @@ pub fn deconv2d_backward_weight(
                             let Some(ox) = tap_target(ix, kx, w_out) else { continue };
                             let gv = g[(oy * w_out + ox) * c_out + co];
                             let a = &mut acc[(ky * DECONV_KERNEL + kx) * c_in..][..c_in];
-                            for (a, &v) in a.iter_mut().zip(px) {
-                                *a += gv * v;
-                            }
+                            axpy(a, gv, px);
                         }
                     }
                 }

@@ -17,6 +17,7 @@
 //! - [`nn`]: the feature network (the paper's CNN), its kernels and PyTorch-compatible weights.
 //! - [`plot`]: line plots and grids of them as PNG (diagnostics such as cost curves).
 //! - [`testing`]: error-budget comparisons shared by the test suites.
+//! - [`train`]: the paper's deeply supervised cost-volume loss, backpropagation and the trainer.
 //! - [`synth`]: a deterministic renderer of textured rooms with exact depth.
 //!
 //! ```
@@ -46,5 +47,6 @@ pub mod plot;
 pub mod sequence;
 pub mod synth;
 pub mod testing;
+pub mod train;
 
 pub use error::{Error, Result};

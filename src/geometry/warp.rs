@@ -58,6 +58,16 @@ impl Warp {
         &self.target
     }
 
+    /// `R_nr K_r⁻¹`, so that `p = R K⁻¹ u̇ + ρ t` can be hoisted per pixel.
+    pub fn rotation_k_inv(&self) -> &Matrix3<f64> {
+        &self.rk
+    }
+
+    /// `t_nr`.
+    pub fn translation(&self) -> &Vector3<f64> {
+        &self.t
+    }
+
     /// `p = R K⁻¹ u̇ + ρ t`, the target-camera point scaled by `ρ`.
     #[inline]
     pub fn point(&self, u: f64, v: f64, rho: f64) -> Vector3<f64> {

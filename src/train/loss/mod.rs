@@ -1,0 +1,326 @@
+//! The paper's multi-view cost-volume loss at one scale (§3.2, SPEC.md §13.1).
+//!
+//! For every reference pixel `u` with valid ground-truth depth `z*` (`ρ* = 1/z*`):
+//!
+//! ```text
+//! E_l  = ‖f_ref(u) − f_live(u'_l)‖²       u'_l = π(T_lr π⁻¹(u, ρ_l)), bilinear; m if u'_l is outside
+//! P_l  = exp(−E_l) / Σ_k exp(−E_k)          (softmax over the K hypotheses)
+//! CE   = −ln P_{l*} − Σ_{l≠l*} ln max(1 − P_l, ε)     (binary cross-entropy, one-hot target l*)
+//! ρ̂    = Σ_l P_l ρ_l,  d̂ = 1 / max(ρ̂, ρ_floor)
+//! loss = CE + λ_ρ (ρ̂ − ρ*)² + λ_d (d̂ − z*)²
+//! ```
+//!
+//! `l*` is the bin nearest to `ρ*`. A pixel is masked out (no loss, no gradient) when `z*` is
+//! invalid, `ρ*` lies outside `[ρ_min, ρ_max]`, or its true match `u'(ρ*)` is behind the live camera
+//! or outside the live image. The scale's loss is the **mean** over unmasked pixels.
+//!
+//! [`scale_loss_reference`] is the f64 oracle (plain loops); [`scale_loss`] the fast f32 version
+//! (samples and costs in f32, the per-pixel softmax and regression in f64, the same
+//! [`pixel_terms`]). Both return the gradients with respect to both feature maps.
+
+mod fast;
+mod reference;
+
+pub use fast::scale_loss;
+pub use reference::scale_loss_reference;
+
+use ndarray::{Array3, ArrayView2};
+
+use crate::error::{Error, Result};
+use crate::geometry::{InverseDepthBins, Warp};
+use crate::image::is_valid_depth;
+
+/// Hyper-parameters of the loss (SPEC.md §13.1); `Default` is the paper's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LossConfig {
+    /// Inverse-depth hypotheses (the paper: 256 over `[0, 4]` 1/m).
+    pub bins: InverseDepthBins,
+    /// Cost `m` of a hypothesis whose sample falls outside the live image (the paper: 10).
+    pub outside_cost: f64,
+    /// Weight of `(ρ̂ − ρ*)²` (the paper: 5).
+    pub lambda_rho: f64,
+    /// Weight of `(1/ρ̂ − 1/ρ*)²` (the paper: 1).
+    pub lambda_d: f64,
+    /// `d̂ = 1 / max(ρ̂, rho_floor)`: bounds the depth term where `ρ̂` nears 0 (0.1 1/m = 10 m).
+    pub rho_floor: f64,
+    /// `ln(1 − P_l)` is taken of `max(1 − P_l, prob_floor)` (1e-6); no gradient where it clamps.
+    pub prob_floor: f64,
+}
+
+impl Default for LossConfig {
+    fn default() -> Self {
+        LossConfig {
+            bins: InverseDepthBins::paper(),
+            outside_cost: 10.0,
+            lambda_rho: 5.0,
+            lambda_d: 1.0,
+            rho_floor: 0.1,
+            prob_floor: 1e-6,
+        }
+    }
+}
+
+impl LossConfig {
+    /// Checks that every field is finite and in range.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming the field.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |name: &str, v: f64| Error::invalid_argument(name, format!("{v} is out of range"));
+        if !(self.outside_cost.is_finite() && self.outside_cost >= 0.0) {
+            return Err(bad("outside_cost", self.outside_cost));
+        }
+        if !(self.lambda_rho.is_finite() && self.lambda_rho >= 0.0) {
+            return Err(bad("lambda_rho", self.lambda_rho));
+        }
+        if !(self.lambda_d.is_finite() && self.lambda_d >= 0.0) {
+            return Err(bad("lambda_d", self.lambda_d));
+        }
+        if !(self.rho_floor.is_finite() && self.rho_floor > 0.0) {
+            return Err(bad("rho_floor", self.rho_floor));
+        }
+        if !(self.prob_floor > 0.0 && self.prob_floor < 1.0) {
+            return Err(bad("prob_floor", self.prob_floor));
+        }
+        Ok(())
+    }
+}
+
+/// Sums over the unmasked pixels of one scale (divide by `pixels` for means).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LossSums {
+    /// Unmasked pixels.
+    pub pixels: usize,
+    /// Σ cross-entropy.
+    pub ce: f64,
+    /// Σ `λ_ρ (ρ̂ − ρ*)²`.
+    pub rho: f64,
+    /// Σ `λ_d (d̂ − z*)²`.
+    pub depth: f64,
+    /// Pixels whose expected depth `d̂` is within a factor 1.25 of `z*`.
+    pub delta125_expected: usize,
+    /// Pixels whose winner-take-all depth (`1/ρ` of the lowest-cost bin) is within 1.25 of `z*`.
+    pub delta125_wta: usize,
+}
+
+impl LossSums {
+    /// The scale's loss: `(ce + rho + depth) / pixels` (0 with no pixels).
+    pub fn mean(&self) -> f64 {
+        if self.pixels == 0 {
+            0.0
+        } else {
+            (self.ce + self.rho + self.depth) / self.pixels as f64
+        }
+    }
+
+    /// Adds another scale's or pair's sums.
+    pub fn accumulate(&mut self, o: &LossSums) {
+        self.pixels += o.pixels;
+        self.ce += o.ce;
+        self.rho += o.rho;
+        self.depth += o.depth;
+        self.delta125_expected += o.delta125_expected;
+        self.delta125_wta += o.delta125_wta;
+    }
+}
+
+/// The loss of one scale and its gradients (already divided by the pixel count).
+#[derive(Clone, Debug)]
+pub struct ScaleLoss<T> {
+    /// Sums over unmasked pixels.
+    pub sums: LossSums,
+    /// `d mean / d f_ref`, `[H, W, C]`.
+    pub d_ref: Array3<T>,
+    /// `d mean / d f_live`, `[H', W', C]`.
+    pub d_live: Array3<T>,
+}
+
+/// What one unmasked pixel contributes, given its costs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelTerms {
+    /// Cross-entropy.
+    pub ce: f64,
+    /// `λ_ρ (ρ̂ − ρ*)²`.
+    pub rho: f64,
+    /// `λ_d (d̂ − z*)²`.
+    pub depth: f64,
+    /// `ρ̂`.
+    pub rho_hat: f64,
+    /// The lowest-cost bin (the first on ties).
+    pub wta: usize,
+}
+
+/// The per-pixel part of the loss, in f64 (shared by both implementations): from the costs
+/// `energies[l]` (already `m` outside the image), the target bin and `ρ*`, the terms and
+/// `grad[l] = d(CE + λ_ρ(ρ̂−ρ*)² + λ_d(d̂−z*)²) / dE_l` (SPEC.md §13.1).
+pub fn pixel_terms(
+    cfg: &LossConfig,
+    energies: &[f64],
+    target: usize,
+    rho_star: f64,
+    grad: &mut [f64],
+) -> PixelTerms {
+    let k = energies.len();
+    let bins = &cfg.bins;
+    // Softmax of s = −E, shifted by the smallest cost.
+    let (wta, e_min) =
+        energies
+            .iter()
+            .enumerate()
+            .fold((0, f64::INFINITY), |(bi, bv), (i, &e)| if e < bv { (i, e) } else { (bi, bv) });
+    let mut sum = 0.0;
+    for (g, &e) in grad.iter_mut().zip(energies) {
+        *g = (e_min - e).exp();
+        sum += *g;
+    }
+    // grad holds P for now.
+    for g in grad.iter_mut() {
+        *g /= sum;
+    }
+    let log_p_target = (e_min - energies[target]) - sum.ln();
+    let mut ce = -log_p_target;
+    // dCE/dP_l for l != l*: 1/q_l where q_l = 1 - P_l is above the floor, else 0.
+    // dCE/ds_j = P_j (g_j − Σ_l g_l P_l), with g_{l*} P_{l*} = −1.
+    let mut gp_sum = -1.0;
+    let mut rho_hat = 0.0;
+    for l in 0..k {
+        let p = grad[l];
+        rho_hat += p * bins.rho(l);
+        if l != target {
+            let q = 1.0 - p;
+            if q > cfg.prob_floor {
+                ce -= q.ln();
+                gp_sum += p / q;
+            } else {
+                ce -= cfg.prob_floor.ln();
+            }
+        }
+    }
+    let z_star = 1.0 / rho_star;
+    let d_hat = 1.0 / rho_hat.max(cfg.rho_floor);
+    let rho_term = cfg.lambda_rho * (rho_hat - rho_star) * (rho_hat - rho_star);
+    let depth_term = cfg.lambda_d * (d_hat - z_star) * (d_hat - z_star);
+    // dLoss/dρ̂.
+    let mut dl_drho = 2.0 * cfg.lambda_rho * (rho_hat - rho_star);
+    if rho_hat > cfg.rho_floor {
+        dl_drho += 2.0 * cfg.lambda_d * (d_hat - z_star) * (-1.0 / (rho_hat * rho_hat));
+    }
+    for l in 0..k {
+        let p = grad[l];
+        let g_l = if l == target {
+            -1.0 / p.max(f64::MIN_POSITIVE)
+        } else {
+            let q = 1.0 - p;
+            if q > cfg.prob_floor {
+                1.0 / q
+            } else {
+                0.0
+            }
+        };
+        // g_l P_l, written so the target term is exactly −1 even when P underflows.
+        let gp = if l == target { -1.0 } else { g_l * p };
+        let ds_ce = gp - p * gp_sum;
+        let ds_rho = p * (bins.rho(l) - rho_hat) * dl_drho;
+        // E = −s.
+        grad[l] = -(ds_ce + ds_rho);
+    }
+    PixelTerms { ce, rho: rho_term, depth: depth_term, rho_hat, wta }
+}
+
+/// The target of reference pixel `(x, y)` at ground-truth depth `z`: `(ρ*, l*)`, or `None` when
+/// the pixel is masked (SPEC.md §13.1).
+pub fn pixel_target(cfg: &LossConfig, warp: &Warp, x: usize, y: usize, z: f32) -> Option<(f64, usize)> {
+    if !is_valid_depth(z) {
+        return None;
+    }
+    let rho_star = 1.0 / f64::from(z);
+    let bins = &cfg.bins;
+    if !(rho_star >= bins.rho_min && rho_star <= bins.rho_max) {
+        return None;
+    }
+    let m = warp.apply(x as f64, y as f64, rho_star)?;
+    if !warp.target().contains(m.uv.x, m.uv.y) {
+        return None;
+    }
+    let target = ((rho_star - bins.rho_min) / bins.step()).round() as usize;
+    Some((rho_star, target.min(bins.count - 1)))
+}
+
+/// Validates the shapes of one scale's inputs against the warp's cameras.
+pub(crate) fn check_inputs(
+    warp: &Warp,
+    ref_shape: &[usize],
+    live_shape: &[usize],
+    depth: &ArrayView2<f32>,
+) -> Result<()> {
+    let (r, l) = (warp.reference(), warp.target());
+    let want_ref = [r.height, r.width];
+    if ref_shape[..2] != want_ref || depth.shape() != want_ref {
+        return Err(Error::invalid_argument(
+            "loss inputs",
+            format!(
+                "reference features {:?} and depth {:?} must be {want_ref:?} (the reference camera)",
+                ref_shape,
+                depth.shape()
+            ),
+        ));
+    }
+    if live_shape[..2] != [l.height, l.width] || live_shape[2] != ref_shape[2] {
+        return Err(Error::invalid_argument(
+            "loss inputs",
+            format!("live features {live_shape:?} must be [{}, {}, {}]", l.height, l.width, ref_shape[2]),
+        ));
+    }
+    Ok(())
+}
+
+/// Corner indices and weights of a bilinear sample at `(x, y)` in a `w x h` map (SPEC.md §2.1):
+/// `[(y0, x0), (y0, x1), (y1, x0), (y1, x1)]` and their f64 weights; `None` outside.
+#[inline]
+pub(crate) fn bilinear_taps(x: f64, y: f64, w: usize, h: usize) -> Option<([usize; 4], [f64; 4])> {
+    let axis = |v: f64, n: usize| -> Option<(usize, usize, f64)> {
+        if !(v >= 0.0 && v <= (n - 1) as f64) {
+            return None;
+        }
+        if n == 1 {
+            return Some((0, 0, 0.0));
+        }
+        let v0 = (v.floor() as usize).min(n - 2);
+        Some((v0, v0 + 1, v - v0 as f64))
+    };
+    let (x0, x1, a) = axis(x, w)?;
+    let (y0, y1, b) = axis(y, h)?;
+    Some((
+        [y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1],
+        [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b],
+    ))
+}
+
+/// The sample position of hypothesis `rho` for the warp's point `p0 = R K⁻¹ u̇` (hoisted): `None`
+/// behind the live camera. The same arithmetic as [`Warp::apply`].
+#[inline]
+pub(crate) fn hypothesis_position(warp: &Warp, p0: &[f64; 3], rho: f64) -> Option<(f64, f64)> {
+    let t = warp.translation();
+    let warp_t = [t.x, t.y, t.z];
+    let c = warp.target();
+    let (fx, fy, cx, cy) = (c.fx, c.fy, c.cx, c.cy);
+    let px = p0[0] + rho * warp_t[0];
+    let py = p0[1] + rho * warp_t[1];
+    let pz = p0[2] + rho * warp_t[2];
+    if !(pz > 0.0 && pz.is_finite()) {
+        return None;
+    }
+    Some((fx * px / pz + cx, fy * py / pz + cy))
+}
+
+/// Whether `d̂` is within a factor 1.25 of `z*`.
+pub(crate) fn within_125(d_hat: f64, z_star: f64) -> bool {
+    d_hat > 0.0 && (d_hat / z_star).max(z_star / d_hat) < 1.25
+}
+
+/// `R K⁻¹ u̇` of reference pixel `(x, y)`.
+#[inline]
+pub(crate) fn ray_point(warp: &Warp, x: usize, y: usize) -> [f64; 3] {
+    let p = warp.rotation_k_inv() * nalgebra::Vector3::new(x as f64, y as f64, 1.0);
+    [p.x, p.y, p.z]
+}

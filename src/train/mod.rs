@@ -1,0 +1,5 @@
+//! Training the feature network (paper §3.2, SPEC.md §13): the deeply supervised multi-view
+//! cost-volume loss, backpropagation through the network, the optimiser, the data pipeline and the
+//! trainer with checkpoints.
+
+pub mod loss;

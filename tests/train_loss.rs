@@ -1,0 +1,179 @@
+//! The cost-volume loss (SPEC.md §13.1): the f64 reference against central finite differences,
+//! the fast f32 version against the reference within the §13.3 budget, thread-count determinism,
+//! masking and the per-pixel terms.
+
+use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
+use densefeat::train::loss::{pixel_terms, scale_loss, scale_loss_reference, LossConfig};
+use nalgebra::{Translation3, UnitQuaternion, Vector3};
+use ndarray::{Array2, Array3};
+use proptest::prelude::*;
+
+/// Values in [-1, 1) from SplitMix64.
+fn rng(seed: u64) -> impl FnMut() -> f64 {
+    let mut r = densefeat::synth::rng::SplitMix64::new(seed);
+    move || r.range(-1.0, 1.0)
+}
+
+struct Case {
+    cfg: LossConfig,
+    f_ref: Array3<f64>,
+    f_live: Array3<f64>,
+    depth: Array2<f32>,
+    warp: Warp,
+}
+
+fn case(seed: u64, h: usize, w: usize, c: usize, k: usize) -> Case {
+    let mut r = rng(seed);
+    let cam =
+        PinholeCamera::new(w as f64, w as f64, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0, w, h).unwrap();
+    let t = Vector3::new(0.25 + 0.1 * r(), 0.1 * r(), 0.05 * r());
+    let q = UnitQuaternion::from_euler_angles(0.03 * r(), 0.03 * r(), 0.03 * r());
+    let pose = Pose::from_parts(Translation3::from(t), q);
+    let warp = Warp::new(&cam, &cam, &pose);
+    // Features of moderate size so the softmax is neither flat nor saturated.
+    let f_ref = Array3::from_shape_fn((h, w, c), |_| 0.8 * r());
+    let f_live = Array3::from_shape_fn((h, w, c), |_| 0.8 * r());
+    let depth = Array2::from_shape_fn((h, w), |_| if r() < -0.8 { 0.0 } else { (1.9 + 1.1 * r()) as f32 });
+    let cfg = LossConfig { bins: InverseDepthBins::new(0.0, 1.5, k).unwrap(), ..LossConfig::default() };
+    Case { cfg, f_ref, f_live, depth, warp }
+}
+
+fn loss_of(c: &Case, f_ref: &Array3<f64>, f_live: &Array3<f64>) -> f64 {
+    scale_loss_reference(&c.cfg, f_ref.view(), f_live.view(), c.depth.view(), &c.warp).unwrap().sums.mean()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 6, ..ProptestConfig::default() })]
+
+    /// Every entry of both analytic gradients against a central difference of the f64 loss.
+    #[test]
+    fn reference_gradients_match_finite_differences(seed in 0u64..1000) {
+        let c = case(seed, 5, 6, 3, 10);
+        let out = scale_loss_reference(&c.cfg, c.f_ref.view(), c.f_live.view(), c.depth.view(), &c.warp).unwrap();
+        prop_assume!(out.sums.pixels > 3);
+        let eps = 1e-6;
+        let mut worst: f64 = 0.0;
+        for (which, grad) in [(0, &out.d_ref), (1, &out.d_live)] {
+            for (idx, &g) in grad.indexed_iter() {
+                let (mut a, mut b) = (c.f_ref.clone(), c.f_live.clone());
+                let (mut a2, mut b2) = (c.f_ref.clone(), c.f_live.clone());
+                if which == 0 { a[idx] += eps; a2[idx] -= eps; } else { b[idx] += eps; b2[idx] -= eps; }
+                let fd = (loss_of(&c, &a, &b) - loss_of(&c, &a2, &b2)) / (2.0 * eps);
+                let err = (fd - g).abs() / (1e-4 + g.abs().max(fd.abs()));
+                worst = worst.max(err);
+                prop_assert!(err < 1e-4, "grad {which} {idx:?}: analytic {g}, fd {fd}");
+            }
+        }
+        prop_assert!(worst.is_finite());
+    }
+
+    /// The per-pixel terms' gradient with respect to the costs, including out-of-image costs.
+    #[test]
+    fn pixel_terms_gradient_matches_finite_differences(seed in 0u64..1000, target in 0usize..12) {
+        let mut r = rng(seed);
+        let cfg = LossConfig { bins: InverseDepthBins::new(0.0, 2.0, 12).unwrap(), ..LossConfig::default() };
+        let e: Vec<f64> = (0..12).map(|i| if i == 3 { cfg.outside_cost } else { 2.0 + 1.5 * r() }).collect();
+        let rho_star = 0.3 + 0.5 * (r() + 1.0);
+        let mut g = vec![0.0; 12];
+        pixel_terms(&cfg, &e, target, rho_star, &mut g);
+        let total = |e: &[f64]| {
+            let mut s = vec![0.0; 12];
+            let t = pixel_terms(&cfg, e, target, rho_star, &mut s);
+            t.ce + t.rho + t.depth
+        };
+        for l in 0..12 {
+            let (mut a, mut b) = (e.clone(), e.clone());
+            a[l] += 1e-6;
+            b[l] -= 1e-6;
+            let fd = (total(&a) - total(&b)) / 2e-6;
+            prop_assert!((fd - g[l]).abs() < 1e-6 + 1e-5 * fd.abs(), "bin {l}: analytic {}, fd {fd}", g[l]);
+        }
+    }
+
+    /// Fast f32 against the f64 reference: the loss within 1e-5 relative, each gradient entry
+    /// within 1e-4 of the largest entry of its map (SPEC.md §13.3).
+    #[test]
+    fn fast_matches_reference_within_budget(seed in 0u64..1000) {
+        let c = case(seed, 12, 16, 8, 32);
+        let want = scale_loss_reference(&c.cfg, c.f_ref.view(), c.f_live.view(), c.depth.view(), &c.warp).unwrap();
+        let fr = c.f_ref.mapv(|v| v as f32);
+        let fl = c.f_live.mapv(|v| v as f32);
+        // The reference on the f32-rounded inputs, so only the arithmetic differs.
+        let want = {
+            let _ = want;
+            scale_loss_reference(&c.cfg, fr.mapv(f64::from).view(), fl.mapv(f64::from).view(), c.depth.view(), &c.warp).unwrap()
+        };
+        let got = scale_loss(&c.cfg, fr.view(), fl.view(), c.depth.view(), &c.warp).unwrap();
+        prop_assert_eq!(got.sums.pixels, want.sums.pixels);
+        prop_assert_eq!(got.sums.delta125_wta, want.sums.delta125_wta);
+        let (lg, lw) = (got.sums.mean(), want.sums.mean());
+        prop_assert!((lg - lw).abs() <= 1e-5 * lw.abs().max(1.0), "loss {lg} vs {lw}");
+        for (g, w) in [(&got.d_ref, &want.d_ref), (&got.d_live, &want.d_live)] {
+            let scale = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (a, b) in g.iter().zip(w.iter()) {
+                prop_assert!((f64::from(*a) - b).abs() <= 1e-4 * scale + 1e-12, "{a} vs {b} (max {scale})");
+            }
+        }
+    }
+}
+
+#[test]
+fn fast_loss_is_bit_identical_for_any_thread_count() {
+    let c = case(7, 24, 20, 8, 48);
+    let fr = c.f_ref.mapv(|v| v as f32);
+    let fl = c.f_live.mapv(|v| v as f32);
+    let run = |n: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+        pool.install(|| scale_loss(&c.cfg, fr.view(), fl.view(), c.depth.view(), &c.warp).unwrap())
+    };
+    let base = run(1);
+    assert!(base.sums.pixels > 0);
+    for n in [2, 3, 8] {
+        let o = run(n);
+        assert_eq!(o.sums, base.sums, "{n} threads");
+        assert!(
+            o.d_ref.iter().zip(base.d_ref.iter()).all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{n} threads d_ref"
+        );
+        assert!(
+            o.d_live.iter().zip(base.d_live.iter()).all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{n} threads d_live"
+        );
+    }
+}
+
+#[test]
+fn masked_pixels_contribute_nothing() {
+    let c = case(3, 8, 10, 4, 16);
+    let all_invalid = Array2::<f32>::zeros(c.depth.dim());
+    let o =
+        scale_loss_reference(&c.cfg, c.f_ref.view(), c.f_live.view(), all_invalid.view(), &c.warp).unwrap();
+    assert_eq!(o.sums.pixels, 0);
+    assert_eq!(o.sums.mean(), 0.0);
+    assert!(o.d_ref.iter().chain(o.d_live.iter()).all(|&v| v == 0.0));
+    // A depth beyond the bins (rho* < rho_min) is masked as well.
+    let cfg = LossConfig { bins: InverseDepthBins::new(0.5, 1.5, 16).unwrap(), ..c.cfg };
+    let far = Array2::<f32>::from_elem(c.depth.dim(), 4.0);
+    let o = scale_loss_reference(&cfg, c.f_ref.view(), c.f_live.view(), far.view(), &c.warp).unwrap();
+    assert_eq!(o.sums.pixels, 0);
+}
+
+#[test]
+fn matching_features_at_the_true_depth_give_a_low_loss() {
+    // Live features are the reference features warped: the true bin has zero cost, so WTA is exact.
+    let (h, w, c_n) = (10, 12, 4);
+    let cam = PinholeCamera::new(12.0, 12.0, 5.5, 4.5, w, h).unwrap();
+    let pose = Pose::from_parts(Translation3::new(0.0, 0.0, 0.0), UnitQuaternion::identity());
+    let warp = Warp::new(&cam, &cam, &pose);
+    let mut r = rng(11);
+    let f = Array3::from_shape_fn((h, w, c_n), |_| 2.0 * r());
+    let cfg = LossConfig { bins: InverseDepthBins::new(0.0, 1.0, 8).unwrap(), ..LossConfig::default() };
+    // Identity pose: every hypothesis samples u itself, so the curve is flat (ambiguous).
+    let depth = Array2::<f32>::from_elem((h, w), 2.0);
+    let flat = scale_loss_reference(&cfg, f.view(), f.view(), depth.view(), &warp).unwrap();
+    assert_eq!(flat.sums.pixels, h * w);
+    // CE of a uniform P over K bins: ln K + (K-1) ln(K/(K-1)).
+    let k = 8.0f64;
+    let ce = k.ln() + (k - 1.0) * (k / (k - 1.0)).ln();
+    assert!((flat.sums.ce / (h * w) as f64 - ce).abs() < 1e-9);
+}

@@ -122,3 +122,45 @@ pub fn add(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<f32>> {
     });
     Ok(out)
 }
+
+/// Backward of [`downsample2x`]: the gradient with respect to its `[h, w, c]` input, the
+/// transpose of the tent filter with edge replication (a clamped tap sends its share to the edge
+/// pixel). Sums in f64 in a fixed order (output rows, then columns, then taps), rounded once; one
+/// task per input channel plane would change nothing, so it runs serially (it is off the training
+/// path, which never differentiates with respect to the image).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if a dimension is zero or `d_out` is not `[ceil(h/2), ceil(w/2), c]`.
+pub fn downsample2x_backward(d_out: ArrayView3<f32>, h: usize, w: usize) -> Result<Array3<f32>> {
+    let c = d_out.dim().2;
+    let geom = DownsampleGeometry::new(h, w, c)?;
+    crate::nn::expect_shape("downsample2x_backward d_out", d_out.shape(), &geom.output_shape())?;
+    let (h_out, w_out, _) = d_out.dim();
+    let mut acc = ndarray::Array3::<f64>::zeros((h, w, c));
+    for j in 0..h_out {
+        for i in 0..w_out {
+            for (a, ta) in TENT.iter().enumerate() {
+                for (b, tb) in TENT.iter().enumerate() {
+                    let (y, x) = (tap(j, a, h), tap(i, b, w));
+                    for ch in 0..c {
+                        acc[[y, x, ch]] += ta * tb * f64::from(d_out[[j, i, ch]]);
+                    }
+                }
+            }
+        }
+    }
+    Ok(acc.mapv(|v| v as f32))
+}
+
+/// Backward of [`concat_channels`]: splits `d_out` (`[h, w, ca + cb]`) into the gradients of `a`
+/// (its first `ca` channels) and `b` (the rest).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if `ca` exceeds the channel count.
+pub fn concat_channels_backward(d_out: ArrayView3<f32>, ca: usize) -> Result<(Array3<f32>, Array3<f32>)> {
+    let c = d_out.dim().2;
+    if ca > c {
+        return Err(Error::invalid_argument("concat_channels_backward", format!("{ca} channels of {c}")));
+    }
+    Ok((d_out.slice(ndarray::s![.., .., ..ca]).to_owned(), d_out.slice(ndarray::s![.., .., ca..]).to_owned()))
+}

@@ -25,7 +25,7 @@ pub mod weights;
 pub use config::NetworkConfig;
 pub use conv2d::{conv2d, Conv2dImpl};
 pub use deconv2d::{deconv2d, Deconv2dImpl};
-pub use downsample::{add, concat_channels, downsample2x};
+pub use downsample::{add, concat_channels, concat_channels_backward, downsample2x, downsample2x_backward};
 pub use geometry::{Conv2dGeometry, Deconv2dGeometry, DownsampleGeometry};
 pub use network::{FeatureNet, ForwardOutput, NetworkImpl};
 pub use profile::{profile_forward, OpTotals};

@@ -159,6 +159,23 @@ impl NetworkWeights {
         convs.chain(self.deconvs.iter()).collect()
     }
 
+    /// Every layer, mutably, in the order of [`NetworkWeights::layers`].
+    pub fn layers_mut(&mut self) -> Vec<&mut LayerParams> {
+        let convs = self.blocks.iter_mut().flat_map(|b| [&mut b.conv1, &mut b.conv2, &mut b.conv3]);
+        convs.chain(self.deconvs.iter_mut()).collect()
+    }
+
+    /// The same configuration and shapes with every value 0 (a gradient accumulator).
+    pub fn zeros_like(&self) -> Self {
+        let mut z = self.clone();
+        for l in z.layers_mut() {
+            l.weight.fill(0.0);
+            l.bias.fill(0.0);
+        }
+        z.provenance = "zeros".to_string();
+        z
+    }
+
     /// Checks that the layer count and every shape match [`tensor_specs`] for `self.config`.
     ///
     /// # Errors

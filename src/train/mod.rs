@@ -2,4 +2,5 @@
 //! cost-volume loss, backpropagation through the network, the optimiser, the data pipeline and the
 //! trainer with checkpoints.
 
+pub mod backprop;
 pub mod loss;

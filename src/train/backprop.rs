@@ -1,0 +1,175 @@
+//! Backpropagation through the feature network (SPEC.md §13.2): a forward pass that keeps what the
+//! backward pass needs (the tape), and the backward pass from gradients on any block output and on
+//! the aggregated features to the gradients of every weight and bias.
+//!
+//! ```text
+//! decoder:  dA_0 = d_features;  d_out_k += dA_k;  dA_{k+1} = deconv_kᵀ(dA_k);  dW_deconv_k from (a_{k+1}, dA_k)
+//! encoder:  (k = n-1 .. 0)  conv3ᵀ → ReLU mask(x2) → conv2ᵀ → ReLU mask(x1) → conv1ᵀ → split(concat):
+//!           the first C channels go to d_out_{k-1}; the image channels are dropped (images are not learned)
+//! ```
+//!
+//! Every kernel is deterministic, and gradients are accumulated in a fixed order (the caller's
+//! order of images and scales), so the gradients are bit-identical for any thread count.
+
+use ndarray::{s, Array3, ArrayView3};
+
+use crate::error::{Error, Result};
+use crate::nn::conv2d::{conv2d_backward_input, conv2d_backward_weight, relu_backward};
+use crate::nn::deconv2d::{deconv2d_backward_input, deconv2d_backward_weight};
+use crate::nn::network::{conv_geometry, deconv_geometry, image_pyramid, Executor, KernelExecutor};
+use crate::nn::weights::LayerParams;
+use crate::nn::{Activation, ForwardOutput, NetworkImpl, NetworkWeights};
+
+/// What one block's backward pass needs, at padded size.
+#[derive(Clone, Debug)]
+struct BlockTape {
+    /// The block's input (the image, or the previous output concatenated with the image).
+    input: Array3<f32>,
+    /// After conv1 + ReLU.
+    x1: Array3<f32>,
+    /// After conv2 + ReLU.
+    x2: Array3<f32>,
+}
+
+/// Activations of one forward pass, kept for [`backward`].
+#[derive(Clone, Debug)]
+pub struct Tape {
+    blocks: Vec<BlockTape>,
+    /// `aggregated[k]` at padded size (the input of deconv `k - 1`).
+    aggregated: Vec<Array3<f32>>,
+}
+
+/// The forward pass of [`crate::nn::FeatureNet::forward`] (same kernels, same bits), also
+/// returning the tape.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for a malformed image or weights.
+pub fn forward_with_tape(
+    weights: &NetworkWeights,
+    image: ArrayView3<f32>,
+    imp: NetworkImpl,
+) -> Result<(ForwardOutput, Tape)> {
+    weights.validate()?;
+    let config = &weights.config;
+    let (h, w, _) = image.dim();
+    let max_level = if config.blocks > 1 { config.block_level(config.blocks - 2) } else { 0 };
+    let pyramid = image_pyramid(config, image, max_level)?;
+    let mut exec = KernelExecutor(imp);
+    let mut tapes: Vec<BlockTape> = Vec::with_capacity(config.blocks);
+    let mut outs: Vec<Array3<f32>> = Vec::with_capacity(config.blocks);
+    for (k, block) in weights.blocks.iter().enumerate() {
+        let input = match outs.last() {
+            None => pyramid[0].clone(),
+            Some(prev) => exec.concat(prev, &pyramid[config.block_level(k - 1)])?,
+        };
+        let x1 = exec.conv(&input, &block.conv1, config.block_stride(k), Activation::Relu)?;
+        let x2 = exec.conv(&x1, &block.conv2, 1, Activation::Relu)?;
+        outs.push(exec.conv(&x2, &block.conv3, 1, Activation::None)?);
+        tapes.push(BlockTape { input, x1, x2 });
+    }
+    let mut aggregated: Vec<Array3<f32>> = Vec::with_capacity(config.blocks);
+    for k in (0..config.blocks).rev() {
+        let a = match aggregated.last() {
+            None => outs[k].clone(),
+            Some(coarser) => {
+                let up = exec.deconv(coarser, &weights.deconvs[k])?;
+                exec.add(&outs[k], &up)?
+            }
+        };
+        aggregated.push(a);
+    }
+    aggregated.reverse();
+    let shapes = config.output_shapes(h, w);
+    let crop = |maps: &[Array3<f32>]| -> Vec<Array3<f32>> {
+        maps.iter().zip(&shapes).map(|(m, &[hl, wl, _])| m.slice(s![..hl, ..wl, ..]).to_owned()).collect()
+    };
+    let out = ForwardOutput { blocks: crop(&outs), aggregated: crop(&aggregated) };
+    Ok((out, Tape { blocks: tapes, aggregated }))
+}
+
+/// `target += update`, elementwise.
+fn accumulate(target: &mut LayerParams, d_w: &ndarray::Array4<f32>, d_b: &ndarray::Array1<f32>) {
+    target.weight += d_w;
+    target.bias += d_b;
+}
+
+/// A gradient on a cropped map, zero-padded (bottom/right) to the padded map's shape.
+fn pad_gradient(d: Option<ArrayView3<f32>>, like: &Array3<f32>, name: &str) -> Result<Array3<f32>> {
+    let mut out = Array3::zeros(like.raw_dim());
+    if let Some(d) = d {
+        let (h, w, c) = d.dim();
+        let (hp, wp, cp) = like.dim();
+        if h > hp || w > wp || c != cp {
+            return Err(Error::invalid_argument(
+                name,
+                format!("gradient shape {:?} does not fit {:?}", d.shape(), like.shape()),
+            ));
+        }
+        out.slice_mut(s![..h, ..w, ..]).assign(&d);
+    }
+    Ok(out)
+}
+
+/// Backward pass: adds to `grads` (same shapes as `weights`) the gradient of a loss whose
+/// gradients with respect to the (cropped) block outputs are `d_blocks[k]` and with respect to
+/// the (cropped) features is `d_features`. `None` means zero.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if a gradient's shape does not match the forward pass.
+pub fn backward(
+    weights: &NetworkWeights,
+    tape: &Tape,
+    d_blocks: &[Option<ArrayView3<f32>>],
+    d_features: Option<ArrayView3<f32>>,
+    grads: &mut NetworkWeights,
+) -> Result<()> {
+    let config = &weights.config;
+    let n = config.blocks;
+    if d_blocks.len() != n || tape.blocks.len() != n || grads.blocks.len() != n {
+        return Err(Error::invalid_argument(
+            "backward",
+            format!("{} block gradients for {n} blocks", d_blocks.len()),
+        ));
+    }
+    // d_out_k at padded size (the shape of aggregated[k]).
+    let mut d_out: Vec<Array3<f32>> =
+        (0..n).map(|k| pad_gradient(d_blocks[k], &tape.aggregated[k], "d_blocks")).collect::<Result<_>>()?;
+    // Decoder.
+    let mut d_a = pad_gradient(d_features, &tape.aggregated[0], "d_features")?;
+    for k in 0..n - 1 {
+        d_out[k] += &d_a;
+        let layer = &weights.deconvs[k];
+        let x = &tape.aggregated[k + 1];
+        let g = deconv_geometry(x, layer)?;
+        let (d_w, d_b) = deconv2d_backward_weight(&g, x.view(), d_a.view())?;
+        accumulate(&mut grads.deconvs[k], &d_w, &d_b);
+        d_a = deconv2d_backward_input(&g, d_a.view(), layer.weight.view())?;
+    }
+    d_out[n - 1] += &d_a;
+    // Encoder, deepest block first.
+    for k in (0..n).rev() {
+        let t = &tape.blocks[k];
+        let block = &weights.blocks[k];
+        let gb = &mut grads.blocks[k];
+        let g3 = conv_geometry(&t.x2, &block.conv3, 1)?;
+        let (d_w, d_b) = conv2d_backward_weight(&g3, t.x2.view(), d_out[k].view())?;
+        accumulate(&mut gb.conv3, &d_w, &d_b);
+        let d_x2 = conv2d_backward_input(&g3, d_out[k].view(), block.conv3.weight.view())?;
+        let d_x2 = relu_backward(t.x2.view(), d_x2.view())?;
+        let g2 = conv_geometry(&t.x1, &block.conv2, 1)?;
+        let (d_w, d_b) = conv2d_backward_weight(&g2, t.x1.view(), d_x2.view())?;
+        accumulate(&mut gb.conv2, &d_w, &d_b);
+        let d_x1 = conv2d_backward_input(&g2, d_x2.view(), block.conv2.weight.view())?;
+        let d_x1 = relu_backward(t.x1.view(), d_x1.view())?;
+        let g1 = conv_geometry(&t.input, &block.conv1, config.block_stride(k))?;
+        let (d_w, d_b) = conv2d_backward_weight(&g1, t.input.view(), d_x1.view())?;
+        accumulate(&mut gb.conv1, &d_w, &d_b);
+        if k > 0 {
+            let d_in = conv2d_backward_input(&g1, d_x1.view(), block.conv1.weight.view())?;
+            // The concat's backward: the first C channels belong to the previous block's output.
+            let prev = d_in.slice(s![.., .., ..config.channels]);
+            d_out[k - 1] += &prev;
+        }
+    }
+    Ok(())
+}

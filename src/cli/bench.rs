@@ -30,6 +30,8 @@ pub enum BenchCommand {
     Costvolume(super::bench_costvolume::BenchCostvolumeArgs),
     /// Time the DTAM Huber-TV solver: one iteration (with its parts) and a full default solve.
     Tv(super::bench_tv::BenchTvArgs),
+    /// Time one training step (forward, deeply supervised loss, backward) on a synthetic pair.
+    Train(super::train::BenchTrainArgs),
 }
 
 /// Arguments of `densefeat bench forward`.
@@ -215,5 +217,6 @@ pub fn run(args: BenchArgs) -> Result<()> {
         BenchCommand::Gemm(a) => run_gemm(a),
         BenchCommand::Costvolume(a) => super::bench_costvolume::run(a.clone()),
         BenchCommand::Tv(a) => super::bench_tv::run(a),
+        BenchCommand::Train(a) => super::train::run_bench(a),
     }
 }

@@ -17,6 +17,7 @@ pub mod inspect;
 pub mod mapping_args;
 pub mod reconstruct;
 pub mod synth;
+pub mod train;
 
 /// Dense monocular reconstruction with learned good features to match.
 #[derive(Debug, Parser)]
@@ -48,6 +49,8 @@ pub enum Command {
     Demo(demo::DemoArgs),
     /// Plot the cost curves of a few keyframe pixels (RGB vs learned) as the volume fills (PNG + CSV).
     Costcurve(costcurve::CostcurveArgs),
+    /// Train the feature network with the paper's deeply supervised cost-volume loss.
+    Train(train::TrainArgs),
 }
 
 /// Parse the process arguments and run the subcommand.
@@ -57,6 +60,7 @@ pub enum Command {
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Inspect(args) => inspect::run(args),
+        Command::Train(args) => train::run(args),
         Command::Synth(args) => synth::run(args),
         Command::Features(args) => features::run(args),
         Command::InitWeights(args) => init_weights::run(args),

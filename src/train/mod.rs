@@ -3,4 +3,9 @@
 //! trainer with checkpoints.
 
 pub mod backprop;
+pub mod checkpoint;
+pub mod data;
 pub mod loss;
+pub mod optim;
+pub mod step;
+pub mod trainer;

@@ -1,0 +1,329 @@
+//! `densefeat train` (train the feature network, SPEC.md §13) and `densefeat bench train`.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use clap::Args;
+
+use crate::cli::synth::parse_size;
+use crate::error::{Error, Result};
+use crate::geometry::InverseDepthBins;
+use crate::io::write_npy_f32;
+use crate::nn::{FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
+use crate::train::data::{DataConfig, DataSet, PairRule};
+use crate::train::loss::LossConfig;
+use crate::train::optim::OptimConfig;
+use crate::train::step::{pair_step, Supervision, TrainingPair};
+use crate::train::trainer::{train, training_init, TrainConfig};
+
+/// Arguments of `densefeat train`.
+#[derive(Debug, Clone, Args)]
+pub struct TrainArgs {
+    /// Output folder: checkpoint.safetensors, weights.safetensors, log.csv, curves.png.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Posed RGB-D sequences to train on (repeat the flag); the last --val-fraction of each is held out.
+    #[arg(long = "data")]
+    pub data: Vec<PathBuf>,
+    /// Synthetic training scenes rendered on the fly (0: none).
+    #[arg(long, default_value_t = 64)]
+    pub synthetic_scenes: usize,
+    /// Synthetic validation scenes.
+    #[arg(long, default_value_t = 4)]
+    pub synthetic_val_scenes: usize,
+    /// Probability that a pair is synthetic when --data is given too.
+    #[arg(long, default_value_t = 0.5)]
+    pub synthetic_fraction: f64,
+    /// Fraction of each sequence's frames, at its end, held out for validation.
+    #[arg(long, default_value_t = 0.2)]
+    pub val_fraction: f64,
+    /// Crop WIDTHxHEIGHT.
+    #[arg(long, default_value = "256x192")]
+    pub crop: String,
+    /// Pair rule: baseline range in metres, "min,max".
+    #[arg(long, default_value = "0.05,0.5")]
+    pub baseline: String,
+    /// Pair rule: largest rotation, degrees.
+    #[arg(long, default_value_t = 30.0)]
+    pub max_rotation: f64,
+    /// Pair rule: smallest view overlap.
+    #[arg(long, default_value_t = 0.6)]
+    pub min_overlap: f64,
+    /// Optimiser steps.
+    #[arg(long, default_value_t = 2000)]
+    pub steps: usize,
+    /// Pairs per step.
+    #[arg(long, default_value_t = 1)]
+    pub batch: usize,
+    /// Peak learning rate (AdamW).
+    #[arg(long, default_value_t = 1e-3)]
+    pub lr: f64,
+    /// Warm-up steps.
+    #[arg(long, default_value_t = 100)]
+    pub warmup: usize,
+    /// Decoupled weight decay.
+    #[arg(long, default_value_t = 1e-4)]
+    pub weight_decay: f64,
+    /// Inverse-depth bins.
+    #[arg(long, default_value_t = 256)]
+    pub bins: usize,
+    /// Largest inverse depth of the bins, 1/m (the smallest is 0).
+    #[arg(long, default_value_t = 4.0)]
+    pub rho_max: f64,
+    /// Stride of block 1 (1 or 2).
+    #[arg(long, default_value_t = 2)]
+    pub b1_stride: usize,
+    /// Encoder blocks.
+    #[arg(long, default_value_t = 5)]
+    pub blocks: usize,
+    /// Channels.
+    #[arg(long, default_value_t = 32)]
+    pub channels: usize,
+    /// Input mean "r,g,b" (0-255).
+    #[arg(long, default_value = "110,110,110")]
+    pub mean: String,
+    /// Seed of the data draws.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Seed of the Xavier initialisation.
+    #[arg(long, default_value_t = 0)]
+    pub init_seed: u64,
+    /// Validate every N steps.
+    #[arg(long, default_value_t = 100)]
+    pub val_every: usize,
+    /// Validation pairs per source.
+    #[arg(long, default_value_t = 4)]
+    pub val_per_source: usize,
+    /// Checkpoint every N steps.
+    #[arg(long, default_value_t = 50)]
+    pub ckpt_every: usize,
+    /// Resume from this checkpoint (the configuration must match).
+    #[arg(long)]
+    pub resume: Option<PathBuf>,
+    /// Stop after this many steps in total (the schedule still spans --steps).
+    #[arg(long)]
+    pub stop_after: Option<usize>,
+    /// Rayon threads (0: all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+fn parse_pair(text: &str, name: &str) -> Result<(f64, f64)> {
+    let bad = || Error::invalid_argument(name, format!("{text:?}: expected two numbers a,b"));
+    let (a, b) = text.split_once(',').ok_or_else(bad)?;
+    Ok((a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?))
+}
+
+fn parse_mean(text: &str) -> Result<[f32; 3]> {
+    let v: Vec<f32> = text
+        .split(',')
+        .map(|s| s.trim().parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| Error::invalid_argument("--mean", format!("{text:?}: expected r,g,b")))?;
+    v.try_into().map_err(|_| Error::invalid_argument("--mean", format!("{text:?}: expected three values")))
+}
+
+impl TrainArgs {
+    /// The training configuration these arguments describe.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] for a malformed value.
+    pub fn config(&self) -> Result<TrainConfig> {
+        let (min_baseline, max_baseline) = parse_pair(&self.baseline, "--baseline")?;
+        let network = NetworkConfig {
+            blocks: self.blocks,
+            channels: self.channels,
+            b1_stride: self.b1_stride,
+            input_mean: parse_mean(&self.mean)?,
+        };
+        network.validate()?;
+        Ok(TrainConfig {
+            network,
+            init_seed: self.init_seed,
+            seed: self.seed,
+            steps: self.steps,
+            batch: self.batch,
+            optim: OptimConfig {
+                lr: self.lr,
+                warmup: self.warmup,
+                weight_decay: self.weight_decay,
+                ..OptimConfig::default()
+            },
+            loss: LossConfig {
+                bins: InverseDepthBins::new(0.0, self.rho_max, self.bins)?,
+                ..LossConfig::default()
+            },
+            supervision: Supervision::default(),
+            data: DataConfig {
+                crop: parse_size(&self.crop)?,
+                rule: PairRule {
+                    min_baseline,
+                    max_baseline,
+                    max_rotation_deg: self.max_rotation,
+                    min_overlap: self.min_overlap,
+                },
+                sequences: self.data.clone(),
+                synthetic_scenes: self.synthetic_scenes,
+                synthetic_val_scenes: self.synthetic_val_scenes,
+                synthetic_fraction: self.synthetic_fraction,
+                val_fraction: self.val_fraction,
+                ..DataConfig::default()
+            },
+            val_every: self.val_every,
+            val_per_source: self.val_per_source,
+            ckpt_every: self.ckpt_every,
+        })
+    }
+}
+
+fn pool(threads: usize) -> Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| Error::invalid_argument("--threads", e.to_string()))
+}
+
+/// Runs `densefeat train`.
+///
+/// # Errors
+/// Whatever training returns.
+pub fn run(args: TrainArgs) -> Result<()> {
+    let cfg = args.config()?;
+    let t = Instant::now();
+    pool(args.threads)?
+        .install(|| train(&cfg, &args.out, args.resume.as_deref(), args.stop_after, !args.quiet))?;
+    eprintln!("trained in {:.1} s; outputs in {}", t.elapsed().as_secs_f64(), args.out.display());
+    Ok(())
+}
+
+/// Arguments of `densefeat bench train`.
+#[derive(Debug, Clone, Args)]
+pub struct BenchTrainArgs {
+    /// Crop WIDTHxHEIGHT of both frames.
+    #[arg(long, default_value = "256x192")]
+    pub crop: String,
+    /// Rayon threads.
+    #[arg(long, default_value_t = 2)]
+    pub threads: usize,
+    /// Timed steps (after one warm-up).
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+    /// Inverse-depth bins.
+    #[arg(long, default_value_t = 256)]
+    pub bins: usize,
+    /// Stride of block 1.
+    #[arg(long, default_value_t = 2)]
+    pub b1_stride: usize,
+    /// Also write the pair, the weights, our per-scale losses and gradients to this folder (for
+    /// `benches/compare/train_torch.py`).
+    #[arg(long)]
+    pub dump: Option<PathBuf>,
+}
+
+/// Writes what `benches/compare/train_torch.py` needs to recompute the step in PyTorch.
+fn dump(
+    dir: &std::path::Path,
+    pair: &TrainingPair,
+    weights: &NetworkWeights,
+    loss: &LossConfig,
+    sup: &Supervision,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    write_npy_f32(&dir.join("ref.npy"), pair.ref_rgb.view())?;
+    write_npy_f32(&dir.join("live.npy"), pair.live_rgb.view())?;
+    let depth = pair.ref_depth.view().insert_axis(ndarray::Axis(2));
+    write_npy_f32(&dir.join("depth.npy"), depth)?;
+    weights.save(&dir.join("weights.safetensors"))?;
+    let mut grads = weights.zeros_like();
+    let l = pair_step(weights, pair, loss, sup, NetworkImpl::FAST, Some((&mut grads, 1.0)))?;
+    grads.provenance = "gradient of the pair objective".into();
+    grads.save(&dir.join("grads.safetensors"))?;
+    let cam = |c: &crate::geometry::PinholeCamera| serde_json::json!({"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height});
+    let m = crate::geometry::pose_to_matrix(&pair.t_lr);
+    let t_lr: Vec<Vec<f64>> = (0..4).map(|r| (0..4).map(|c| m[(r, c)]).collect()).collect();
+    let json = serde_json::json!({
+        "ref_camera": cam(&pair.ref_camera),
+        "live_camera": cam(&pair.live_camera),
+        "T_lr": t_lr,
+        "bins": {"rho_min": loss.bins.rho_min, "rho_max": loss.bins.rho_max, "count": loss.bins.count},
+        "outside_cost": loss.outside_cost, "lambda_rho": loss.lambda_rho, "lambda_d": loss.lambda_d,
+        "rho_floor": loss.rho_floor, "prob_floor": loss.prob_floor,
+        "loss_blocks": l.blocks.iter().map(|s| s.mean()).collect::<Vec<_>>(),
+        "pixels_blocks": l.blocks.iter().map(|s| s.pixels).collect::<Vec<_>>(),
+        "loss_aggregated": l.aggregated.mean(),
+        "pixels_aggregated": l.aggregated.pixels,
+        "total": l.total(sup),
+    });
+    crate::io::write_atomic(
+        &dir.join("pair.json"),
+        serde_json::to_string_pretty(&json)
+            .map_err(|e| Error::invalid_argument("json", e.to_string()))?
+            .as_bytes(),
+    )
+}
+
+/// Runs `densefeat bench train`: one synthetic pair, forward + loss + backward of both images.
+///
+/// # Errors
+/// Bad arguments.
+pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
+    let crop = parse_size(&args.crop)?;
+    let data = DataSet::open(DataConfig {
+        crop,
+        synthetic_scenes: 1,
+        synthetic_val_scenes: 0,
+        ..DataConfig::default()
+    })?;
+    let pair = data.train_pair(0, 1, 0)?;
+    let config =
+        NetworkConfig { b1_stride: args.b1_stride, input_mean: [110.0; 3], ..NetworkConfig::default() };
+    let weights = training_init(&config, 0)?;
+    let loss = LossConfig { bins: InverseDepthBins::new(0.0, 4.0, args.bins)?, ..LossConfig::default() };
+    let sup = Supervision::default();
+    let imp = NetworkImpl::FAST;
+    let pool = pool(args.threads)?;
+    if let Some(dir) = &args.dump {
+        pool.install(|| dump(dir, &pair, &weights, &loss, &sup))?;
+        println!("wrote the pair, weights, losses and gradients to {}", dir.display());
+    }
+    let (ms_step, ms_fwd) = pool.install(|| -> Result<(Vec<f64>, Vec<f64>)> {
+        let mut g = weights.zeros_like();
+        pair_step(&weights, &pair, &loss, &sup, imp, Some((&mut g, 1.0)))?;
+        let mut steps = Vec::new();
+        let mut fwds = Vec::new();
+        let net = FeatureNet::new(weights.clone())?;
+        for _ in 0..args.runs.max(1) {
+            let t = Instant::now();
+            pair_step(&weights, &pair, &loss, &sup, imp, Some((&mut g, 1.0)))?;
+            steps.push(t.elapsed().as_secs_f64() * 1e3);
+            let t = Instant::now();
+            net.forward(pair.ref_rgb.view(), imp)?;
+            net.forward(pair.live_rgb.view(), imp)?;
+            fwds.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        Ok((steps, fwds))
+    })?;
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (step, fwd) = (median(ms_step), median(ms_fwd));
+    let net = FeatureNet::new(weights)?;
+    // Forward of two images, backward ≈ 2x forward (input and weight gradients).
+    let net_flops = 3.0 * 2.0 * net.flops(crop.1, crop.0);
+    println!(
+        "bench train: crop {}x{}, {} bins, b1 stride {}, {} threads, deep supervision L1..L5 + L",
+        crop.0, crop.1, args.bins, args.b1_stride, args.threads
+    );
+    println!("  one pair (forward 2 images + loss at 6 scales + backward): {step:.1} ms median of {} -> {:.3} pairs/s", args.runs, 1e3 / step);
+    println!("  of which network forward of both images: {fwd:.1} ms");
+    println!(
+        "  network forward+backward work {:.2} GFLOP per pair -> {:.1} GFLOP/s if the loss cost nothing",
+        net_flops / 1e9,
+        net_flops / 1e6 / step
+    );
+    Ok(())
+}

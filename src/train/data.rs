@@ -1,0 +1,440 @@
+//! Training data (SPEC.md §13.5): reference/live pairs chosen by baseline, rotation and view
+//! overlap, from posed RGB-D sequences (a held-out tail of each for validation) and from the
+//! synthetic renderer on the fly; random crops (the live crop follows the reference crop's mean
+//! flow) and independent photometric augmentation of each frame.
+//!
+//! Every random choice of training step `t` comes from a generator seeded with
+//! `hash(seed, t, i)` (`i` the pair's index in the batch), so a step's data do not depend on what
+//! came before: resuming at step `t` sees exactly what an uninterrupted run would.
+
+use std::path::{Path, PathBuf};
+
+use ndarray::{s, Array2, Array3};
+
+use crate::error::{Error, Result};
+use crate::geometry::{relative_pose, PinholeCamera, Pose, Warp};
+use crate::image::is_valid_depth;
+use crate::sequence::{open, Sequence};
+use crate::synth::rng::{hash64, SplitMix64};
+use crate::synth::{Scene, SceneConfig};
+use crate::train::step::TrainingPair;
+
+/// Which frame pairs are used.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PairRule {
+    /// Smallest camera-centre distance, metres.
+    pub min_baseline: f64,
+    /// Largest camera-centre distance, metres.
+    pub max_baseline: f64,
+    /// Largest relative rotation, degrees.
+    pub max_rotation_deg: f64,
+    /// Smallest fraction of the reference's valid-depth pixels that land inside the live image.
+    pub min_overlap: f64,
+}
+
+impl Default for PairRule {
+    fn default() -> Self {
+        PairRule { min_baseline: 0.05, max_baseline: 0.5, max_rotation_deg: 30.0, min_overlap: 0.6 }
+    }
+}
+
+/// Photometric augmentation, drawn independently for each frame: `clamp(g · I + b + n, 0, 255)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Augment {
+    /// `g` uniform in `[1 - gain, 1 + gain]`.
+    pub gain: f64,
+    /// `b` uniform in `[-bias, bias]` (0-255 scale).
+    pub bias: f64,
+    /// Per-value noise, uniform in `[-noise, noise] · √3` (standard deviation `noise`).
+    pub noise: f64,
+}
+
+impl Default for Augment {
+    fn default() -> Self {
+        Augment { gain: 0.2, bias: 15.0, noise: 2.0 }
+    }
+}
+
+/// Data settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DataConfig {
+    /// Crop `(width, height)`.
+    pub crop: (usize, usize),
+    /// Pair rule.
+    pub rule: PairRule,
+    /// Augmentation of training pairs (validation pairs are not augmented).
+    pub augment: Augment,
+    /// Posed RGB-D sequences to train on.
+    pub sequences: Vec<PathBuf>,
+    /// Synthetic training scenes (seeds `SYNTH_TRAIN_SEED0 ..`); 0 for none.
+    pub synthetic_scenes: usize,
+    /// Synthetic validation scenes (seeds `SYNTH_VAL_SEED0 ..`).
+    pub synthetic_val_scenes: usize,
+    /// Probability that a training pair is synthetic when sequences are given too.
+    pub synthetic_fraction: f64,
+    /// Fraction of each sequence's frames, at its end, held out for validation.
+    pub val_fraction: f64,
+}
+
+/// First seed of the synthetic training scenes (the shipped fixture and the evaluation scenes
+/// use seeds below 1000, so training never sees them).
+pub const SYNTH_TRAIN_SEED0: u64 = 100_000;
+/// First seed of the synthetic validation scenes.
+pub const SYNTH_VAL_SEED0: u64 = 200_000;
+/// Frames of a synthetic scene.
+const SYNTH_FRAMES: usize = 60;
+/// Attempts at finding a pair that passes the overlap rule before giving up on a draw.
+const ATTEMPTS: usize = 16;
+/// Grid step (pixels) of the overlap and flow estimates.
+const GRID: usize = 4;
+
+impl Default for DataConfig {
+    fn default() -> Self {
+        DataConfig {
+            crop: (256, 192),
+            rule: PairRule::default(),
+            augment: Augment::default(),
+            sequences: Vec::new(),
+            synthetic_scenes: 64,
+            synthetic_val_scenes: 4,
+            synthetic_fraction: 0.5,
+            val_fraction: 0.2,
+        }
+    }
+}
+
+/// One frame: image, depth, camera-to-world pose.
+struct FrameData {
+    rgb: Array3<f32>,
+    depth: Array2<f32>,
+    pose: Pose,
+}
+
+/// A sequence with its train and validation pairs.
+struct SequenceSource {
+    name: String,
+    seq: Sequence,
+    /// First validation frame.
+    split: usize,
+    train: Vec<(usize, usize)>,
+    val: Vec<(usize, usize)>,
+}
+
+/// The training and validation data.
+pub struct DataSet {
+    cfg: DataConfig,
+    synth: SceneConfig,
+    sequences: Vec<SequenceSource>,
+}
+
+/// Relative rotation angle of two poses, degrees, and their camera-centre distance.
+fn motion(a: &Pose, b: &Pose) -> (f64, f64) {
+    let rel = relative_pose(a, b);
+    (rel.rotation.angle().to_degrees(), (a.translation.vector - b.translation.vector).norm())
+}
+
+fn passes_pose_rule(rule: &PairRule, a: &Pose, b: &Pose) -> bool {
+    let (rot, base) = motion(a, b);
+    rot <= rule.max_rotation_deg && base >= rule.min_baseline && base <= rule.max_baseline
+}
+
+/// Fraction of valid-depth grid pixels of the reference (within `window` = `(x0, y0, w, h)`) that
+/// land inside the live camera, and their mean displacement.
+fn overlap_and_flow(
+    depth: &Array2<f32>,
+    cam: &PinholeCamera,
+    t_lr: &Pose,
+    window: (usize, usize, usize, usize),
+) -> (f64, f64, f64) {
+    let warp = Warp::new(cam, cam, t_lr);
+    let (x0, y0, w, h) = window;
+    let (mut n, mut inside, mut du, mut dv) = (0usize, 0usize, 0.0, 0.0);
+    for y in (y0..y0 + h).step_by(GRID) {
+        for x in (x0..x0 + w).step_by(GRID) {
+            let z = depth[[y, x]];
+            if !is_valid_depth(z) {
+                continue;
+            }
+            n += 1;
+            if let Some(p) = warp.apply(x as f64, y as f64, 1.0 / f64::from(z)) {
+                if cam.contains(p.uv.x, p.uv.y) {
+                    inside += 1;
+                    du += p.uv.x - x as f64;
+                    dv += p.uv.y - y as f64;
+                }
+            }
+        }
+    }
+    if inside == 0 {
+        return (0.0, 0.0, 0.0);
+    }
+    (inside as f64 / n as f64, du / inside as f64, dv / inside as f64)
+}
+
+/// `clamp(g I + b + n, 0, 255)` with `g`, `b` drawn once and `n` per value.
+fn augment(img: &mut Array3<f32>, a: &Augment, rng: &mut SplitMix64) {
+    let g = rng.range(1.0 - a.gain, 1.0 + a.gain) as f32;
+    let b = rng.range(-a.bias, a.bias) as f32;
+    let amp = (a.noise * 3f64.sqrt()) as f32;
+    for v in img.iter_mut() {
+        let n = if amp > 0.0 { amp * (2.0 * rng.unit() as f32 - 1.0) } else { 0.0 };
+        *v = (g * *v + b + n).clamp(0.0, 255.0);
+    }
+}
+
+impl DataSet {
+    /// Opens every sequence, splits it and lists its pairs.
+    ///
+    /// # Errors
+    /// A sequence that cannot be read, one without depth, a crop larger than a frame, or no
+    /// training data at all.
+    pub fn open(cfg: DataConfig) -> Result<Self> {
+        let (cw, ch) = cfg.crop;
+        if cw < 8 || ch < 8 {
+            return Err(Error::invalid_argument("--crop", format!("{cw}x{ch}: at least 8x8")));
+        }
+        if !(0.0..1.0).contains(&cfg.val_fraction) || !(0.0..=1.0).contains(&cfg.synthetic_fraction) {
+            return Err(Error::invalid_argument(
+                "data",
+                "val_fraction must be in [0, 1), synthetic_fraction in [0, 1]",
+            ));
+        }
+        let synth = SceneConfig {
+            frames: SYNTH_FRAMES,
+            width: cw.max(320),
+            height: ch.max(240),
+            ..SceneConfig::default()
+        };
+        let mut sequences = Vec::new();
+        for path in &cfg.sequences {
+            sequences.push(Self::open_sequence(path, &cfg)?);
+        }
+        if sequences.iter().all(|s| s.train.is_empty()) && cfg.synthetic_scenes == 0 {
+            return Err(Error::invalid_argument(
+                "data",
+                "no training pairs: give sequences with pairs, or synthetic scenes",
+            ));
+        }
+        Ok(DataSet { cfg, synth, sequences })
+    }
+
+    fn open_sequence(path: &Path, cfg: &DataConfig) -> Result<SequenceSource> {
+        let seq = open(path)?;
+        let (cw, ch) = cfg.crop;
+        if seq.camera.width < cw || seq.camera.height < ch {
+            return Err(Error::invalid_argument(
+                "--crop",
+                format!(
+                    "{cw}x{ch} is larger than {}'s {}x{} frames",
+                    path.display(),
+                    seq.camera.width,
+                    seq.camera.height
+                ),
+            ));
+        }
+        let n = seq.len();
+        let split = n - ((n as f64 * cfg.val_fraction).round() as usize).min(n);
+        // Depth of every frame, for the overlap rule.
+        let mut depths = Vec::with_capacity(n);
+        for i in 0..n {
+            let f = seq.load_frame(i)?;
+            let Some(d) = f.depth else {
+                return Err(Error::bad_sequence(
+                    path,
+                    format!("frame {i} has no depth; training needs depth"),
+                ));
+            };
+            depths.push(d);
+        }
+        let full = (0, 0, seq.camera.width, seq.camera.height);
+        let pairs = |range: std::ops::Range<usize>| {
+            let mut v = Vec::new();
+            for i in range.clone() {
+                for j in range.clone() {
+                    let (a, b) = (&seq.frames[i].pose, &seq.frames[j].pose);
+                    if i == j || !passes_pose_rule(&cfg.rule, a, b) {
+                        continue;
+                    }
+                    let (ov, _, _) = overlap_and_flow(&depths[i], &seq.camera, &relative_pose(a, b), full);
+                    if ov >= cfg.rule.min_overlap {
+                        v.push((i, j));
+                    }
+                }
+            }
+            v
+        };
+        let train = pairs(0..split);
+        let val = pairs(split..n);
+        let name =
+            path.file_name().map_or_else(|| path.display().to_string(), |s| s.to_string_lossy().into_owned());
+        Ok(SequenceSource { name, seq, split, train, val })
+    }
+
+    /// One line per source: frames, split and pair counts.
+    pub fn describe(&self) -> Vec<String> {
+        let mut v: Vec<String> = self
+            .sequences
+            .iter()
+            .map(|s| {
+                format!(
+                    "{}: {} frames, train frames 0..{} ({} pairs), validation frames {}..{} ({} pairs)",
+                    s.name,
+                    s.seq.len(),
+                    s.split,
+                    s.train.len(),
+                    s.split,
+                    s.seq.len(),
+                    s.val.len()
+                )
+            })
+            .collect();
+        if self.cfg.synthetic_scenes > 0 {
+            v.push(format!(
+                "synthetic: {} training scenes (seeds {}..{}), {} validation scenes (seeds {}..), {}x{}, {} frames each, rendered on the fly",
+                self.cfg.synthetic_scenes,
+                SYNTH_TRAIN_SEED0,
+                SYNTH_TRAIN_SEED0 + self.cfg.synthetic_scenes as u64,
+                self.cfg.synthetic_val_scenes,
+                SYNTH_VAL_SEED0,
+                self.synth.width,
+                self.synth.height,
+                SYNTH_FRAMES
+            ));
+        }
+        v
+    }
+
+    fn render(&self, seed: u64, i: usize) -> Result<(FrameData, PinholeCamera)> {
+        let scene = Scene::generate(&SceneConfig { seed, ..self.synth })?;
+        let f = scene.render(i)?;
+        Ok((FrameData { rgb: f.rgb, depth: f.depth, pose: f.pose }, scene.camera()))
+    }
+
+    fn load(&self, s: &SequenceSource, i: usize) -> Result<FrameData> {
+        let f = s.seq.load_frame(i)?;
+        let depth = f
+            .depth
+            .ok_or_else(|| Error::bad_sequence(s.seq.root.clone(), format!("frame {i} has no depth")))?;
+        Ok(FrameData { rgb: f.rgb, depth, pose: f.pose })
+    }
+
+    /// A synthetic pair from scene `seed`: a random reference frame and a live frame passing the
+    /// pair rule.
+    fn synthetic_pair(
+        &self,
+        seed: u64,
+        rng: &mut SplitMix64,
+    ) -> Result<Option<(FrameData, FrameData, PinholeCamera)>> {
+        let scene = Scene::generate(&SceneConfig { seed, ..self.synth })?;
+        let poses: Vec<Pose> = (0..scene.frames()).map(|i| scene.pose(i)).collect::<Result<_>>()?;
+        for _ in 0..ATTEMPTS {
+            let i = rng.below(poses.len());
+            let js: Vec<usize> = (0..poses.len())
+                .filter(|&j| j != i && passes_pose_rule(&self.cfg.rule, &poses[i], &poses[j]))
+                .collect();
+            if js.is_empty() {
+                continue;
+            }
+            let j = js[rng.below(js.len())];
+            let (r, cam) = self.render(seed, i)?;
+            let (ov, _, _) = overlap_and_flow(
+                &r.depth,
+                &cam,
+                &relative_pose(&r.pose, &poses[j]),
+                (0, 0, cam.width, cam.height),
+            );
+            if ov >= self.cfg.rule.min_overlap {
+                let (l, _) = self.render(seed, j)?;
+                return Ok(Some((r, l, cam)));
+            }
+        }
+        Ok(None)
+    }
+
+    /// Crops a pair: the reference window at `(x0, y0)` (random when `rng` is given, else
+    /// centred), the live window shifted by the mean flow.
+    fn crop(
+        &self,
+        r: FrameData,
+        l: FrameData,
+        cam: &PinholeCamera,
+        rng: Option<&mut SplitMix64>,
+    ) -> Result<TrainingPair> {
+        let (cw, ch) = self.cfg.crop;
+        let (w, h) = (cam.width, cam.height);
+        let (x0, y0) = match rng {
+            Some(rng) => (rng.below(w - cw + 1), rng.below(h - ch + 1)),
+            None => ((w - cw) / 2, (h - ch) / 2),
+        };
+        let t_lr = relative_pose(&r.pose, &l.pose);
+        let (_, du, dv) = overlap_and_flow(&r.depth, cam, &t_lr, (x0, y0, cw, ch));
+        let shift = |o: usize, d: f64, max: usize| ((o as f64 + d).round().max(0.0) as usize).min(max);
+        let (lx, ly) = (shift(x0, du, w - cw), shift(y0, dv, h - ch));
+        let crop_cam = |x: usize, y: usize| {
+            PinholeCamera::new(cam.fx, cam.fy, cam.cx - x as f64, cam.cy - y as f64, cw, ch)
+        };
+        Ok(TrainingPair {
+            ref_rgb: r.rgb.slice(s![y0..y0 + ch, x0..x0 + cw, ..]).to_owned(),
+            live_rgb: l.rgb.slice(s![ly..ly + ch, lx..lx + cw, ..]).to_owned(),
+            ref_depth: r.depth.slice(s![y0..y0 + ch, x0..x0 + cw]).to_owned(),
+            ref_camera: crop_cam(x0, y0)?,
+            live_camera: crop_cam(lx, ly)?,
+            t_lr,
+        })
+    }
+
+    /// Training pair `index` of step `step` (1-based), deterministic in `(seed, step, index)`.
+    ///
+    /// # Errors
+    /// A frame that cannot be read, or no pair found after repeated draws.
+    pub fn train_pair(&self, seed: u64, step: usize, index: usize) -> Result<TrainingPair> {
+        let mut rng = SplitMix64::new(hash64(seed, step as u64, index as u64, 0x7472_6169_6e));
+        let real: Vec<&SequenceSource> = self.sequences.iter().filter(|s| !s.train.is_empty()).collect();
+        for _ in 0..ATTEMPTS {
+            let synthetic = self.cfg.synthetic_scenes > 0
+                && (real.is_empty() || rng.unit() < self.cfg.synthetic_fraction);
+            let (mut r, mut l, cam) = if synthetic {
+                let seed = SYNTH_TRAIN_SEED0 + rng.below(self.cfg.synthetic_scenes) as u64;
+                match self.synthetic_pair(seed, &mut rng)? {
+                    Some(x) => x,
+                    None => continue,
+                }
+            } else {
+                let s = real[rng.below(real.len())];
+                let (i, j) = s.train[rng.below(s.train.len())];
+                (self.load(s, i)?, self.load(s, j)?, s.seq.camera)
+            };
+            augment(&mut r.rgb, &self.cfg.augment, &mut rng);
+            augment(&mut l.rgb, &self.cfg.augment, &mut rng);
+            return self.crop(r, l, &cam, Some(&mut rng));
+        }
+        Err(Error::invalid_argument("data", format!("no pair passed the pair rule in {ATTEMPTS} draws")))
+    }
+
+    /// The fixed validation pairs: `per_source` pairs spread evenly over each sequence's held-out
+    /// pairs and `per_source` from each synthetic validation scene; centred crops, no
+    /// augmentation. Returns `(source name, pair)`.
+    ///
+    /// # Errors
+    /// A frame that cannot be read.
+    pub fn val_pairs(&self, per_source: usize) -> Result<Vec<(String, TrainingPair)>> {
+        let mut v = Vec::new();
+        for s in &self.sequences {
+            let n = s.val.len();
+            for q in 0..per_source.min(n) {
+                let (i, j) = s.val[q * n / per_source.min(n)];
+                v.push((s.name.clone(), self.crop(self.load(s, i)?, self.load(s, j)?, &s.seq.camera, None)?));
+            }
+        }
+        for k in 0..self.cfg.synthetic_val_scenes {
+            let seed = SYNTH_VAL_SEED0 + k as u64;
+            let mut rng = SplitMix64::new(seed);
+            for _ in 0..per_source {
+                if let Some((r, l, cam)) = self.synthetic_pair(seed, &mut rng)? {
+                    v.push((format!("synthetic-{seed}"), self.crop(r, l, &cam, None)?));
+                }
+            }
+        }
+        Ok(v)
+    }
+}

@@ -136,8 +136,8 @@ pub fn backward(
         (0..n).map(|k| pad_gradient(d_blocks[k], &tape.aggregated[k], "d_blocks")).collect::<Result<_>>()?;
     // Decoder.
     let mut d_a = pad_gradient(d_features, &tape.aggregated[0], "d_features")?;
-    for k in 0..n - 1 {
-        d_out[k] += &d_a;
+    for (k, d_out_k) in d_out.iter_mut().enumerate().take(n - 1) {
+        *d_out_k += &d_a;
         let layer = &weights.deconvs[k];
         let x = &tape.aggregated[k + 1];
         let g = deconv_geometry(x, layer)?;

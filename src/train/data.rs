@@ -388,7 +388,7 @@ impl DataSet {
     /// # Errors
     /// A frame that cannot be read, or no pair found after repeated draws.
     pub fn train_pair(&self, seed: u64, step: usize, index: usize) -> Result<TrainingPair> {
-        let mut rng = SplitMix64::new(hash64(seed, step as u64, index as u64, 0x7472_6169_6e));
+        let mut rng = SplitMix64::new(hash64(seed, step as u64, index as u64, 0x0074_7261_696e));
         let real: Vec<&SequenceSource> = self.sequences.iter().filter(|s| !s.train.is_empty()).collect();
         for _ in 0..ATTEMPTS {
             let synthetic = self.cfg.synthetic_scenes > 0

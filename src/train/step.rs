@@ -99,13 +99,16 @@ pub fn depth_at_level(depth: ArrayView2<f32>, level: usize) -> Array2<f32> {
     Array2::from_shape_fn((h.div_ceil(s), w.div_ceil(s)), |(j, i)| depth[[j * s, i * s]])
 }
 
+/// One supervised scale: block index (`None` for `L`), level, reference and live maps.
+type Scale<'a> = (Option<usize>, usize, &'a Array3<f32>, &'a Array3<f32>);
+
 /// The scales of a forward output, in the fixed order `L1..Ln, L`: `(level, ref map, live map)`.
 fn scales<'a>(
     weights: &NetworkWeights,
     sup: &Supervision,
     r: &'a ForwardOutput,
     l: &'a ForwardOutput,
-) -> Vec<(Option<usize>, usize, &'a Array3<f32>, &'a Array3<f32>)> {
+) -> Vec<Scale<'a>> {
     let cfg = &weights.config;
     let mut v = Vec::new();
     if sup.deep {

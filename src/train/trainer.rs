@@ -45,9 +45,8 @@ pub struct TrainConfig {
 }
 
 impl TrainConfig {
-    /// The settings that determine the weights, as text (stored in checkpoints; a resume must
-    /// match it, except for `steps`, which may grow... no: the schedule depends on it, so it must
-    /// match too).
+    /// The settings that determine the weights, as text. Stored in checkpoints; a resume must
+    /// match it exactly (including `steps`, since the learning-rate schedule depends on it).
     pub fn fingerprint(&self) -> String {
         format!(
             "network={:?} init_seed={} seed={} steps={} batch={} optim={:?} loss={:?} supervision={:?} data={:?}",
@@ -104,8 +103,11 @@ fn csv_line(r: &Row) -> String {
     cols.join(",")
 }
 
+/// `(step, loss, validation (loss, δ expected, δ WTA))` of one CSV row.
+type CurveRow = (f64, f64, Option<(f64, f64, f64)>);
+
 /// Reads `(step, loss, val_loss, val_delta_expected, val_delta_wta)` back from the CSV.
-fn read_curves(path: &Path) -> Result<Vec<(f64, f64, Option<(f64, f64, f64)>)>> {
+fn read_curves(path: &Path) -> Result<Vec<CurveRow>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let mut v = Vec::new();
     for line in text.lines().skip(1) {

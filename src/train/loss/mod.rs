@@ -153,6 +153,7 @@ pub struct PixelTerms {
 /// The per-pixel part of the loss, in f64 (shared by both implementations): from the costs
 /// `energies[l]` (already `m` outside the image), the target bin and `ρ*`, the terms and
 /// `grad[l] = d(CE + λ_ρ(ρ̂−ρ*)² + λ_d(d̂−z*)²) / dE_l` (SPEC.md §13.1).
+#[allow(clippy::needless_range_loop)] // bins index several parallel arrays
 pub fn pixel_terms(
     cfg: &LossConfig,
     energies: &[f64],

@@ -250,3 +250,16 @@ fn missing_file_is_an_io_error_naming_it() {
         other => panic!("expected Io error, got {other:?}"),
     }
 }
+
+#[test]
+fn shipped_trained_weights_load_and_are_the_built_in_default() {
+    let path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/weights/featurenet_trained_b1s2.safetensors");
+    let w = NetworkWeights::load(&path).unwrap();
+    assert_eq!((w.config.blocks, w.config.channels, w.config.b1_stride), (5, 32, 2));
+    assert!(w.provenance.starts_with("densefeat train: step 2400 of 2400"), "{}", w.provenance);
+    assert_eq!(std::fs::read(&path).unwrap(), densefeat::mapping::features::SHIPPED_WEIGHTS);
+    // Trained, not the initialisation.
+    let init = densefeat::train::trainer::training_init(&w.config, 0).unwrap();
+    assert_ne!(w, init);
+}

@@ -11,9 +11,9 @@ use crate::io::write_npy_f32;
 use crate::nn::viz::pca_rgb;
 use crate::nn::{FeatureNet, NetworkImpl, NetworkWeights};
 
-/// The shipped (untrained, Xavier-initialised) weights, in the source tree.
+/// The shipped trained weights (fixtures/weights/MODEL_CARD.md), in the source tree.
 pub const DEFAULT_WEIGHTS: &str =
-    concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/weights/featurenet_init_seed0.safetensors");
+    concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/weights/featurenet_trained_b1s2.safetensors");
 
 /// Arguments of `densefeat features`.
 #[derive(Debug, Clone, Args)]

@@ -253,8 +253,8 @@ fn missing_file_is_an_io_error_naming_it() {
 
 #[test]
 fn shipped_trained_weights_load_and_are_the_built_in_default() {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/weights/featurenet_trained_b1s2.safetensors");
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures/weights/featurenet_trained_b1s2.safetensors");
     let w = NetworkWeights::load(&path).unwrap();
     assert_eq!((w.config.blocks, w.config.channels, w.config.b1_stride), (5, 32, 2));
     assert!(w.provenance.starts_with("densefeat train: step 2400 of 2400"), "{}", w.provenance);

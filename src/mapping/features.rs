@@ -15,7 +15,8 @@ use crate::nn::{downsample2x, FeatureNet, NetworkImpl, NetworkWeights};
 
 /// The weights shipped in `fixtures/weights/`, compiled into the binary so that the demo and
 /// `--features learned` need no file at run time.
-pub const SHIPPED_WEIGHTS: &[u8] = include_bytes!("../../fixtures/weights/featurenet_trained_b1s2.safetensors");
+pub const SHIPPED_WEIGHTS: &[u8] =
+    include_bytes!("../../fixtures/weights/featurenet_trained_b1s2.safetensors");
 
 /// Name the shipped weights carry in messages.
 pub const SHIPPED_WEIGHTS_NAME: &str = "fixtures/weights/featurenet_trained_b1s2.safetensors (built in)";

@@ -35,7 +35,7 @@ pub struct InitWeightsArgs {
 }
 
 /// Parses "r,g,b".
-fn parse_mean(text: &str) -> Result<[f32; 3]> {
+pub(crate) fn parse_mean(text: &str) -> Result<[f32; 3]> {
     let bad = || Error::invalid_argument("--mean", format!("{text:?}: expected three numbers r,g,b"));
     let values: Vec<f32> =
         text.split(',').map(|p| p.trim().parse().map_err(|_| bad())).collect::<Result<_>>()?;

@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use clap::Args;
 
+use crate::cli::init_weights::parse_mean;
 use crate::cli::synth::parse_size;
 use crate::error::{Error, Result};
 use crate::geometry::InverseDepthBins;
@@ -115,15 +116,6 @@ fn parse_pair(text: &str, name: &str) -> Result<(f64, f64)> {
     let bad = || Error::invalid_argument(name, format!("{text:?}: expected two numbers a,b"));
     let (a, b) = text.split_once(',').ok_or_else(bad)?;
     Ok((a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?))
-}
-
-fn parse_mean(text: &str) -> Result<[f32; 3]> {
-    let v: Vec<f32> = text
-        .split(',')
-        .map(|s| s.trim().parse::<f32>())
-        .collect::<std::result::Result<_, _>>()
-        .map_err(|_| Error::invalid_argument("--mean", format!("{text:?}: expected r,g,b")))?;
-    v.try_into().map_err(|_| Error::invalid_argument("--mean", format!("{text:?}: expected three values")))
 }
 
 impl TrainArgs {

@@ -5,7 +5,7 @@
 //! "no measurement". Feature maps use the same channels-last layout `[H, W, C]`.
 
 mod io;
-mod sample;
+pub(crate) mod sample;
 mod undistort;
 
 pub use io::{load_depth_png, load_rgb, read_dimensions, save_depth_png_mm, save_rgb_png};

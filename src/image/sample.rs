@@ -12,9 +12,10 @@
 
 use ndarray::{ArrayView2, ArrayView3};
 
-/// Corner index and weight along one axis; `None` outside `[0, n-1]`.
+/// Corner index and weight along one axis; `None` outside `[0, n-1]` (also used by the training
+/// loss, which needs the corners themselves for its backward pass).
 #[inline]
-fn axis(x: f64, n: usize) -> Option<(usize, usize, f64)> {
+pub(crate) fn axis(x: f64, n: usize) -> Option<(usize, usize, f64)> {
     if !(x >= 0.0 && x <= (n - 1) as f64) {
         return None;
     }

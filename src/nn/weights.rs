@@ -337,6 +337,15 @@ fn parse_metadata(json: &serde_json::Value) -> std::result::Result<NetworkConfig
     if format != FORMAT {
         return Err(format!("format {format:?}, expected {FORMAT:?}"));
     }
+    config_from_fields(get)
+}
+
+/// The network configuration from its metadata fields `blocks`, `channels`, `b1_stride` and
+/// `input_mean` (SPEC.md §8.4), validated; `get` looks a field up. Shared by weights files and
+/// training checkpoints.
+pub(crate) fn config_from_fields<'a>(
+    get: impl Fn(&str) -> std::result::Result<&'a str, String>,
+) -> std::result::Result<NetworkConfig, String> {
     let int = |key: &str| -> std::result::Result<usize, String> {
         let text = get(key)?;
         text.parse().map_err(|_| format!("{key} {text:?} is not a non-negative integer"))

@@ -11,8 +11,8 @@ use safetensors::{Dtype, SafeTensors};
 
 use crate::error::{Error, Result};
 use crate::io::write_atomic;
-use crate::nn::weights::tensor_specs;
-use crate::nn::{NetworkConfig, NetworkWeights};
+use crate::nn::weights::{config_from_fields, tensor_specs};
+use crate::nn::NetworkWeights;
 use crate::train::optim::AdamState;
 
 /// Format tag of a checkpoint.
@@ -90,19 +90,9 @@ impl Checkpoint {
         let num = |k: &str| -> Result<usize> {
             get(k)?.parse().map_err(|_| bad(format!("metadata {k:?} is not a number")))
         };
-        let mean: Vec<f32> = get("input_mean")?
-            .split(',')
-            .map(|s| s.trim().parse::<f32>())
-            .collect::<std::result::Result<_, _>>()
-            .map_err(|_| bad("bad input_mean".into()))?;
-        let [r, g, b] = mean[..] else { return Err(bad("input_mean needs 3 values".into())) };
-        let config = NetworkConfig {
-            blocks: num("blocks")?,
-            channels: num("channels")?,
-            b1_stride: num("b1_stride")?,
-            input_mean: [r, g, b],
-        };
-        config.validate().map_err(|e| bad(e.to_string()))?;
+        let config =
+            config_from_fields(|k| meta.get(k).map(String::as_str).ok_or(format!("metadata has no {k:?}")))
+                .map_err(bad)?;
         let st = SafeTensors::deserialize(&bytes).map_err(|e| bad(e.to_string()))?;
         let template = NetworkWeights::xavier_uniform(&config, 0)?.zeros_like();
         let specs = tensor_specs(&config);

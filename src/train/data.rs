@@ -171,6 +171,12 @@ fn overlap_and_flow(
     (inside as f64 / n as f64, du / inside as f64, dv / inside as f64)
 }
 
+/// Frame `i` of a synthetic scene.
+fn render(scene: &Scene, i: usize) -> Result<FrameData> {
+    let f = scene.render(i)?;
+    Ok(FrameData { rgb: f.rgb, depth: f.depth, pose: f.pose })
+}
+
 /// `clamp(g I + b + n, 0, 255)` with `g`, `b` drawn once and `n` per value.
 fn augment(img: &mut Array3<f32>, a: &Augment, rng: &mut SplitMix64) {
     let g = rng.range(1.0 - a.gain, 1.0 + a.gain) as f32;
@@ -304,12 +310,6 @@ impl DataSet {
         v
     }
 
-    fn render(&self, seed: u64, i: usize) -> Result<(FrameData, PinholeCamera)> {
-        let scene = Scene::generate(&SceneConfig { seed, ..self.synth })?;
-        let f = scene.render(i)?;
-        Ok((FrameData { rgb: f.rgb, depth: f.depth, pose: f.pose }, scene.camera()))
-    }
-
     fn load(&self, s: &SequenceSource, i: usize) -> Result<FrameData> {
         let f = s.seq.load_frame(i)?;
         let depth = f
@@ -327,6 +327,7 @@ impl DataSet {
     ) -> Result<Option<(FrameData, FrameData, PinholeCamera)>> {
         let scene = Scene::generate(&SceneConfig { seed, ..self.synth })?;
         let poses: Vec<Pose> = (0..scene.frames()).map(|i| scene.pose(i)).collect::<Result<_>>()?;
+        let cam = scene.camera();
         for _ in 0..ATTEMPTS {
             let i = rng.below(poses.len());
             let js: Vec<usize> = (0..poses.len())
@@ -336,7 +337,7 @@ impl DataSet {
                 continue;
             }
             let j = js[rng.below(js.len())];
-            let (r, cam) = self.render(seed, i)?;
+            let r = render(&scene, i)?;
             let (ov, _, _) = overlap_and_flow(
                 &r.depth,
                 &cam,
@@ -344,7 +345,7 @@ impl DataSet {
                 (0, 0, cam.width, cam.height),
             );
             if ov >= self.cfg.rule.min_overlap {
-                let (l, _) = self.render(seed, j)?;
+                let l = render(&scene, j)?;
                 return Ok(Some((r, l, cam)));
             }
         }

@@ -6,9 +6,7 @@
 use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
-use super::{
-    bilinear_taps, check_inputs, hypothesis_position, pixel_target, pixel_terms, ray_point, within_125,
-};
+use super::{bilinear_taps, check_inputs, hypothesis_position, pixel_target, pixel_terms, ray_point};
 use super::{LossConfig, LossSums, ScaleLoss};
 use crate::error::Result;
 use crate::geometry::Warp;
@@ -103,14 +101,7 @@ pub fn scale_loss(
                         taps[l] = t;
                     }
                     let terms = pixel_terms(cfg, &energies, target, rho_star, &mut grad);
-                    sums.pixels += 1;
-                    sums.ce += terms.ce;
-                    sums.rho += terms.rho;
-                    sums.depth += terms.depth;
-                    let z_star = 1.0 / rho_star;
-                    sums.delta125_expected +=
-                        usize::from(within_125(1.0 / terms.rho_hat.max(cfg.rho_floor), z_star));
-                    sums.delta125_wta += usize::from(within_125(1.0 / cfg.bins.rho(terms.wta), z_star));
+                    sums.add_pixel(cfg, &terms, rho_star);
                     let d_u = &mut d_ref_rows[((y - rows.start) * w + x) * c..][..c];
                     for l in 0..k {
                         let Some((idx, wt)) = &taps[l] else { continue };

@@ -29,6 +29,7 @@ use ndarray::{Array3, ArrayView2};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, Warp};
 use crate::image::is_valid_depth;
+use crate::image::sample::axis;
 
 /// Hyper-parameters of the loss (SPEC.md §13.1); `Default` is the paper's.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -111,6 +112,17 @@ impl LossSums {
         } else {
             (self.ce + self.rho + self.depth) / self.pixels as f64
         }
+    }
+
+    /// Adds one unmasked pixel's terms (`ρ*` its ground truth).
+    pub(crate) fn add_pixel(&mut self, cfg: &LossConfig, terms: &PixelTerms, rho_star: f64) {
+        let z_star = 1.0 / rho_star;
+        self.pixels += 1;
+        self.ce += terms.ce;
+        self.rho += terms.rho;
+        self.depth += terms.depth;
+        self.delta125_expected += usize::from(within_125(1.0 / terms.rho_hat.max(cfg.rho_floor), z_star));
+        self.delta125_wta += usize::from(within_125(1.0 / cfg.bins.rho(terms.wta), z_star));
     }
 
     /// Adds another scale's or pair's sums.
@@ -279,16 +291,6 @@ pub(crate) fn check_inputs(
 /// `[(y0, x0), (y0, x1), (y1, x0), (y1, x1)]` and their f64 weights; `None` outside.
 #[inline]
 pub(crate) fn bilinear_taps(x: f64, y: f64, w: usize, h: usize) -> Option<([usize; 4], [f64; 4])> {
-    let axis = |v: f64, n: usize| -> Option<(usize, usize, f64)> {
-        if !(v >= 0.0 && v <= (n - 1) as f64) {
-            return None;
-        }
-        if n == 1 {
-            return Some((0, 0, 0.0));
-        }
-        let v0 = (v.floor() as usize).min(n - 2);
-        Some((v0, v0 + 1, v - v0 as f64))
-    };
     let (x0, x1, a) = axis(x, w)?;
     let (y0, y1, b) = axis(y, h)?;
     Some((

@@ -2,9 +2,7 @@
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 
-use super::{
-    bilinear_taps, check_inputs, hypothesis_position, pixel_target, pixel_terms, ray_point, within_125,
-};
+use super::{bilinear_taps, check_inputs, hypothesis_position, pixel_target, pixel_terms, ray_point};
 use super::{LossConfig, LossSums, ScaleLoss};
 use crate::error::Result;
 use crate::geometry::Warp;
@@ -51,13 +49,7 @@ pub fn scale_loss_reference(
                 };
             }
             let terms = pixel_terms(cfg, &energies, target, rho_star, &mut grad);
-            sums.pixels += 1;
-            sums.ce += terms.ce;
-            sums.rho += terms.rho;
-            sums.depth += terms.depth;
-            let z_star = 1.0 / rho_star;
-            sums.delta125_expected += usize::from(within_125(1.0 / terms.rho_hat.max(cfg.rho_floor), z_star));
-            sums.delta125_wta += usize::from(within_125(1.0 / cfg.bins.rho(terms.wta), z_star));
+            sums.add_pixel(cfg, &terms, rho_star);
             for l in 0..k {
                 let Some((idx, wt)) = &taps[l] else { continue };
                 for ch in 0..c {

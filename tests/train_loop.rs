@@ -125,3 +125,30 @@ fn a_checkpoint_from_another_configuration_or_a_bad_file_is_refused() {
         .to_string()
         .contains("nope.safetensors"));
 }
+
+#[test]
+fn validation_scenes_give_only_validation_pairs_and_never_train() {
+    use densefeat::train::data::DataSet;
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/synthetic/room_s1");
+    let cfg = DataConfig {
+        crop: (64, 48),
+        val_sequences: vec![fixture.clone()],
+        synthetic_scenes: 1,
+        synthetic_val_scenes: 0,
+        val_fraction: 0.0,
+        ..DataConfig::default()
+    };
+    let data = DataSet::open(cfg.clone()).unwrap();
+    let text = data.describe().join("\n");
+    // Every frame of the validation scene is validation: "train frames 0..0 (0 pairs)".
+    assert!(
+        text.contains("room_s1: 40 frames, train frames 0..0 (0 pairs), validation frames 0..40"),
+        "{text}"
+    );
+    let val = data.val_pairs(3).unwrap();
+    assert_eq!(val.iter().filter(|(name, _)| name == "room_s1").count(), 3);
+    // A scene given both as training and as validation data is refused, naming the flag.
+    let both = DataConfig { sequences: vec![fixture.clone()], ..cfg };
+    let err = DataSet::open(both).err().expect("refused").to_string();
+    assert!(err.contains("--val-data") && err.contains("room_s1"), "{err}");
+}

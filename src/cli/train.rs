@@ -26,6 +26,10 @@ pub struct TrainArgs {
     /// Posed RGB-D sequences to train on (repeat the flag); the last --val-fraction of each is held out.
     #[arg(long = "data")]
     pub data: Vec<PathBuf>,
+    /// Posed RGB-D sequences used only for validation (repeat the flag): validation scenes of
+    /// SPEC §3a, never trained on.
+    #[arg(long = "val-data")]
+    pub val_data: Vec<PathBuf>,
     /// Synthetic training scenes rendered on the fly (0: none).
     #[arg(long, default_value_t = 64)]
     pub synthetic_scenes: usize,
@@ -158,6 +162,7 @@ impl TrainArgs {
                     min_overlap: self.min_overlap,
                 },
                 sequences: self.data.clone(),
+                val_sequences: self.val_data.clone(),
                 synthetic_scenes: self.synthetic_scenes,
                 synthetic_val_scenes: self.synthetic_val_scenes,
                 synthetic_fraction: self.synthetic_fraction,

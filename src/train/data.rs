@@ -64,15 +64,19 @@ pub struct DataConfig {
     pub rule: PairRule,
     /// Augmentation of training pairs (validation pairs are not augmented).
     pub augment: Augment,
-    /// Posed RGB-D sequences to train on.
+    /// Posed RGB-D sequences to train on (training scenes, SPEC §3a).
     pub sequences: Vec<PathBuf>,
+    /// Posed RGB-D sequences used only for validation (validation scenes, SPEC §3a): every frame
+    /// gives validation pairs, none is trained on.
+    pub val_sequences: Vec<PathBuf>,
     /// Synthetic training scenes (seeds `SYNTH_TRAIN_SEED0 ..`); 0 for none.
     pub synthetic_scenes: usize,
     /// Synthetic validation scenes (seeds `SYNTH_VAL_SEED0 ..`).
     pub synthetic_val_scenes: usize,
     /// Probability that a training pair is synthetic when sequences are given too.
     pub synthetic_fraction: f64,
-    /// Fraction of each sequence's frames, at its end, held out for validation.
+    /// Fraction of each training sequence's frames, at its end, held out for validation (0 under
+    /// the scene-level protocol of SPEC §3a, where validation comes from `val_sequences`).
     pub val_fraction: f64,
 }
 
@@ -95,6 +99,7 @@ impl Default for DataConfig {
             rule: PairRule::default(),
             augment: Augment::default(),
             sequences: Vec::new(),
+            val_sequences: Vec::new(),
             synthetic_scenes: 64,
             synthetic_val_scenes: 4,
             synthetic_fraction: 0.5,
@@ -213,7 +218,19 @@ impl DataSet {
         };
         let mut sequences = Vec::new();
         for path in &cfg.sequences {
-            sequences.push(Self::open_sequence(path, &cfg)?);
+            sequences.push(Self::open_sequence(path, &cfg, cfg.val_fraction)?);
+        }
+        for path in &cfg.val_sequences {
+            if cfg.sequences.contains(path) {
+                return Err(Error::invalid_argument(
+                    "--val-data",
+                    format!(
+                        "{} is also given as --data: a scene is training or validation, never both",
+                        path.display()
+                    ),
+                ));
+            }
+            sequences.push(Self::open_sequence(path, &cfg, 1.0)?);
         }
         if sequences.iter().all(|s| s.train.is_empty()) && cfg.synthetic_scenes == 0 {
             return Err(Error::invalid_argument(
@@ -224,7 +241,9 @@ impl DataSet {
         Ok(DataSet { cfg, synth, sequences })
     }
 
-    fn open_sequence(path: &Path, cfg: &DataConfig) -> Result<SequenceSource> {
+    /// Reads `path` and its pairs; the last `val_fraction` of its frames (all of them at 1.0) give
+    /// validation pairs, the rest training pairs.
+    fn open_sequence(path: &Path, cfg: &DataConfig, val_fraction: f64) -> Result<SequenceSource> {
         let seq = open(path)?;
         let (cw, ch) = cfg.crop;
         if seq.camera.width < cw || seq.camera.height < ch {
@@ -239,7 +258,7 @@ impl DataSet {
             ));
         }
         let n = seq.len();
-        let split = n - ((n as f64 * cfg.val_fraction).round() as usize).min(n);
+        let split = n - ((n as f64 * val_fraction).round() as usize).min(n);
         // Depth of every frame, for the overlap rule.
         let mut depths = Vec::with_capacity(n);
         for i in 0..n {

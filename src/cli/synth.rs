@@ -57,7 +57,8 @@ pub fn run(args: SynthArgs) -> Result<()> {
         return Err(Error::invalid_argument("--frames", "0: must be at least 1"));
     }
     let style: Style = args.style.parse()?;
-    let cfg = SceneConfig { seed: args.seed, width, height, frames: args.frames, style, ..SceneConfig::default() };
+    let cfg =
+        SceneConfig { seed: args.seed, width, height, frames: args.frames, style, ..SceneConfig::default() };
     let scene = Scene::generate(&cfg)?;
     let start = std::time::Instant::now();
     let quiet = args.quiet;
@@ -127,12 +128,21 @@ pub fn run_sheet(args: SynthSheetArgs) -> Result<()> {
     let mut sheet = ndarray::Array3::<f32>::from_elem((sh, sw, 3), 255.0);
     for k in 0..args.count {
         let seed = args.first_seed + k as u64;
-        let cfg = SceneConfig { seed, width, height, frames: args.frame + 1, style, ..SceneConfig::default() };
+        let cfg =
+            SceneConfig { seed, width, height, frames: args.frame + 1, style, ..SceneConfig::default() };
         let frame = Scene::generate(&cfg)?.render(args.frame)?;
-        let (ox, oy) = (SHEET_GAP + (k % args.columns) * (width + SHEET_GAP), SHEET_GAP + (k / args.columns) * (height + SHEET_GAP));
+        let (ox, oy) = (
+            SHEET_GAP + (k % args.columns) * (width + SHEET_GAP),
+            SHEET_GAP + (k / args.columns) * (height + SHEET_GAP),
+        );
         sheet.slice_mut(ndarray::s![oy..oy + height, ox..ox + width, ..]).assign(&frame.rgb);
     }
     crate::image::save_rgb_png(&args.out, &sheet)?;
-    eprintln!("synth-sheet: {} {style} scenes (seeds {}..) written to {}", args.count, args.first_seed, args.out.display());
+    eprintln!(
+        "synth-sheet: {} {style} scenes (seeds {}..) written to {}",
+        args.count,
+        args.first_seed,
+        args.out.display()
+    );
     Ok(())
 }

@@ -86,8 +86,12 @@ fn texture_stats(grey: &Array2<f32>, x: usize, y: usize) -> (f64, f64) {
 
 /// Whether the depth inside a window is valid everywhere and spans little relative to its median.
 fn on_one_surface(depth: &Array2<f32>, x: usize, y: usize) -> bool {
-    let mut z: Vec<f32> =
-        depth.slice(s![y..y + TILE, x..x + TILE]).iter().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
+    let mut z: Vec<f32> = depth
+        .slice(s![y..y + TILE, x..x + TILE])
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .collect();
     if (z.len() as f64) < MIN_VALID_DEPTH * (TILE * TILE) as f64 {
         return false;
     }
@@ -100,7 +104,8 @@ fn on_one_surface(depth: &Array2<f32>, x: usize, y: usize) -> bool {
 fn best_window(scene: &'static str, image: &Path) -> Result<Option<Crop>> {
     let rgb = load_rgb(image)?;
     let stem = image.file_stem().and_then(|s| s.to_str()).unwrap_or_default().to_string();
-    let depth_path = image.parent().and_then(Path::parent).map(|d| d.join("depth").join(format!("{stem}.png")));
+    let depth_path =
+        image.parent().and_then(Path::parent).map(|d| d.join("depth").join(format!("{stem}.png")));
     let depth_path = depth_path.ok_or_else(|| Error::bad_file(image, "no parent folder"))?;
     let depth = load_depth_png(&depth_path, 1e-3, None)?;
     let grey = to_gray(&rgb);

@@ -53,7 +53,9 @@ fn decoded() -> &'static std::result::Result<Atlas, String> {
             }
         }
         if tiles.is_empty() {
-            return Err(format!("embedded fixtures/textures/atlas.jpg is {w}x{h}: no {ATLAS_TILE}-pixel tile"));
+            return Err(format!(
+                "embedded fixtures/textures/atlas.jpg is {w}x{h}: no {ATLAS_TILE}-pixel tile"
+            ));
         }
         Ok(Atlas { tiles, means })
     })
@@ -64,7 +66,10 @@ fn decoded() -> &'static std::result::Result<Atlas, String> {
 /// # Errors
 /// [`Error::BadFile`] naming the atlas if it does not decode or holds no tile.
 pub fn check() -> Result<()> {
-    decoded().as_ref().map(|_| ()).map_err(|e| Error::bad_file(std::path::Path::new("fixtures/textures/atlas.jpg"), e.clone()))
+    decoded()
+        .as_ref()
+        .map(|_| ())
+        .map_err(|e| Error::bad_file(std::path::Path::new("fixtures/textures/atlas.jpg"), e.clone()))
 }
 
 /// A one-tile mid-grey atlas, the stand-in if the embedded one does not decode ([`check`] reports

@@ -33,7 +33,8 @@ impl Builder<'_> {
     /// place along the wall; `None` if the wall is too short.
     fn wall_quad(&mut self, wall: Wall, w: f64, h: f64, bottom: f64) -> Option<Quad> {
         let (hw, top) = (self.half_width, self.floor - bottom - h);
-        let along = |rng: &mut SplitMix64, lo: f64, hi: f64| (hi - lo - w > 0.0).then(|| rng.range(lo, hi - w));
+        let along =
+            |rng: &mut SplitMix64, lo: f64, hi: f64| (hi - lo - w > 0.0).then(|| rng.range(lo, hi - w));
         let quad = match wall {
             0 | 3 => {
                 let x = along(self.rng, -hw + 0.15, hw - 0.15)?;
@@ -70,7 +71,11 @@ impl Builder<'_> {
     fn wall_features(&mut self) {
         let wall = self.rng.below(4);
         if let Some(q) = self.wall_quad(wall, 0.85, 2.05, 0.0) {
-            let t = if self.rng.chance(0.5) { paint(self.rng, 0.3, 0.9) } else { photo(self.rng, 2.0, 2.8, false) };
+            let t = if self.rng.chance(0.5) {
+                paint(self.rng, 0.3, 0.9)
+            } else {
+                photo(self.rng, 2.0, 2.8, false)
+            };
             self.add(Shape::Quad(q), t, "door".into());
         }
         if self.rng.chance(0.6) {
@@ -133,7 +138,14 @@ impl Builder<'_> {
         None
     }
 
-    fn cuboid(&mut self, centre: Vector3<f64>, axes: Matrix3<f64>, half: Vector3<f64>, t: Texture, what: &str) {
+    fn cuboid(
+        &mut self,
+        centre: Vector3<f64>,
+        axes: Matrix3<f64>,
+        half: Vector3<f64>,
+        t: Texture,
+        what: &str,
+    ) {
         let what = format!("{what} {:.2} x {:.2} x {:.2} m", 2.0 * half.x, 2.0 * half.y, 2.0 * half.z);
         self.add(Shape::Cuboid(Cuboid { centre, axes, half }), t, what);
     }
@@ -150,12 +162,14 @@ impl Builder<'_> {
     fn table(&mut self) {
         let (hx, hz) = (self.rng.range(0.3, 0.8), self.rng.range(0.3, 0.5));
         let Some((x, z, yaw)) = self.floor_spot(hx, hz, true) else { return };
-        let (height, thick, leg) = (self.rng.range(0.7, 0.78), self.rng.range(0.025, 0.05), self.rng.range(0.02, 0.035));
+        let (height, thick, leg) =
+            (self.rng.range(0.7, 0.78), self.rng.range(0.025, 0.05), self.rng.range(0.02, 0.035));
         let axes = yaw_axes(yaw);
         let top = self.furniture_texture();
         let top_centre = Vector3::new(x, self.floor - height + thick / 2.0, z);
         self.cuboid(top_centre, axes, Vector3::new(hx, thick / 2.0, hz), top, "table top");
-        let legs = if self.rng.chance(0.5) { paint(self.rng, 0.1, 0.6) } else { photo(self.rng, 0.3, 0.6, false) };
+        let legs =
+            if self.rng.chance(0.5) { paint(self.rng, 0.1, 0.6) } else { photo(self.rng, 0.3, 0.6, false) };
         let leg_half = Vector3::new(leg, (height - thick) / 2.0, leg);
         for (sx, sz) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
             let local = Vector3::new(sx * (hx - 2.0 * leg), 0.0, sz * (hz - 2.0 * leg));
@@ -169,7 +183,13 @@ impl Builder<'_> {
         let (hx, hz, hy) = (self.rng.range(0.2, 0.6), self.rng.range(0.15, 0.3), self.rng.range(0.4, 1.0));
         let Some((x, z, yaw)) = self.wall_spot(hx, hz) else { return };
         let t = self.furniture_texture();
-        self.cuboid(Vector3::new(x, self.floor - hy, z), yaw_axes(yaw), Vector3::new(hx, hy, hz), t, "cabinet");
+        self.cuboid(
+            Vector3::new(x, self.floor - hy, z),
+            yaw_axes(yaw),
+            Vector3::new(hx, hy, hz),
+            t,
+            "cabinet",
+        );
     }
 
     /// A sofa against a wall: a seat block and a back block.
@@ -190,7 +210,8 @@ impl Builder<'_> {
 
     /// A box on the floor, sometimes with a smaller one on top.
     fn real_box(&mut self) {
-        let half = Vector3::new(self.rng.range(0.12, 0.4), self.rng.range(0.1, 0.4), self.rng.range(0.12, 0.4));
+        let half =
+            Vector3::new(self.rng.range(0.12, 0.4), self.rng.range(0.1, 0.4), self.rng.range(0.12, 0.4));
         let Some((x, z, yaw)) = self.floor_spot(half.x, half.z, true) else { return };
         let t = self.furniture_texture();
         let centre = Vector3::new(x, self.floor - half.y, z);
@@ -214,13 +235,24 @@ impl Builder<'_> {
             let (origin, along, up, f) = if wall == 0 {
                 let x0 = self.rng.range(-self.half_width + GAP, self.half_width - GAP - width);
                 let f = Footprint { x: x0 + width / 2.0, z: self.far - run / 2.0, r: 0.5 * width.hypot(run) };
-                (Vector3::new(x0, self.floor, self.far - run - POSTER_OFFSET), Vector3::x(), Vector3::new(0.0, -rise, run), f)
+                (
+                    Vector3::new(x0, self.floor, self.far - run - POSTER_OFFSET),
+                    Vector3::x(),
+                    Vector3::new(0.0, -rise, run),
+                    f,
+                )
             } else {
                 let side = if wall == 1 { -1.0 } else { 1.0 };
                 let z0 = self.rng.range(self.back + GAP, self.far - GAP - width);
                 let xw = side * (self.half_width - POSTER_OFFSET);
-                let f = Footprint { x: xw - side * run / 2.0, z: z0 + width / 2.0, r: 0.5 * width.hypot(run) };
-                (Vector3::new(xw - side * run, self.floor, z0), Vector3::z(), Vector3::new(side * run, -rise, 0.0), f)
+                let f =
+                    Footprint { x: xw - side * run / 2.0, z: z0 + width / 2.0, r: 0.5 * width.hypot(run) };
+                (
+                    Vector3::new(xw - side * run, self.floor, z0),
+                    Vector3::z(),
+                    Vector3::new(side * run, -rise, 0.0),
+                    f,
+                )
             };
             if !(self.clear_of_camera(&f) && self.clear_of_objects(&f)) {
                 continue;
@@ -228,7 +260,8 @@ impl Builder<'_> {
             self.footprints.push(f);
             let quad = Quad::new(origin, along, up / length, [width, length]);
             let t = self.furniture_texture();
-            let what = format!("slanted board {width:.2} x {length:.2} m leaning {:.0} deg", lean.to_degrees());
+            let what =
+                format!("slanted board {width:.2} x {length:.2} m leaning {:.0} deg", lean.to_degrees());
             self.add(Shape::Quad(quad), t, what);
             return;
         }

@@ -43,8 +43,8 @@ mod texture;
 mod trajectory;
 mod write;
 
-pub use photometric::{Exposure, Photometric, PhotometricConfig};
 pub use atlas::{tile_count as atlas_tile_count, ATLAS_CROPS};
+pub use photometric::{Exposure, Photometric, PhotometricConfig};
 pub use scene::{Lamp, Light, Scene, SynthFrame};
 pub use sensor::{jpeg_round_trip, Sensor, FOCAL_RANGE_640, JPEG_QUALITY, MAX_SHUTTER, PRINCIPAL_JITTER};
 pub use surface::{Cuboid, Hit, Quad, Shape, Surface};

@@ -97,7 +97,15 @@ impl Scene {
 
     /// A realistic-style row: sub-pixel sample `s` of a pixel is taken at the shutter time
     /// stratum `(s + shift) mod n²` (`shift` hashed from the pixel), i.e. from `blur[...]`.
-    fn render_row_real(&self, rot: &Matrix3<f64>, o: &Vector3<f64>, blur: &[(Matrix3<f64>, Vector3<f64>)], y: usize, frame: usize, sensor: &Sensor) -> Row {
+    fn render_row_real(
+        &self,
+        rot: &Matrix3<f64>,
+        o: &Vector3<f64>,
+        blur: &[(Matrix3<f64>, Vector3<f64>)],
+        y: usize,
+        frame: usize,
+        sensor: &Sensor,
+    ) -> Row {
         let k = &self.camera;
         let n = self.samples_per_axis;
         let n2 = n * n;
@@ -167,7 +175,10 @@ impl Scene {
             None => (0..h).into_par_iter().map(|y| self.render_row(&rot, &o, y, frame)).collect(),
             Some(sensor) => {
                 let blur = self.blur_poses(pose, frame, sensor);
-                (0..h).into_par_iter().map(|y| self.render_row_real(&rot, &o, &blur, y, frame, sensor)).collect()
+                (0..h)
+                    .into_par_iter()
+                    .map(|y| self.render_row_real(&rot, &o, &blur, y, frame, sensor))
+                    .collect()
             }
         };
         let mut rgb = Array3::from_shape_fn((h, w, 3), |(y, x, c)| rows[y].rgb[3 * x + c]);

@@ -99,7 +99,16 @@ impl Sensor {
     /// The recorded 8-bit value of radiance `l` in `channel` (see the module docs).
     #[inline]
     #[allow(clippy::too_many_arguments)]
-    pub fn record(&self, p: &Photometric, l: f64, channel: usize, e: &Exposure, j: f64, vig: f64, n: f64) -> f32 {
+    pub fn record(
+        &self,
+        p: &Photometric,
+        l: f64,
+        channel: usize,
+        e: &Exposure,
+        j: f64,
+        vig: f64,
+        n: f64,
+    ) -> f32 {
         let v = e.gain * j * vig * self.white_balance[channel] * l + e.bias;
         let sigma = (p.config.noise_sigma * p.config.noise_sigma + self.shot_noise * v.max(0.0)).sqrt();
         (v + sigma * n).round().clamp(0.0, 255.0) as f32
@@ -120,5 +129,6 @@ pub fn jpeg_round_trip(rgb: &RgbImage, quality: u8) -> Result<RgbImage> {
         .map_err(fail)?;
     let back = image::load_from_memory_with_format(&bytes, image::ImageFormat::Jpeg).map_err(fail)?.to_rgb8();
     let data: Vec<f32> = back.into_raw().into_iter().map(f32::from).collect();
-    Array3::from_shape_vec((h, w, 3), data).map_err(|e| Error::invalid_argument("JPEG round trip", e.to_string()))
+    Array3::from_shape_vec((h, w, 3), data)
+        .map_err(|e| Error::invalid_argument("JPEG round trip", e.to_string()))
 }

@@ -1,5 +1,5 @@
 //! The room layout of the realistic style ([`Style::Real`](super::Style::Real)): painted walls and
-//! ceiling (large, nearly uniform), a photo-textured floor, a door, a bright window, pictures,
+//! ceiling (large, nearly uniform), a photo-textured floor, skirting boards, a door, a bright window, pictures,
 //! furniture built from boxes (tables on four legs, cabinets and shelves against the walls, a sofa,
 //! boxes on the floor) and slanted planes (a board leaning on the far wall, a panel leaning on a
 //! side wall); lit by a soft directional light plus a ceiling lamp ([`Lamp`]).
@@ -65,6 +65,27 @@ impl Builder<'_> {
                 },
             };
             self.add(Shape::Quad(Quad::new(origin, u, v, size)), texture, name.to_string());
+        }
+    }
+
+    /// Skirting boards: a strip along the bottom of each wall, just in front of it.
+    fn skirting(&mut self) {
+        let h = self.rng.range(0.06, 0.12);
+        let t = paint(self.rng, 0.2, 0.95);
+        let (hw, o) = (self.half_width, WALL_OFFSET);
+        let (top, depth) = (self.floor - h, self.far - self.back);
+        let strips = [
+            (Vector3::new(-hw, top, self.far - o), Vector3::x(), 2.0 * hw),
+            (Vector3::new(-hw, top, self.back + o), Vector3::x(), 2.0 * hw),
+            (Vector3::new(-hw + o, top, self.back), Vector3::z(), depth),
+            (Vector3::new(hw - o, top, self.back), Vector3::z(), depth),
+        ];
+        for (origin, along, len) in strips {
+            self.add(
+                Shape::Quad(Quad::new(origin, along, Vector3::y(), [len, h])),
+                t.clone(),
+                "skirting".into(),
+            );
         }
     }
 
@@ -310,6 +331,9 @@ pub(super) fn generate(rng: &mut SplitMix64, path: &CameraPath) -> (Room, Lamp) 
         ceiling,
     };
     b.real_room();
+    if b.rng.chance(0.7) {
+        b.skirting();
+    }
     b.wall_features();
     if b.rng.chance(0.8) {
         b.leaning_plane(0);

@@ -15,13 +15,34 @@ use rayon::prelude::*;
 
 use super::scene::Scene;
 use super::sensor::{jpeg_round_trip, Sensor};
-use super::surface::Hit;
+use super::surface::{Hit, Shape};
 use crate::error::Result;
 use crate::geometry::Pose;
 use crate::image::{DepthMap, RgbImage};
 
 /// Radiance (grey levels) of a white surface at shade 1, before gain; leaves headroom for gain.
 const EXPOSURE: f64 = 0.9 * 255.0;
+
+/// Realistic style: the room's leading surfaces (floor, ceiling, four walls) darken towards their
+/// edges, a cheap stand-in for the ambient occlusion of room corners.
+const ROOM_QUADS: usize = 6;
+/// Darkening at a room edge, and the distance (metres) at which it vanishes.
+const CORNER_DARKENING: f64 = 0.3;
+const CORNER_REACH: f64 = 0.8;
+
+/// `1 - CORNER_DARKENING · max(0, 1 - d / CORNER_REACH)²`, `d` the distance of `uv` to the quad's
+/// edge (basic operations only, no `libm`).
+#[inline]
+fn corner_darkening(shape: &Shape, uv: &[f64; 2]) -> f64 {
+    match shape {
+        Shape::Quad(q) => {
+            let d = uv[0].min(q.size[0] - uv[0]).min(uv[1]).min(q.size[1] - uv[1]).max(0.0);
+            let t = (1.0 - d / CORNER_REACH).max(0.0);
+            1.0 - CORNER_DARKENING * t * t
+        }
+        Shape::Cuboid(_) => 1.0,
+    }
+}
 
 /// One rendered row: `W·3` colour values and `W` depths.
 struct Row {
@@ -53,6 +74,9 @@ impl Scene {
                 let mut shade = self.light.shade(&hit.normal);
                 if let Some(lamp) = &self.lamp {
                     shade += lamp.shade(&(o + d * hit.t), &hit.normal);
+                    if k < ROOM_QUADS {
+                        shade *= corner_darkening(&self.surfaces[k].shape, &hit.uv);
+                    }
                 }
                 let s = EXPOSURE * shade;
                 [a[0] * s, a[1] * s, a[2] * s]

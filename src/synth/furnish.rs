@@ -351,7 +351,7 @@ pub(super) fn generate(rng: &mut SplitMix64, path: &CameraPath) -> (Room, Lamp) 
     for _ in 0..1 + b.rng.below(3) {
         b.wall_cabinet();
     }
-    for _ in 0..2 + b.rng.below(5) {
+    for _ in 0..3 + b.rng.below(6) {
         b.real_box();
     }
     (Room { surfaces: b.surfaces, light, summary: b.summary }, lamp)

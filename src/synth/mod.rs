@@ -7,6 +7,12 @@
 //! ([`Texture`]); a handheld-like camera path ([`CameraPath`]); and a per-frame camera response
 //! ([`Photometric`]).
 //!
+//! That is the [`Style::Classic`] look (the shipped fixture's). [`Style::Real`] aims at training
+//! data that transfers to real rooms: photo textures cut from the training scenes' frames
+//! (`fixtures/textures/`, embedded), painted nearly uniform walls and ceiling, furniture built from
+//! boxes, slanted planes, a ceiling lamp, random intrinsics and a realistic sensor (white balance,
+//! exposure jitter, vignetting, shot and read noise, motion blur, JPEG) — see SPEC.md §4b.
+//!
 //! Rendering casts rays analytically ([`surface`]): depth is the optical-axis depth of the nearest
 //! hit through the pixel centre (integer coordinates, SPEC.md §2.1), colour is the mean of
 //! `n × n` stratified sub-pixel samples around it. Geometry is `f64`.

@@ -101,9 +101,9 @@ pub enum Texture {
         /// Noise key.
         key: u64,
     },
-    /// A crop of a real photograph from the atlas ([`super::atlas`]), mirrored-repeated, with its
-    /// mean colour replaced by `colour` and its contrast scaled, plus a faint blotchy variation that
-    /// hides the repetition.
+    /// A crop of a real photograph from the embedded atlas (`fixtures/textures/atlas.jpg`),
+    /// repeated (mirrored, or as floor tiles), with its mean colour replaced by `colour` and its
+    /// contrast scaled, plus a faint blotchy variation that hides the repetition.
     Photo {
         /// Atlas tile.
         tile: usize,

@@ -17,6 +17,7 @@ pub mod inspect;
 pub mod mapping_args;
 pub mod reconstruct;
 pub mod synth;
+pub mod texture_atlas;
 pub mod train;
 
 /// Dense monocular reconstruction with learned good features to match.
@@ -35,6 +36,10 @@ pub enum Command {
     Inspect(inspect::InspectArgs),
     /// Render a synthetic posed RGB-D sequence (DeepVideoMVS layout).
     Synth(synth::SynthArgs),
+    /// Render one frame of several synthetic scenes into a PNG grid (a page of samples).
+    SynthSheet(synth::SynthSheetArgs),
+    /// Cut the photo-texture atlas of the realistic synthetic style from the training scenes' frames.
+    TextureAtlas(texture_atlas::TextureAtlasArgs),
     /// Compute dense features of one image with the feature network (writes .npy, optional PCA PNG).
     Features(features::FeaturesArgs),
     /// Write Xavier-initialised (untrained) feature-network weights as safetensors.
@@ -62,6 +67,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Inspect(args) => inspect::run(args),
         Command::Train(args) => train::run(args),
         Command::Synth(args) => synth::run(args),
+        Command::SynthSheet(args) => synth::run_sheet(args),
+        Command::TextureAtlas(args) => texture_atlas::run(args),
         Command::Features(args) => features::run(args),
         Command::InitWeights(args) => init_weights::run(args),
         Command::Bench(args) => bench::run(args),

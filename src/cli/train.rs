@@ -39,6 +39,9 @@ pub struct TrainArgs {
     /// Probability that a pair is synthetic when --data is given too.
     #[arg(long, default_value_t = 0.5)]
     pub synthetic_fraction: f64,
+    /// Style of the synthetic scenes: `classic` or `real` (photo textures, realistic sensor).
+    #[arg(long, default_value = "classic")]
+    pub synthetic_style: String,
     /// Fraction of each sequence's frames, at its end, held out for validation.
     #[arg(long, default_value_t = 0.2)]
     pub val_fraction: f64,
@@ -166,6 +169,7 @@ impl TrainArgs {
                 synthetic_scenes: self.synthetic_scenes,
                 synthetic_val_scenes: self.synthetic_val_scenes,
                 synthetic_fraction: self.synthetic_fraction,
+                synthetic_style: self.synthetic_style.parse()?,
                 val_fraction: self.val_fraction,
                 ..DataConfig::default()
             },

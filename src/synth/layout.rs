@@ -15,11 +15,11 @@ use super::texture::Texture;
 use super::trajectory::CameraPath;
 
 /// Horizontal distance every object keeps from the camera path's box, metres.
-const CLEARANCE: f64 = 0.7;
+pub(super) const CLEARANCE: f64 = 0.7;
 /// Room quads extend this far past the room's edges so that no ray slips through a corner.
-const SEAM_OVERLAP: f64 = 0.01;
+pub(super) const SEAM_OVERLAP: f64 = 0.01;
 /// Gap kept between objects and walls or each other, metres.
-const GAP: f64 = 0.03;
+pub(super) const GAP: f64 = 0.03;
 /// Camera height above the floor, metres.
 const CAMERA_HEIGHT: (f64, f64) = (1.3, 1.6);
 /// Room height, half-width, and far-wall distance from the path centre, metres.
@@ -30,7 +30,7 @@ const FAR_WALL: (f64, f64) = (3.9, 4.8);
 const BACK_GAP: (f64, f64) = (0.5, 1.0);
 /// Number of floor boxes (inclusive range) and placement attempts per box.
 const FLOOR_BOXES: (usize, usize) = (4, 7);
-const PLACEMENT_TRIES: usize = 60;
+pub(super) const PLACEMENT_TRIES: usize = 60;
 /// Probability of a box stacked on a floor box, a wall cabinet and a poster.
 const STACK_CHANCE: f64 = 0.35;
 const CABINET_CHANCE: f64 = 0.5;
@@ -41,7 +41,7 @@ const ROOM_TEXTURE_SIZE: f64 = 2.0;
 const PLAIN_CEILING_CHANCE: f64 = 0.6;
 const PLAIN_WALL_CHANCE: f64 = 0.7;
 /// Offset of a poster from its wall, metres.
-const POSTER_OFFSET: f64 = 0.005;
+pub(super) const POSTER_OFFSET: f64 = 0.005;
 
 /// A generated room.
 pub(super) struct Room {
@@ -52,39 +52,42 @@ pub(super) struct Room {
 
 /// A footprint on the floor plane (x, z) used to keep objects apart: a disc.
 #[derive(Clone, Copy)]
-struct Footprint {
-    x: f64,
-    z: f64,
-    r: f64,
+pub(super) struct Footprint {
+    pub x: f64,
+    pub z: f64,
+    pub r: f64,
 }
 
-struct Builder<'a> {
-    rng: &'a mut SplitMix64,
-    surfaces: Vec<Surface>,
-    summary: Vec<String>,
-    footprints: Vec<Footprint>,
+pub(super) struct Builder<'a> {
+    pub rng: &'a mut SplitMix64,
+    pub surfaces: Vec<Surface>,
+    pub summary: Vec<String>,
+    pub footprints: Vec<Footprint>,
     /// Camera path box in (x, z): min and max, grown by CLEARANCE.
-    keep_out: [f64; 4],
-    half_width: f64,
-    back: f64,
-    far: f64,
-    floor: f64,
-    ceiling: f64,
+    pub keep_out: [f64; 4],
+    pub half_width: f64,
+    pub back: f64,
+    pub far: f64,
+    pub floor: f64,
+    pub ceiling: f64,
 }
 
-fn yaw_axes(yaw: f64) -> Matrix3<f64> {
+/// A room rectangle: name, corner, the two unit side directions, side lengths.
+pub(super) type RoomPlane = (&'static str, Vector3<f64>, Vector3<f64>, Vector3<f64>, [f64; 2]);
+
+pub(super) fn yaw_axes(yaw: f64) -> Matrix3<f64> {
     let (c, s) = (cos(yaw), sin(yaw));
     Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c)
 }
 
 impl Builder<'_> {
-    fn add(&mut self, shape: Shape, texture: Texture, what: String) {
+    pub(super) fn add(&mut self, shape: Shape, texture: Texture, what: String) {
         self.summary.push(format!("{what}: {}", texture_kind(&texture)));
         self.surfaces.push(Surface { shape, texture });
     }
 
     /// Whether `f` keeps [`CLEARANCE`] from the camera path's box.
-    fn clear_of_camera(&self, f: &Footprint) -> bool {
+    pub(super) fn clear_of_camera(&self, f: &Footprint) -> bool {
         let [x0, x1, z0, z1] = self.keep_out;
         let dx = (x0 - f.x).max(f.x - x1).max(0.0);
         let dz = (z0 - f.z).max(f.z - z1).max(0.0);
@@ -92,7 +95,7 @@ impl Builder<'_> {
     }
 
     /// Whether `f` keeps [`GAP`] from every object placed so far.
-    fn clear_of_objects(&self, f: &Footprint) -> bool {
+    pub(super) fn clear_of_objects(&self, f: &Footprint) -> bool {
         self.footprints.iter().all(|o| {
             let (dx, dz) = (o.x - f.x, o.z - f.z);
             (dx * dx + dz * dz).sqrt() >= o.r + f.r + GAP
@@ -100,18 +103,19 @@ impl Builder<'_> {
     }
 
     /// Whether `f` keeps [`GAP`] from the walls.
-    fn inside_room(&self, f: &Footprint) -> bool {
+    pub(super) fn inside_room(&self, f: &Footprint) -> bool {
         f.x.abs() + f.r + GAP <= self.half_width
             && f.z - f.r - GAP >= self.back
             && f.z + f.r + GAP <= self.far
     }
 
-    fn room(&mut self) {
+    /// The six room rectangles (floor, ceiling, back, far, left, right wall), overlapping at the seams.
+    pub(super) fn room_planes(&self) -> [RoomPlane; 6] {
         let (w, e) = (self.half_width, SEAM_OVERLAP);
         let (x, y, z) = (Vector3::x(), Vector3::y(), Vector3::z());
         let depth = self.far - self.back;
         let height = self.floor - self.ceiling;
-        let planes = [
+        [
             (
                 "floor",
                 Vector3::new(-w - e, self.floor, self.back - e),
@@ -154,7 +158,11 @@ impl Builder<'_> {
                 y,
                 [depth + 2.0 * e, height + 2.0 * e],
             ),
-        ];
+        ]
+    }
+
+    fn room(&mut self) {
+        let planes = self.room_planes();
         // Real rooms have plain surfaces: the ceiling is usually plain, often one wall is too.
         let plain_ceiling = self.rng.chance(PLAIN_CEILING_CHANCE);
         let plain_wall = if self.rng.chance(PLAIN_WALL_CHANCE) { 2 + self.rng.below(4) } else { usize::MAX };
@@ -297,6 +305,8 @@ pub(super) fn texture_kind(t: &Texture) -> &'static str {
         Texture::Stripes { .. } => "stripes",
         Texture::Checker { .. } => "checker",
         Texture::Collage { .. } => "patch collage",
+        Texture::Paint { .. } => "paint",
+        Texture::Photo { .. } => "photo crop",
     }
 }
 

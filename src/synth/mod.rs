@@ -7,6 +7,12 @@
 //! ([`Texture`]); a handheld-like camera path ([`CameraPath`]); and a per-frame camera response
 //! ([`Photometric`]).
 //!
+//! That is the [`Style::Classic`] look (the shipped fixture's). [`Style::Real`] aims at training
+//! data that transfers to real rooms: photo textures cut from the training scenes' frames
+//! (`fixtures/textures/`, embedded), painted nearly uniform walls and ceiling, furniture built from
+//! boxes, slanted planes, a ceiling lamp, random intrinsics and a realistic sensor (white balance,
+//! exposure jitter, vignetting, shot and read noise, motion blur, JPEG) — see SPEC.md §4b.
+//!
 //! Rendering casts rays analytically ([`surface`]): depth is the optical-axis depth of the nearest
 //! hit through the pixel centre (integer coordinates, SPEC.md §2.1), colour is the mean of
 //! `n × n` stratified sub-pixel samples around it. Geometry is `f64`.
@@ -28,20 +34,25 @@
 //! assert!(frame.depth.iter().all(|&z| z > 0.3 && z < 7.0));
 //! ```
 
+mod atlas;
 pub mod detmath;
+mod furnish;
 mod layout;
 pub mod noise;
 mod photometric;
 mod render;
 pub mod rng;
 mod scene;
+mod sensor;
 pub mod surface;
 mod texture;
 mod trajectory;
 mod write;
 
+pub use atlas::{tile_count as atlas_tile_count, ATLAS_CROPS};
 pub use photometric::{Exposure, Photometric, PhotometricConfig};
-pub use scene::{Light, Scene, SynthFrame};
+pub use scene::{Lamp, Light, Scene, SynthFrame};
+pub use sensor::{jpeg_round_trip, Sensor, FOCAL_RANGE_640, JPEG_QUALITY, MAX_SHUTTER, PRINCIPAL_JITTER};
 pub use surface::{Cuboid, Hit, Quad, Shape, Surface};
 pub use texture::{random_colour, Albedo, Texture, PALETTE_LEN};
 pub use trajectory::{look_at, CameraPath};
@@ -49,6 +60,14 @@ pub use write::{write_scene, write_sequence};
 
 use crate::error::{Error, Result};
 use crate::geometry::PinholeCamera;
+
+/// The scenes photo-texture crops may be cut from: the TRAINING scenes of the protocol (SPEC.md
+/// §4b), never a validation or test scene.
+pub const TRAINING_SCENES: [&str; 2] = ["hololens_000", "tartanair_hospital"];
+/// Side of one square tile of the photo-texture atlas, pixels.
+pub const ATLAS_TILE: usize = 128;
+/// Tiles per row of the photo-texture atlas.
+pub const ATLAS_COLUMNS: usize = 8;
 
 /// Largest image side accepted, pixels.
 pub const MAX_SIDE: usize = 8192;
@@ -58,6 +77,44 @@ pub const MAX_FRAMES: usize = 1_000_000;
 pub const MAX_SAMPLES_PER_AXIS: usize = 8;
 /// Default focal length as a fraction of the image width (horizontal field of view ≈ 64°).
 pub const DEFAULT_FOCAL_RATIO: f64 = 0.8;
+
+/// The look of a generated scene.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Style {
+    /// Procedural textures (noise, stripes, checker, collage), fixed intrinsics
+    /// (`fx = fy = focal_ratio · W`, centred principal point) and the mild camera response of
+    /// `photometric`. The shipped fixture `room_s1` is this style.
+    #[default]
+    Classic,
+    /// Photo textures cut from the training scenes, painted walls and ceiling, furniture and
+    /// slanted planes, random intrinsics and a realistic sensor ([`Sensor`]: white balance,
+    /// exposure jitter, vignetting, shot and read noise, motion blur, JPEG). Ignores
+    /// `focal_ratio` and `photometric` (both are drawn from the seed).
+    Real,
+}
+
+impl std::str::FromStr for Style {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "classic" => Ok(Style::Classic),
+            "real" => Ok(Style::Real),
+            _ => Err(Error::invalid_argument("--style", format!("{s:?}: expected classic or real"))),
+        }
+    }
+}
+
+impl std::fmt::Display for Style {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Style::Classic => "classic",
+            Style::Real => "real",
+        })
+    }
+}
+
+/// Salt of the generator that draws the realistic style's intrinsics from the seed.
+const INTRINSICS_SALT: u64 = 0x1A75_1C5E_ED00_0001;
 
 /// What to render.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -76,6 +133,8 @@ pub struct SceneConfig {
     pub samples_per_axis: usize,
     /// Camera response.
     pub photometric: PhotometricConfig,
+    /// Scene style.
+    pub style: Style,
 }
 
 impl Default for SceneConfig {
@@ -88,6 +147,7 @@ impl Default for SceneConfig {
             focal_ratio: DEFAULT_FOCAL_RATIO,
             samples_per_axis: 2,
             photometric: PhotometricConfig::default(),
+            style: Style::Classic,
         }
     }
 }
@@ -151,6 +211,11 @@ impl SceneConfig {
     /// As [`SceneConfig::validate`].
     pub fn camera(&self) -> Result<PinholeCamera> {
         self.validate()?;
+        if self.style == Style::Real {
+            let mut rng = rng::SplitMix64::new(rng::mix64(self.seed ^ INTRINSICS_SALT));
+            let (fx, fy, cx, cy) = sensor::random_intrinsics(&mut rng, self.width, self.height);
+            return PinholeCamera::new(fx, fy, cx, cy, self.width, self.height);
+        }
         let f = self.focal_ratio * self.width as f64;
         PinholeCamera::new(
             f,

@@ -2,12 +2,12 @@
 
 use nalgebra::Vector3;
 
-use super::layout;
 use super::photometric::{Photometric, PhotometricConfig};
 use super::rng::SplitMix64;
+use super::sensor::{random_photometric, Sensor};
 use super::surface::Surface;
 use super::trajectory::CameraPath;
-use super::SceneConfig;
+use super::{furnish, layout, SceneConfig, Style};
 use crate::error::{Error, Result};
 use crate::geometry::{PinholeCamera, Pose};
 use crate::image::{DepthMap, RgbImage};
@@ -40,6 +40,30 @@ impl Light {
     }
 }
 
+/// A point light with soft fall-off (the realistic style's ceiling lamp): a surface point `p` with
+/// unit normal `n` (facing the viewer) gets `power · max(0, n·(q - p)/|q - p|) / (1 + |q - p|²/radius²)`
+/// added to its shading, `q` the lamp position. View-independent, like [`Light`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Lamp {
+    /// Position, world frame.
+    pub position: Vector3<f64>,
+    /// Strength.
+    pub power: f64,
+    /// Fall-off distance, metres.
+    pub radius: f64,
+}
+
+impl Lamp {
+    /// The lamp's shading contribution at `p` with unit normal `n`.
+    #[inline]
+    pub fn shade(&self, p: &Vector3<f64>, n: &Vector3<f64>) -> f64 {
+        let d = self.position - p;
+        let d2 = d.norm_squared();
+        let cos = n.dot(&d) / d2.sqrt();
+        self.power * cos.max(0.0) / (1.0 + d2 / (self.radius * self.radius))
+    }
+}
+
 /// One rendered frame.
 #[derive(Clone, Debug)]
 pub struct SynthFrame {
@@ -61,6 +85,10 @@ pub struct Scene {
     pub(super) photometric: Photometric,
     pub(super) samples_per_axis: usize,
     pub(super) summary: Vec<String>,
+    /// Realistic style only: the ceiling lamp, the camera path (for motion blur) and the sensor.
+    pub(super) lamp: Option<Lamp>,
+    pub(super) path: Option<CameraPath>,
+    pub(super) sensor: Option<Sensor>,
 }
 
 impl Scene {
@@ -73,15 +101,42 @@ impl Scene {
         let mut rng = SplitMix64::new(cfg.seed);
         let (mut layout_rng, mut path_rng, mut photo_rng) = (rng.fork(), rng.fork(), rng.fork());
         let path = CameraPath::random(Vector3::zeros(), &mut path_rng);
+        let poses = (0..cfg.frames).map(|i| path.pose(i)).collect();
+        if cfg.style == Style::Real {
+            let mut sensor_rng = rng.fork();
+            super::atlas::check()?;
+            let (room, lamp) = furnish::generate(&mut layout_rng, &path);
+            let photometric = random_photometric(&mut photo_rng);
+            let mut summary = room.summary;
+            summary.push(format!(
+                "camera fx {:.1} fy {:.1} cx {:.1} cy {:.1}",
+                camera.fx, camera.fy, camera.cx, camera.cy
+            ));
+            return Ok(Self {
+                camera,
+                poses,
+                surfaces: room.surfaces,
+                light: room.light,
+                photometric: Photometric::new(photometric, &mut photo_rng),
+                samples_per_axis: cfg.samples_per_axis,
+                summary,
+                lamp: Some(lamp),
+                path: Some(path),
+                sensor: Some(Sensor::random(&mut sensor_rng)),
+            });
+        }
         let room = layout::generate(&mut layout_rng, &path);
         Ok(Self {
             camera,
-            poses: (0..cfg.frames).map(|i| path.pose(i)).collect(),
+            poses,
             surfaces: room.surfaces,
             light: room.light,
             photometric: Photometric::new(cfg.photometric, &mut photo_rng),
             samples_per_axis: cfg.samples_per_axis,
             summary: room.summary,
+            lamp: None,
+            path: None,
+            sensor: None,
         })
     }
 
@@ -96,6 +151,9 @@ impl Scene {
             photometric: Photometric::new(PhotometricConfig::none(), &mut SplitMix64::new(0)),
             samples_per_axis: 2,
             summary,
+            lamp: None,
+            path: None,
+            sensor: None,
         }
     }
 
@@ -142,6 +200,11 @@ impl Scene {
         &self.photometric
     }
 
+    /// The realistic style's sensor (`None` for the classic style and hand-built scenes).
+    pub fn sensor(&self) -> Option<&Sensor> {
+        self.sensor.as_ref()
+    }
+
     /// One line per scene element, for logs and READMEs.
     pub fn summary(&self) -> &[String] {
         &self.summary
@@ -163,10 +226,11 @@ impl Scene {
     /// Render frame `i`.
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`] if `i` is out of range.
+    /// [`Error::InvalidArgument`] if `i` is out of range (or, never in practice, if the JPEG codec
+    /// of the realistic style fails).
     pub fn render(&self, i: usize) -> Result<SynthFrame> {
         let pose = self.pose(i)?;
-        let (rgb, depth) = self.render_pose(&pose, i);
+        let (rgb, depth) = self.render_pose(&pose, i)?;
         Ok(SynthFrame { rgb, depth, pose })
     }
 }

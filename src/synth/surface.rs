@@ -93,6 +93,15 @@ impl Cuboid {
     /// Nearest entry hit with `T_MIN < t < t_max`; `None` from inside the box.
     #[inline]
     pub fn intersect(&self, o: &Vector3<f64>, d: &Vector3<f64>, t_max: f64) -> Option<Hit> {
+        // Early out: a ray that misses the box's circumscribed sphere (radius padded by a relative
+        // 1e-6, far above the rounding of this test) misses the box. Hits are computed below
+        // exactly as without the test.
+        let oc = self.centre - o;
+        let r2 = self.half.norm_squared() * (1.0 + 2e-6);
+        let b = oc.dot(d);
+        if b * b - d.norm_squared() * (oc.norm_squared() - r2) < 0.0 {
+            return None;
+        }
         let p = self.axes.tr_mul(&(o - self.centre));
         let q = self.axes.tr_mul(d);
         let (mut t_near, mut t_far, mut axis) = (f64::NEG_INFINITY, f64::INFINITY, 0usize);

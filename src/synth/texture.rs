@@ -87,7 +87,52 @@ pub enum Texture {
         /// Hash key.
         key: u64,
     },
+    /// Painted plaster (realistic style): a colour with a faint linear gradient, a faint blotchy
+    /// low-frequency variation (metre scale) and a fine grain (centimetre scale).
+    Paint {
+        /// Colour at `(0, 0)`.
+        colour: Albedo,
+        /// Relative brightness change per metre along `u` and `v`.
+        gradient: [f64; 2],
+        /// Amplitude of the blotchy variation (relative brightness).
+        blotch: f64,
+        /// Amplitude of the fine grain (relative brightness).
+        grain: f64,
+        /// Noise key.
+        key: u64,
+    },
+    /// A crop of a real photograph from the embedded atlas (`fixtures/textures/atlas.jpg`),
+    /// repeated (mirrored, or as floor tiles), with its mean colour replaced by `colour` and its
+    /// contrast scaled, plus a faint blotchy variation that hides the repetition.
+    Photo {
+        /// Atlas tile.
+        tile: usize,
+        /// Side of one tile on the surface, metres.
+        size: f64,
+        /// Offset into the tile, tile pixels.
+        offset: [f64; 2],
+        /// Swap the tile's axes (a 90-degree turn and a mirror).
+        swap: bool,
+        /// Lay the tile as floor tiles: each tile-sized cell gets its own hashed flips and a
+        /// slight brightness change (instead of one mirrored repeat).
+        cells: bool,
+        /// Mean colour.
+        colour: Albedo,
+        /// Contrast factor applied to the tile's deviation from its mean.
+        contrast: f64,
+        /// Noise key of the blotchy variation.
+        key: u64,
+    },
 }
+
+/// Amplitude of the blotchy variation laid over photo textures (relative brightness).
+const PHOTO_BLOTCH: f64 = 0.12;
+/// Relative brightness spread between the cells of a tiled photo texture.
+const CELL_BRIGHTNESS: f64 = 0.12;
+/// Lattice spacing of the blotchy variations, metres.
+const BLOTCH_SCALE: f64 = 0.9;
+/// Lattice spacing of the paint grain, metres.
+const GRAIN_SCALE: f64 = 0.02;
 
 #[inline]
 fn mix(a: &Albedo, b: &Albedo, t: f64) -> Albedo {
@@ -132,6 +177,34 @@ impl Texture {
             }
             Texture::Collage { background, palette, cell, key } => {
                 collage(background, palette, *cell, *key, u, v)
+            }
+            Texture::Paint { colour, gradient, blotch, grain, key } => {
+                let g = 1.0 + gradient[0] * u + gradient[1] * v;
+                let b = blotch * (fbm(*key, u / BLOTCH_SCALE, v / BLOTCH_SCALE, 2) - 0.5);
+                let n = grain * (value_noise(*key ^ 0x6EA1, u / GRAIN_SCALE, v / GRAIN_SCALE) - 0.5);
+                scale(colour, g + b + n)
+            }
+            Texture::Photo { tile, size, offset, swap, cells, colour, contrast, key } => {
+                let t = super::ATLAS_TILE as f64;
+                let px = t / size;
+                let (mut x, mut y) = (u * px + offset[0], v * px + offset[1]);
+                let mut b = 1.0 + PHOTO_BLOTCH * (fbm(*key, u / BLOTCH_SCALE, v / BLOTCH_SCALE, 2) - 0.5);
+                if *cells {
+                    let (ci, cj) = ((x / t).floor(), (y / t).floor());
+                    let h = super::rng::hash64(*key, ci as i64 as u64, cj as i64 as u64, 7);
+                    (x, y) = (x - ci * t, y - cj * t);
+                    if h & 1 == 1 {
+                        x = t - 1.0 - x;
+                    }
+                    if h & 2 == 2 {
+                        y = t - 1.0 - y;
+                    }
+                    b *= 1.0 + CELL_BRIGHTNESS * (((h >> 11) as f64 / (1u64 << 53) as f64) - 0.5);
+                }
+                let (x, y) = if *swap { (y, x) } else { (x, y) };
+                let s = super::atlas::sample(*tile, x, y);
+                let mean = super::atlas::tile_mean(*tile);
+                [0, 1, 2].map(|c| (colour[c] * b * (1.0 + contrast * (s[c] / mean[c] - 1.0))).clamp(0.0, 1.0))
             }
         }
     }
@@ -180,6 +253,44 @@ impl Texture {
         } else {
             Texture::Checker { a: base, b: other, period: size * rng.range(0.08, 0.3) }
         }
+    }
+}
+
+/// A random painted surface of brightness `lo..hi` with a faint tint (walls, ceilings, doors).
+pub fn paint(rng: &mut SplitMix64, lo: f64, hi: f64) -> Texture {
+    let key = rng.next_u64();
+    let grey = rng.range(lo, hi);
+    let tint = rng.range(0.0, 0.08);
+    let colour = [0; 3].map(|_| (grey * (1.0 + tint * rng.range(-1.0, 1.0))).clamp(0.0, 1.0));
+    Texture::Paint {
+        colour,
+        gradient: [rng.range(-0.05, 0.05), rng.range(-0.05, 0.05)],
+        blotch: rng.range(0.02, 0.06),
+        grain: rng.range(0.01, 0.03),
+        key,
+    }
+}
+
+/// A random photo texture with tiles `size_lo..size_hi` metres wide: a random atlas tile, its own
+/// colour jittered in brightness (x0.7-1.3) and per channel (±12 %), contrast x0.7-1.2. `cells`:
+/// laid as floor tiles; otherwise offset by at most a quarter tile, so that surfaces up to ¾ of
+/// the tile size show no mirrored repeat.
+pub fn photo(rng: &mut SplitMix64, size_lo: f64, size_hi: f64, cells: bool) -> Texture {
+    let key = rng.next_u64();
+    let tile = rng.below(super::atlas::tile_count());
+    let mean = super::atlas::tile_mean(tile);
+    let brightness = rng.range(0.7, 1.3);
+    let colour = [0, 1, 2].map(|c| (mean[c] * brightness * rng.range(0.88, 1.12)).clamp(0.03, 0.95));
+    let t = super::ATLAS_TILE as f64;
+    Texture::Photo {
+        tile,
+        size: rng.range(size_lo, size_hi),
+        offset: [rng.range(0.0, 0.25 * t), rng.range(0.0, 0.25 * t)],
+        swap: rng.chance(0.5),
+        cells,
+        colour,
+        contrast: rng.range(0.7, 1.2),
+        key,
     }
 }
 

@@ -80,6 +80,29 @@ impl CameraPath {
         let roll = ROLL_AMPLITUDE * wave(self.view_waves[2]) + self.jitter(i, 5, JITTER[2]);
         look_at(&eye, &target, roll)
     }
+
+    /// Camera-to-world pose at fractional frame time `t >= 0` (for motion blur): the sinusoids at
+    /// `t`, the per-frame jitter linearly interpolated between frames `⌊t⌋` and `⌊t⌋ + 1`.
+    pub fn pose_at(&self, t: f64) -> Pose {
+        let t = t.max(0.0);
+        let (i, f) = (t.floor() as usize, t - t.floor());
+        let tau = std::f64::consts::TAU;
+        let wave = |(period, phase): (f64, f64)| sin(tau * t / period + phase);
+        let jitter = |k: u64, w: f64| (1.0 - f) * self.jitter(i, k, w) + f * self.jitter(i + 1, k, w);
+        let mut eye = self.centre;
+        for k in 0..3 {
+            let [slow, fast] = self.waves[k];
+            eye[k] += TRANSLATION_AMPLITUDE[k][0] * wave(slow) + TRANSLATION_AMPLITUDE[k][1] * wave(fast);
+            eye[k] += jitter(k as u64, JITTER[0]);
+        }
+        let target = Vector3::new(
+            self.centre.x + TARGET_AMPLITUDE[0] * wave(self.view_waves[0]) + jitter(3, JITTER[1]),
+            eye.y + self.tilt + TARGET_AMPLITUDE[1] * wave(self.view_waves[1]) + jitter(4, JITTER[1]),
+            self.centre.z + LOOK_DISTANCE,
+        );
+        let roll = ROLL_AMPLITUDE * wave(self.view_waves[2]) + jitter(5, JITTER[2]);
+        look_at(&eye, &target, roll)
+    }
 }
 
 /// The camera-to-world pose at `eye` whose optical axis (z) points at `target`, with image x to the

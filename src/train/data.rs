@@ -16,7 +16,7 @@ use crate::geometry::{relative_pose, PinholeCamera, Pose, Warp};
 use crate::image::is_valid_depth;
 use crate::sequence::{open, Sequence};
 use crate::synth::rng::{hash64, SplitMix64};
-use crate::synth::{Scene, SceneConfig};
+use crate::synth::{Scene, SceneConfig, Style};
 use crate::train::step::TrainingPair;
 
 /// Which frame pairs are used.
@@ -75,6 +75,8 @@ pub struct DataConfig {
     pub synthetic_val_scenes: usize,
     /// Probability that a training pair is synthetic when sequences are given too.
     pub synthetic_fraction: f64,
+    /// Style of the synthetic scenes (SPEC.md §4b).
+    pub synthetic_style: Style,
     /// Fraction of each training sequence's frames, at its end, held out for validation (0 under
     /// the scene-level protocol of SPEC §3a, where validation comes from `val_sequences`).
     pub val_fraction: f64,
@@ -103,6 +105,7 @@ impl Default for DataConfig {
             synthetic_scenes: 64,
             synthetic_val_scenes: 4,
             synthetic_fraction: 0.5,
+            synthetic_style: Style::Classic,
             val_fraction: 0.2,
         }
     }
@@ -214,6 +217,7 @@ impl DataSet {
             frames: SYNTH_FRAMES,
             width: cw.max(320),
             height: ch.max(240),
+            style: cfg.synthetic_style,
             ..SceneConfig::default()
         };
         let mut sequences = Vec::new();
@@ -315,7 +319,8 @@ impl DataSet {
             .collect();
         if self.cfg.synthetic_scenes > 0 {
             v.push(format!(
-                "synthetic: {} training scenes (seeds {}..{}), {} validation scenes (seeds {}..), {}x{}, {} frames each, rendered on the fly",
+                "synthetic ({} style): {} training scenes (seeds {}..{}), {} validation scenes (seeds {}..), {}x{}, {} frames each, rendered on the fly",
+                self.cfg.synthetic_style,
                 self.cfg.synthetic_scenes,
                 SYNTH_TRAIN_SEED0,
                 SYNTH_TRAIN_SEED0 + self.cfg.synthetic_scenes as u64,

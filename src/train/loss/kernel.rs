@@ -44,7 +44,9 @@ pub enum LossKernel {
 pub fn uses_avx512(kernel: LossKernel, c: usize) -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        kernel == LossKernel::Auto && c % LANES == 0 && std::arch::is_x86_feature_detected!("avx512f")
+        kernel == LossKernel::Auto
+            && c.is_multiple_of(LANES)
+            && std::arch::is_x86_feature_detected!("avx512f")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {

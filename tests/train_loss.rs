@@ -3,7 +3,9 @@
 //! masking and the per-pixel terms.
 
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
-use densefeat::train::loss::{pixel_terms, scale_loss, scale_loss_reference, LossConfig};
+use densefeat::train::loss::{
+    pixel_terms, scale_loss, scale_loss_reference, scale_loss_with, uses_avx512, LossConfig, LossKernel,
+};
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;
@@ -176,4 +178,74 @@ fn matching_features_at_the_true_depth_give_a_low_loss() {
     let k = 8.0f64;
     let ce = k.ln() + (k - 1.0) * (k / (k - 1.0)).ln();
     assert!((flat.sums.ce / (h * w) as f64 - ce).abs() < 1e-9);
+}
+
+fn bits_equal(a: &Array3<f32>, b: &Array3<f32>) -> bool {
+    a.iter().zip(b.iter()).all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+/// 32 channels (the network's): the AVX-512 kernels where the CPU has them. Budget against the
+/// reference, the portable kernels' bits, and thread-count determinism.
+#[test]
+fn fast_loss_with_32_channels_matches_reference_portable_and_threads() {
+    let c = case(11, 14, 18, 32, 40);
+    eprintln!("AVX-512 kernels: {}", uses_avx512(LossKernel::Auto, 32));
+    assert!(!uses_avx512(LossKernel::Portable, 32) && !uses_avx512(LossKernel::Auto, 8));
+    let fr = c.f_ref.mapv(|v| v as f32);
+    let fl = c.f_live.mapv(|v| v as f32);
+    let want = scale_loss_reference(
+        &c.cfg,
+        fr.mapv(f64::from).view(),
+        fl.mapv(f64::from).view(),
+        c.depth.view(),
+        &c.warp,
+    )
+    .unwrap();
+    let run = |n: usize, k: LossKernel| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+        pool.install(|| scale_loss_with(k, &c.cfg, fr.view(), fl.view(), c.depth.view(), &c.warp).unwrap())
+    };
+    let got = run(1, LossKernel::Auto);
+    assert!(got.sums.pixels > 10);
+    assert_eq!(got.sums.pixels, want.sums.pixels);
+    assert_eq!(got.sums.delta125_wta, want.sums.delta125_wta);
+    let (lg, lw) = (got.sums.mean(), want.sums.mean());
+    assert!((lg - lw).abs() <= 1e-5 * lw.abs().max(1.0), "loss {lg} vs {lw}");
+    for (g, w) in [(&got.d_ref, &want.d_ref), (&got.d_live, &want.d_live)] {
+        let scale = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(scale > 0.0);
+        for (a, b) in g.iter().zip(w.iter()) {
+            assert!((f64::from(*a) - b).abs() <= 1e-4 * scale + 1e-12, "{a} vs {b} (max {scale})");
+        }
+    }
+    for (n, k) in
+        [(1, LossKernel::Portable), (2, LossKernel::Auto), (3, LossKernel::Portable), (8, LossKernel::Auto)]
+    {
+        let o = run(n, k);
+        assert_eq!(o.sums, got.sums, "{n} threads, {k:?}");
+        assert!(bits_equal(&o.d_ref, &got.d_ref), "{n} threads, {k:?}: d_ref");
+        assert!(bits_equal(&o.d_live, &got.d_live), "{n} threads, {k:?}: d_live");
+    }
+}
+
+/// The cross-entropy's Σ ln(1 − P) taken over runs of products stays exact for a tiny floor.
+#[test]
+fn pixel_terms_cross_entropy_is_the_sum_of_logs_for_any_floor() {
+    let k = 200;
+    let energies: Vec<f64> = (0..k).map(|l| 0.05 * ((l * 37) % 23) as f64).collect();
+    for floor in [1e-6, 1e-30, 1e-300] {
+        let cfg = LossConfig {
+            bins: InverseDepthBins::new(0.0, 2.0, k).unwrap(),
+            prob_floor: floor,
+            ..LossConfig::default()
+        };
+        let mut grad = vec![0.0; k];
+        let t = pixel_terms(&cfg, &energies, 17, 0.5, &mut grad);
+        let e_min = energies.iter().cloned().fold(f64::INFINITY, f64::min);
+        let z: f64 = energies.iter().map(|e| (e_min - e).exp()).sum();
+        let p = |l: usize| (e_min - energies[l]).exp() / z;
+        let want =
+            -p(17).ln() - (0..k).filter(|&l| l != 17).map(|l| (1.0 - p(l)).max(floor).ln()).sum::<f64>();
+        assert!((t.ce - want).abs() <= 1e-12 * want.abs(), "floor {floor}: {} vs {want}", t.ce);
+    }
 }

@@ -14,7 +14,7 @@ use crate::nn::{FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
 use crate::train::data::{DataConfig, DataSet, PairRule};
 use crate::train::loss::LossConfig;
 use crate::train::optim::OptimConfig;
-use crate::train::step::{pair_step, Supervision, TrainingPair};
+use crate::train::step::{pair_step, pair_step_timed, StepTimes, Supervision, TrainingPair};
 use crate::train::trainer::{train, training_init, TrainConfig};
 
 /// Arguments of `densefeat train`.
@@ -218,6 +218,10 @@ pub struct BenchTrainArgs {
     /// Stride of block 1.
     #[arg(long, default_value_t = 2)]
     pub b1_stride: usize,
+    /// Also time the stages (forward with tape, each scale's loss, backward) in separate steps and
+    /// print their medians.
+    #[arg(long)]
+    pub profile: bool,
     /// Also write the pair, the weights, our per-scale losses and gradients to this folder (for
     /// `benches/compare/train_torch.py`).
     #[arg(long)]
@@ -290,11 +294,12 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
         pool.install(|| dump(dir, &pair, &weights, &loss, &sup))?;
         println!("wrote the pair, weights, losses and gradients to {}", dir.display());
     }
-    let (ms_step, ms_fwd) = pool.install(|| -> Result<(Vec<f64>, Vec<f64>)> {
+    let (ms_step, ms_fwd, stage) = pool.install(|| -> Result<(Vec<f64>, Vec<f64>, Vec<StepTimes>)> {
         let mut g = weights.zeros_like();
         pair_step(&weights, &pair, &loss, &sup, imp, Some((&mut g, 1.0)))?;
         let mut steps = Vec::new();
         let mut fwds = Vec::new();
+        let mut stages = Vec::new();
         let net = FeatureNet::new(weights.clone())?;
         for _ in 0..args.runs.max(1) {
             let t = Instant::now();
@@ -304,8 +309,13 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
             net.forward(pair.ref_rgb.view(), imp)?;
             net.forward(pair.live_rgb.view(), imp)?;
             fwds.push(t.elapsed().as_secs_f64() * 1e3);
+            if args.profile {
+                let mut st = StepTimes::default();
+                pair_step_timed(&weights, &pair, &loss, &sup, imp, Some((&mut g, 1.0)), &mut st)?;
+                stages.push(st);
+            }
         }
-        Ok((steps, fwds))
+        Ok((steps, fwds, stages))
     })?;
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
@@ -326,5 +336,25 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
         net_flops / 1e9,
         net_flops / 1e6 / step
     );
+    if !stage.is_empty() {
+        print_stages(&stage, median);
+    }
     Ok(())
+}
+
+/// Prints the median of each stage over the profiled steps.
+fn print_stages(stages: &[StepTimes], median: impl Fn(Vec<f64>) -> f64) {
+    let col = |f: &dyn Fn(&StepTimes) -> f64| median(stages.iter().map(f).collect());
+    println!("  stages (median of {} separately timed steps):", stages.len());
+    println!("| stage | ms |");
+    println!("|---|---|");
+    println!("| forward with tape, both images | {:.1} |", col(&|s| s.forward));
+    let mut loss_total = 0.0;
+    for (i, (name, level, _)) in stages[0].losses.iter().enumerate() {
+        let m = col(&|s| s.losses[i].2);
+        loss_total += m;
+        println!("| loss {name} (level {level}) | {m:.1} |");
+    }
+    println!("| loss, all scales | {loss_total:.1} |");
+    println!("| backward, both images | {:.1} |", col(&|s| s.backward));
 }

@@ -2,6 +2,8 @@
 //! images through the shared network, the loss at every block output `L1..Ln` and at the
 //! aggregated features `L`, each on its own level's grid, and the gradients back to the weights.
 
+use std::time::Instant;
+
 use ndarray::{Array2, Array3, ArrayView2};
 
 use crate::error::{Error, Result};
@@ -122,6 +124,22 @@ fn scales<'a>(
     v
 }
 
+/// Wall-clock milliseconds of the stages of one [`pair_step_timed`] call (for `bench train`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StepTimes {
+    /// Both forwards with tape.
+    pub forward: f64,
+    /// Each supervised scale's loss, in the order `L1..Ln, L`: (name, level, ms).
+    pub losses: Vec<(String, usize, f64)>,
+    /// Scaling the gradients and both backwards.
+    pub backward: f64,
+}
+
+/// Milliseconds since `t`.
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
 /// Forward, loss and (when `grads` is given) backward of one pair; gradients are added to
 /// `grads` scaled by `grad_scale` (e.g. `1 / batch`). Deterministic for any thread count.
 ///
@@ -135,20 +153,42 @@ pub fn pair_step(
     imp: NetworkImpl,
     grads: Option<(&mut NetworkWeights, f32)>,
 ) -> Result<PairLoss> {
+    pair_step_timed(weights, pair, loss, sup, imp, grads, &mut StepTimes::default())
+}
+
+/// [`pair_step`], also recording where the time goes in `times`.
+///
+/// # Errors
+/// As [`pair_step`].
+pub fn pair_step_timed(
+    weights: &NetworkWeights,
+    pair: &TrainingPair,
+    loss: &LossConfig,
+    sup: &Supervision,
+    imp: NetworkImpl,
+    grads: Option<(&mut NetworkWeights, f32)>,
+    times: &mut StepTimes,
+) -> Result<PairLoss> {
     pair.validate()?;
+    *times = StepTimes::default();
+    let t = Instant::now();
     let (out_r, tape_r) = forward_with_tape(weights, pair.ref_rgb.view(), imp)?;
     let (out_l, tape_l) = forward_with_tape(weights, pair.live_rgb.view(), imp)?;
+    times.forward = ms(t);
     let n = weights.config.blocks;
     let mut result = PairLoss { blocks: vec![LossSums::default(); n], aggregated: LossSums::default() };
     let mut d_ref: Vec<Option<Array3<f32>>> = vec![None; n];
     let mut d_live: Vec<Option<Array3<f32>>> = vec![None; n];
     let (mut d_ref_feat, mut d_live_feat) = (None, None);
     for (block, level, fr, fl) in scales(weights, sup, &out_r, &out_l) {
+        let t = Instant::now();
         let rc = pair.ref_camera.at_level(level as u32);
         let lc = pair.live_camera.at_level(level as u32);
         let warp = Warp::new(&rc, &lc, &pair.t_lr);
         let depth = depth_at_level(pair.ref_depth.view(), level);
         let s = scale_loss(loss, fr.view(), fl.view(), depth.view(), &warp)?;
+        let name = block.map_or_else(|| "L".to_string(), |k| format!("L{}", k + 1));
+        times.losses.push((name, level, ms(t)));
         match block {
             Some(k) => {
                 result.blocks[k] = s.sums;
@@ -162,6 +202,7 @@ pub fn pair_step(
             }
         }
     }
+    let t = Instant::now();
     if let Some((g, scale)) = grads {
         let scaled = |d: &Option<Array3<f32>>| d.as_ref().map(|a| a * scale);
         let dr: Vec<Option<Array3<f32>>> = d_ref.iter().map(scaled).collect();
@@ -171,6 +212,7 @@ pub fn pair_step(
         backward(weights, &tape_r, &views(&dr), dfr.as_ref().map(|a| a.view()), g)?;
         backward(weights, &tape_l, &views(&dl), dfl.as_ref().map(|a| a.view()), g)?;
     }
+    times.backward = ms(t);
     Ok(result)
 }
 

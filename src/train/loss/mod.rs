@@ -19,9 +19,11 @@
 //! [`pixel_terms`]). Both return the gradients with respect to both feature maps.
 
 mod fast;
+mod kernel;
 mod reference;
 
-pub use fast::scale_loss;
+pub use fast::{scale_loss, scale_loss_with};
+pub use kernel::{uses_avx512, LossKernel};
 pub use reference::scale_loss_reference;
 
 use ndarray::{Array3, ArrayView2};
@@ -181,9 +183,14 @@ pub fn pixel_terms(
             .iter()
             .enumerate()
             .fold((0, f64::INFINITY), |(bi, bv), (i, &e)| if e < bv { (i, e) } else { (bi, bv) });
+    // Runs of equal costs (the out-of-image bins, all `m`) share one exp.
     let mut sum = 0.0;
+    let (mut last_e, mut last_p) = (f64::NAN, 0.0);
     for (g, &e) in grad.iter_mut().zip(energies) {
-        *g = (e_min - e).exp();
+        if e != last_e {
+            (last_e, last_p) = (e, (e_min - e).exp());
+        }
+        *g = last_p;
         sum += *g;
     }
     // grad holds P for now.
@@ -194,21 +201,32 @@ pub fn pixel_terms(
     let mut ce = -log_p_target;
     // dCE/dP_l for l != l*: 1/q_l where q_l = 1 - P_l is above the floor, else 0.
     // dCE/ds_j = P_j (g_j − Σ_l g_l P_l), with g_{l*} P_{l*} = −1.
+    // Σ ln q_l is taken as the ln of products of up to 32 factors, each > prob_floor, so a
+    // product stays above e^-700, far from f64's smallest normal: one ln per run of bins.
+    let ln_run = (-700.0 / cfg.prob_floor.ln()).floor().clamp(1.0, 32.0) as usize;
     let mut gp_sum = -1.0;
     let mut rho_hat = 0.0;
+    let (mut prod, mut in_prod, mut clamped) = (1.0f64, 0, 0usize);
     for l in 0..k {
         let p = grad[l];
         rho_hat += p * bins.rho(l);
         if l != target {
             let q = 1.0 - p;
             if q > cfg.prob_floor {
-                ce -= q.ln();
+                prod *= q;
+                in_prod += 1;
+                if in_prod == ln_run {
+                    ce -= prod.ln();
+                    (prod, in_prod) = (1.0, 0);
+                }
                 gp_sum += p / q;
             } else {
-                ce -= cfg.prob_floor.ln();
+                clamped += 1;
             }
         }
     }
+    ce -= prod.ln();
+    ce -= clamped as f64 * cfg.prob_floor.ln();
     let z_star = 1.0 / rho_star;
     let d_hat = 1.0 / rho_hat.max(cfg.rho_floor);
     let rho_term = cfg.lambda_rho * (rho_hat - rho_star) * (rho_hat - rho_star);

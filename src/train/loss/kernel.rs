@@ -1,0 +1,257 @@
+//! The per-pixel feature kernels of the fast loss (SPEC.md §13.1): the costs of all in-image
+//! hypotheses of one reference pixel, and the backward of those costs into the reference pixel and
+//! the live map. Two implementations with the same operation order (16 channel lanes, products
+//! and sums unfused, a fixed tree for the lane reduction), so they give the same bits: a portable
+//! one and an AVX-512 one (x86-64, chosen at run time when the CPU has AVX-512F and `C % 16 == 0`).
+
+/// Channel lanes of one vector (an AVX-512 register of f32).
+pub(super) const LANES: usize = 16;
+
+/// The bilinear sample of one in-image hypothesis: the live rows `y0, y1`, the columns `x0, x1`
+/// times `C` (offsets into a row), and the corner weights `[(y0,x0), (y0,x1), (y1,x0), (y1,x1)]`.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Tap {
+    /// Index of the hypothesis (bin).
+    pub bin: u32,
+    /// Live rows of the top and bottom corners.
+    pub y: [u32; 2],
+    /// Offsets of the left and right corners inside a row (`x * C`).
+    pub xc: [usize; 2],
+    /// Corner weights.
+    pub w: [f32; 4],
+}
+
+impl Tap {
+    /// The four corners as (row, offset in row), in weight order.
+    #[inline(always)]
+    pub fn corners(&self) -> [(usize, usize); 4] {
+        let (y0, y1) = (self.y[0] as usize, self.y[1] as usize);
+        let [x0, x1] = self.xc;
+        [(y0, x0), (y0, x1), (y1, x0), (y1, x1)]
+    }
+}
+
+/// Which implementation of the kernels to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LossKernel {
+    /// AVX-512 where the CPU has it and the channel count is a multiple of 16, else portable.
+    Auto,
+    /// The portable implementation (same bits as AVX-512).
+    Portable,
+}
+
+/// Whether [`LossKernel::Auto`] uses AVX-512 for `c` channels on this machine.
+pub fn uses_avx512(kernel: LossKernel, c: usize) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        kernel == LossKernel::Auto
+            && c.is_multiple_of(LANES)
+            && std::arch::is_x86_feature_detected!("avx512f")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (kernel, c);
+        false
+    }
+}
+
+/// The fixed lane reduction: halves added pairwise (8, 4, 2, 1).
+#[inline(always)]
+fn reduce(mut acc: [f32; LANES]) -> f32 {
+    let mut n = LANES / 2;
+    while n > 0 {
+        for i in 0..n {
+            acc[i] += acc[i + n];
+        }
+        n /= 2;
+    }
+    acc[0]
+}
+
+/// Costs `E = Σ_c (f_u − Σ_t w_t f_l(corner_t))²` of every tap into `energies[j]`, and the
+/// residuals `f_u − sample` into `resid[j*C..]`. `fl` is the live map, `row` its row length
+/// (`W' * C`).
+pub(super) fn costs(
+    avx512: bool,
+    fu: &[f32],
+    fl: &[f32],
+    row: usize,
+    taps: &[Tap],
+    resid: &mut [f32],
+    energies: &mut [f32],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if avx512 {
+        // SAFETY: `uses_avx512` checked the CPU feature and `C % 16 == 0`.
+        unsafe { avx512::costs(fu, fl, row, taps, resid, energies) };
+        return;
+    }
+    let _ = avx512;
+    let c = fu.len();
+    for (j, tap) in taps.iter().enumerate() {
+        let base = tap.corners().map(|(y, x)| y * row + x);
+        let r = &mut resid[j * c..][..c];
+        let mut acc = [0.0f32; LANES];
+        for ch in 0..c {
+            let s = tap.w[0] * fl[base[0] + ch]
+                + tap.w[1] * fl[base[1] + ch]
+                + tap.w[2] * fl[base[2] + ch]
+                + tap.w[3] * fl[base[3] + ch];
+            let v = fu[ch] - s;
+            r[ch] = v;
+            acc[ch % LANES] += v * v;
+        }
+        energies[j] = reduce(acc);
+    }
+}
+
+/// The live-map gradient of one chunk of reference rows: one lazily allocated buffer per live row
+/// (empty while untouched).
+pub(super) struct LiveRows {
+    /// Row length `W' * C`.
+    pub row: usize,
+    /// `rows[y]`: the gradient of live row `y`, or empty.
+    pub rows: Vec<Vec<f32>>,
+}
+
+impl LiveRows {
+    /// No row touched yet.
+    pub fn new(height: usize, row: usize) -> Self {
+        LiveRows { row, rows: vec![Vec::new(); height] }
+    }
+
+    /// The row `y`, allocated (zero) on first use.
+    #[inline(always)]
+    fn row_mut(&mut self, y: usize) -> &mut [f32] {
+        let r = &mut self.rows[y];
+        if r.is_empty() {
+            *r = vec![0.0; self.row];
+        }
+        r
+    }
+}
+
+/// Backward of the costs: for every tap `j` with `coef[j] ≠ 0` (the scaled `2 ∂loss/∂E_j`), in
+/// order, `d_u += coef r_j` and `d_live(corner_t) += (−coef w_t) r_j`.
+pub(super) fn backward(
+    avx512: bool,
+    taps: &[Tap],
+    coefs: &[f32],
+    resid: &[f32],
+    d_u: &mut [f32],
+    live: &mut LiveRows,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if avx512 {
+        // SAFETY: `uses_avx512` checked the CPU feature and `C % 16 == 0`.
+        unsafe { avx512::backward(taps, coefs, resid, d_u, live) };
+        return;
+    }
+    let _ = avx512;
+    let c = d_u.len();
+    for (j, tap) in taps.iter().enumerate() {
+        let coef = coefs[j];
+        if coef == 0.0 {
+            continue;
+        }
+        let r = &resid[j * c..][..c];
+        for (dv, &rv) in d_u.iter_mut().zip(r) {
+            *dv += coef * rv;
+        }
+        for (t, (y, x)) in tap.corners().into_iter().enumerate() {
+            let cw = -coef * tap.w[t];
+            for (dv, &rv) in live.row_mut(y)[x..x + c].iter_mut().zip(r) {
+                *dv += cw * rv;
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use super::{reduce, LiveRows, Tap, LANES};
+    use std::arch::x86_64::*;
+
+    /// AVX-512 [`super::costs`]; `fu.len()` must be a multiple of 16.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn costs(
+        fu: &[f32],
+        fl: &[f32],
+        row: usize,
+        taps: &[Tap],
+        resid: &mut [f32],
+        energies: &mut [f32],
+    ) {
+        let c = fu.len();
+        debug_assert_eq!(c % LANES, 0);
+        assert!(resid.len() >= taps.len() * c && energies.len() >= taps.len());
+        for (j, tap) in taps.iter().enumerate() {
+            let base = tap.corners().map(|(y, x)| y * row + x);
+            assert!(base.iter().all(|&b| b + c <= fl.len()));
+            let w = tap.w.map(|v| _mm512_set1_ps(v));
+            let mut acc = _mm512_setzero_ps();
+            for blk in (0..c).step_by(LANES) {
+                // SAFETY: every offset + 16 is within its slice (asserted above).
+                unsafe {
+                    let ld = |o: usize| _mm512_loadu_ps(fl.as_ptr().add(o + blk));
+                    let mut s = _mm512_mul_ps(w[0], ld(base[0]));
+                    s = _mm512_add_ps(s, _mm512_mul_ps(w[1], ld(base[1])));
+                    s = _mm512_add_ps(s, _mm512_mul_ps(w[2], ld(base[2])));
+                    s = _mm512_add_ps(s, _mm512_mul_ps(w[3], ld(base[3])));
+                    let v = _mm512_sub_ps(_mm512_loadu_ps(fu.as_ptr().add(blk)), s);
+                    _mm512_storeu_ps(resid.as_mut_ptr().add(j * c + blk), v);
+                    acc = _mm512_add_ps(acc, _mm512_mul_ps(v, v));
+                }
+            }
+            let mut lanes = [0.0f32; LANES];
+            // SAFETY: `lanes` holds 16 f32.
+            unsafe { _mm512_storeu_ps(lanes.as_mut_ptr(), acc) };
+            energies[j] = reduce(lanes);
+        }
+    }
+
+    /// AVX-512 [`super::backward`]; `d_u.len()` must be a multiple of 16.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn backward(
+        taps: &[Tap],
+        coefs: &[f32],
+        resid: &[f32],
+        d_u: &mut [f32],
+        live: &mut LiveRows,
+    ) {
+        let c = d_u.len();
+        for (j, tap) in taps.iter().enumerate() {
+            let coef = coefs[j];
+            if coef == 0.0 {
+                continue;
+            }
+            let r = &resid[j * c..][..c];
+            // SAFETY: the caller checked the CPU feature and `C % 16 == 0`.
+            unsafe { axpy(coef, r, d_u) };
+            for (t, (y, x)) in tap.corners().into_iter().enumerate() {
+                let cw = -coef * tap.w[t];
+                // SAFETY: as above.
+                unsafe { axpy(cw, r, &mut live.row_mut(y)[x..x + c]) };
+            }
+        }
+    }
+
+    /// `y += a x` (products and sums unfused); equal lengths, a multiple of 16.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    unsafe fn axpy(a: f32, x: &[f32], y: &mut [f32]) {
+        assert_eq!(x.len(), y.len());
+        let av = _mm512_set1_ps(a);
+        for blk in (0..x.len()).step_by(LANES) {
+            // SAFETY: blk + 16 <= len, both slices have that length.
+            unsafe {
+                let p = y.as_mut_ptr().add(blk);
+                let v = _mm512_add_ps(
+                    _mm512_loadu_ps(p),
+                    _mm512_mul_ps(av, _mm512_loadu_ps(x.as_ptr().add(blk))),
+                );
+                _mm512_storeu_ps(p, v);
+            }
+        }
+    }
+}

@@ -7,6 +7,7 @@ use clap::Args;
 use crate::error::{Error, Result};
 use crate::image::load_rgb;
 use crate::nn::{NetworkConfig, NetworkWeights};
+use crate::sequence::COLOUR_EXTENSIONS;
 
 /// Arguments of `densefeat init-weights`.
 #[derive(Debug, Clone, Args)]
@@ -42,7 +43,7 @@ pub(crate) fn parse_mean(text: &str) -> Result<[f32; 3]> {
     values.try_into().map_err(|_| bad())
 }
 
-/// Mean colour (f64 accumulation, rounded to f32) of every `.png` in `dir`, all pixels weighted
+/// Mean colour (f64 accumulation, rounded to f32) of every `.png`, `.jpg` and `.jpeg` in `dir`, all pixels weighted
 /// equally.
 ///
 /// # Errors
@@ -51,11 +52,16 @@ pub fn mean_colour_of_pngs(dir: &Path) -> Result<[f32; 3]> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| Error::io(dir, e))?
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")))
+        .filter(|p| {
+            p.extension().is_some_and(|x| COLOUR_EXTENSIONS.iter().any(|c| x.eq_ignore_ascii_case(c)))
+        })
         .collect();
     files.sort();
     if files.is_empty() {
-        return Err(Error::invalid_argument("--mean-of-images", format!("no .png in {}", dir.display())));
+        return Err(Error::invalid_argument(
+            "--mean-of-images",
+            format!("no .png/.jpg/.jpeg in {}", dir.display()),
+        ));
     }
     let (mut sum, mut count) = ([0.0f64; 3], 0usize);
     for f in &files {

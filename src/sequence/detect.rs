@@ -54,6 +54,15 @@ pub fn open(path: impl AsRef<Path>) -> Result<Sequence> {
     open_with(path, &OpenOptions::default())
 }
 
+/// The two views of a rectified stereo pair: `imL`/`imR` or `im0`/`im1`, each `.png`, `.jpg` or
+/// `.jpeg`.
+pub(crate) fn stereo_views(path: &Path) -> Option<(std::path::PathBuf, std::path::PathBuf)> {
+    use super::text::find_colour_image;
+    [("imL", "imR"), ("im0", "im1")]
+        .iter()
+        .find_map(|(l, r)| Some((find_colour_image(path, l)?, find_colour_image(path, r)?)))
+}
+
 /// Which format the folder holds, if any.
 pub fn detect(path: &Path) -> Option<Format> {
     let has = |name: &str| path.join(name).is_file();
@@ -61,7 +70,7 @@ pub fn detect(path: &Path) -> Option<Format> {
         Some(Format::Tum)
     } else if path.join("images").is_dir() && has("poses.txt") {
         Some(Format::DeepVideoMvs)
-    } else if (has("imL.png") && has("imR.png")) || (has("im0.png") && has("im1.png")) {
+    } else if stereo_views(path).is_some() {
         Some(Format::Stereo)
     } else {
         None
@@ -96,8 +105,8 @@ pub fn open_with(path: impl AsRef<Path>, options: &OpenOptions) -> Result<Sequen
 fn no_format(path: &Path) -> Error {
     let mut what = String::from(
         "not a sequence in any known format: looked for rgb.txt or associations.txt (TUM RGB-D / \
-         ICL-NUIM), images/ with poses.txt and K.txt (DeepVideoMVS / 7-Scenes), imL.png + imR.png \
-         or im0.png + im1.png (rectified stereo pair)",
+         ICL-NUIM), images/ with poses.txt and K.txt (DeepVideoMVS / 7-Scenes), imL + imR \
+         or im0 + im1 as .png/.jpg (rectified stereo pair)",
     );
     let mut subs: Vec<String> = std::fs::read_dir(path)
         .map(|rd| {

@@ -1,8 +1,8 @@
 //! DeepVideoMVS / 7-Scenes reader (the layout [`super::DvmvsWriter`] writes):
 //!
 //! ```text
-//! images/*.png   8-bit colour, frames in file-name order
-//! depth/*.png    optional; same names, 16-bit millimetres, 0 and 65535 = no depth
+//! images/*.png   8-bit colour (PNG, or JPEG as *.jpg / *.jpeg), frames in file-name order
+//! depth/*.png    optional; same stems as images/ (always PNG), 16-bit millimetres, 0 and 65535 = no depth
 //! poses.txt      one line per frame: 16 numbers, row-major 4x4 camera-to-world, metres
 //! K.txt          3x3 intrinsics of the (already undistorted) images, three lines
 //! ```
@@ -11,7 +11,7 @@ use std::path::Path;
 
 use nalgebra::Matrix4;
 
-use super::text::{check_depth_png16, data_lines, list_pngs, stem, Line};
+use super::text::{check_depth_png16, data_lines, list_colour_images, list_pngs, stem, Line};
 use super::{DepthSource, Format, FrameInfo, OpenOptions, Sequence};
 use crate::error::{Error, Result};
 use crate::geometry::{pose_from_matrix, Camera, PinholeCamera, Pose};
@@ -30,9 +30,9 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
         notes.push(format!("camera option ({c}) ignored: this format's K.txt gives the camera"));
     }
     let images_dir = root.join("images");
-    let images = list_pngs(&images_dir)?;
+    let images = list_colour_images(&images_dir)?;
     if images.is_empty() {
-        return Err(Error::bad_sequence(&images_dir, "no *.png images"));
+        return Err(Error::bad_sequence(&images_dir, "no colour images (*.png, *.jpg, *.jpeg)"));
     }
     let poses_path = root.join("poses.txt");
     let poses = read_poses(&poses_path)?;
@@ -70,8 +70,8 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
     let mut frames = Vec::with_capacity(images.len());
     for (rgb, pose) in images.into_iter().zip(poses) {
         let depth = if has_depth {
-            let name = rgb.file_name().unwrap_or_default();
-            let path = depth_dir.join(name);
+            // The depth map has the colour image's stem and is always a 16-bit PNG.
+            let path = depth_dir.join(format!("{}.png", stem(&rgb)));
             if !path.is_file() {
                 return Err(Error::bad_sequence(
                     root,

@@ -5,6 +5,7 @@
 use std::fmt;
 use std::path::PathBuf;
 
+use super::text::image_format_name;
 use super::{Format, Sequence, StereoInfo, WARNING_NOTE};
 use crate::error::Result;
 use crate::eval::{photometric_warp_check, WarpCheck};
@@ -91,6 +92,8 @@ pub struct Summary {
     pub root: PathBuf,
     /// Number of frames.
     pub frames: usize,
+    /// Colour image formats of the frames and how many of each, e.g. `[("JPEG", 50)]`.
+    pub colour_formats: Vec<(String, usize)>,
     /// Camera of the loaded frames.
     pub camera: PinholeCamera,
     /// Distortion of the raw files.
@@ -113,6 +116,19 @@ pub struct Summary {
     pub consistency: Option<Consistency>,
     /// Reader warnings and the summary's own.
     pub warnings: Vec<String>,
+}
+
+/// How many frames have each colour image format, in order of first appearance.
+fn colour_formats(seq: &Sequence) -> Vec<(String, usize)> {
+    let mut out: Vec<(String, usize)> = Vec::new();
+    for f in &seq.frames {
+        let name = image_format_name(&f.rgb);
+        match out.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, c)) => *c += 1,
+            None => out.push((name, 1)),
+        }
+    }
+    out
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -194,6 +210,7 @@ impl Summary {
             format: seq.format,
             root: seq.root.clone(),
             frames: seq.len(),
+            colour_formats: colour_formats(seq),
             camera: seq.camera,
             distortion: seq.raw_camera.distortion,
             undistorted: seq.undistorts(),
@@ -313,6 +330,8 @@ impl fmt::Display for Summary {
         writeln!(f, "sequence     {}", self.root.display())?;
         writeln!(f, "format       {}", self.format)?;
         writeln!(f, "frames       {} ({}x{})", self.frames, k.width, k.height)?;
+        let colour: Vec<String> = self.colour_formats.iter().map(|(n, c)| format!("{n} x{c}")).collect();
+        writeln!(f, "colour       {}", colour.join(", "))?;
         writeln!(f, "camera       fx {} fy {} cx {} cy {}", k.fx, k.fy, k.cx, k.cy)?;
         match &self.distortion {
             Some(d) if !d.is_identity() => writeln!(

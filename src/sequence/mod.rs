@@ -302,6 +302,7 @@ mod tum;
 pub use calib::{read_camera_file, CameraChoice};
 pub use detect::{detect, open, open_with, OpenOptions, DEFAULT_MAX_POSE_GAP, DEFAULT_MAX_TIME_GAP};
 pub use dvmvs_write::{frame_file_name, DvmvsWriter};
+pub use text::{image_format_name, COLOUR_EXTENSIONS};
 
 /// Prefix of the [`Sequence::notes`] that are warnings (dropped frames, guessed camera, missing
 /// depth, uncalibrated stereo); `densefeat inspect` lists them as warnings.

@@ -5,7 +5,7 @@
 //! `x_r = x_l - f b / z` (disparity `d = f b / z`).
 //!
 //! ```text
-//! imL.png imR.png | im0.png im1.png     the views
+//! imL.png imR.png | im0.png im1.png     the views (each may also be .jpg / .jpeg)
 //! disp0GT.pfm | disp0.pfm               left ground-truth disparity, PFM (ETH3D / Middlebury 2014)
 //! groundtruth.png | disp0.png           left ground truth, scaled PNG: d = value / scale, with the
 //!                                       scale on line 1 of info.txt (Middlebury 2001/2003)
@@ -55,10 +55,8 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
     if let Some(c) = &opt.camera {
         notes.push(format!("camera option ({c}) ignored: a stereo pair's camera comes from calib.txt"));
     }
-    let (left, right) = if root.join("imL.png").is_file() {
-        (root.join("imL.png"), root.join("imR.png"))
-    } else {
-        (root.join("im0.png"), root.join("im1.png"))
+    let Some((left, right)) = super::detect::stereo_views(root) else {
+        return Err(Error::bad_sequence(root, "no imL/imR or im0/im1 image pair (.png, .jpg, .jpeg)"));
     };
     let (w, h) = read_dimensions(&left)?;
     let calib_path = root.join("calib.txt");

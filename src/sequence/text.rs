@@ -105,18 +105,65 @@ pub(crate) fn existing_file(root: &Path, relative: &str, list: &Path, line: usiz
     Ok(p)
 }
 
-/// The `*.png` files directly in `dir`, sorted by file name.
-pub(crate) fn list_pngs(dir: &Path) -> Result<Vec<PathBuf>> {
+/// File extensions accepted for colour images (case-insensitive): PNG and JPEG.
+pub const COLOUR_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
+
+/// The files directly in `dir` whose extension is one of `extensions` (case-insensitive), sorted by
+/// file name.
+pub(crate) fn list_files_with(dir: &Path, extensions: &[&str]) -> Result<Vec<PathBuf>> {
     let entries = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
     let mut out = Vec::new();
     for entry in entries {
         let p = entry.map_err(|e| Error::io(dir, e))?.path();
-        if p.is_file() && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+        let wanted = p.extension().is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)));
+        if wanted && p.is_file() {
             out.push(p);
         }
     }
     out.sort();
     Ok(out)
+}
+
+/// The `*.png` files directly in `dir`, sorted by file name.
+pub(crate) fn list_pngs(dir: &Path) -> Result<Vec<PathBuf>> {
+    list_files_with(dir, &["png"])
+}
+
+/// The colour images (`*.png`, `*.jpg`, `*.jpeg`) directly in `dir`, sorted by file name. Two files
+/// with the same stem (`00001.png` and `00001.jpg`) make the frame order ambiguous and are refused,
+/// naming both.
+pub(crate) fn list_colour_images(dir: &Path) -> Result<Vec<PathBuf>> {
+    let files = list_files_with(dir, &COLOUR_EXTENSIONS)?;
+    let mut stems: Vec<(String, &PathBuf)> = files.iter().map(|p| (stem(p), p)).collect();
+    stems.sort();
+    for w in stems.windows(2) {
+        if w[0].0 == w[1].0 {
+            return Err(Error::bad_sequence(
+                dir,
+                format!(
+                    "{} and {} are the same frame in two formats; keep one",
+                    w[0].1.display(),
+                    w[1].1.display()
+                ),
+            ));
+        }
+    }
+    Ok(files)
+}
+
+/// `dir/STEM.png`, `dir/STEM.jpg` or `dir/STEM.jpeg`, the first that is a file.
+pub(crate) fn find_colour_image(dir: &Path, stem: &str) -> Option<PathBuf> {
+    COLOUR_EXTENSIONS.iter().map(|e| dir.join(format!("{stem}.{e}"))).find(|p| p.is_file())
+}
+
+/// The image format of `path` from its extension, for reports: `"PNG"`, `"JPEG"` or the extension.
+pub fn image_format_name(path: &Path) -> String {
+    match path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).as_deref() {
+        Some("png") => "PNG".into(),
+        Some("jpg" | "jpeg") => "JPEG".into(),
+        Some(other) => other.to_uppercase(),
+        None => "unknown".into(),
+    }
 }
 
 /// Check from the header alone that `path` is a 16-bit single-channel image, so an 8-bit export

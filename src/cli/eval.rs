@@ -44,6 +44,10 @@ pub struct EvalArgs {
     /// against λ) and `lambda_sweep_delta.png` (δ<1.25 against λ).
     #[arg(long, value_delimiter = ',')]
     pub lambda_sweep: Vec<f64>,
+    /// Comma-separated confidence thresholds: also write every method's metrics at each
+    /// (`confidence_sweep.csv`: coverage and accuracy against the threshold).
+    #[arg(long, value_delimiter = ',')]
+    pub confidence_sweep: Vec<f32>,
     /// Output folder (table.csv, table.md, per_keyframe.csv, timings.md).
     #[arg(long)]
     pub out: PathBuf,
@@ -70,9 +74,18 @@ pub fn run(args: EvalArgs) -> Result<()> {
             lambda_learned: args.lambda_learned,
             lambda_sweep: lambdas.clone(),
             min_confidence: args.mapping.min_confidence,
+            confidence_sweep: args.confidence_sweep.clone(),
         }
     })?;
     print_table(&table, &args.out);
+    if !table.confidence_sweep.is_empty() {
+        let mut csv = String::from("method,min_confidence,rms,delta_1.25,abs_rel,coverage\n");
+        for (m, c, d) in &table.confidence_sweep {
+            csv += &format!("{m},{c},{},{},{},{}\n", d.rms, d.delta_1_25, d.abs_rel, d.coverage);
+        }
+        write_text(&args.out.join("confidence_sweep.csv"), &csv)?;
+        println!("\nconfidence sweep:\n{csv}");
+    }
     if !lambdas.is_empty() {
         write_sweep(&table, &args.out)?;
     }

@@ -6,7 +6,7 @@ use std::time::Duration;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::dtam::{DtamParams, DEFAULT_LAMBDA};
+use crate::dtam::{DtamParams, MAPPING_DEFAULTS};
 use crate::error::{Error, Result};
 use crate::mapping::keyframe::{
     KeyframeConfig, Regularizer, Stage, DEFAULT_BINS, DEFAULT_MAX_MEMORY_MB, DEFAULT_MIN_EVIDENCE,
@@ -38,34 +38,34 @@ pub struct MappingArgs {
     #[arg(long, default_value_t = DEFAULT_MIN_CONFIDENCE)]
     pub min_confidence: f32,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1).
-    #[arg(long, default_value_t = DEFAULT_LAMBDA)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.lambda)]
     pub lambda: f64,
     /// Huber threshold ε, 1/m.
-    #[arg(long, default_value_t = DtamParams::default().epsilon)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.epsilon)]
     pub epsilon: f64,
     /// Edge weight α of `g = exp(-α ‖∇I‖^β)`.
-    #[arg(long, default_value_t = DtamParams::default().alpha)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.alpha)]
     pub alpha: f64,
     /// Edge weight exponent β.
-    #[arg(long, default_value_t = DtamParams::default().beta)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.beta)]
     pub beta: f64,
     /// First coupling weight θ.
-    #[arg(long, default_value_t = DtamParams::default().theta_start)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.theta_start)]
     pub theta_start: f64,
     /// Last coupling weight θ.
-    #[arg(long, default_value_t = DtamParams::default().theta_end)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.theta_end)]
     pub theta_end: f64,
     /// Length of DTAM's θ schedule (iterations from θ start to θ end).
-    #[arg(long, default_value_t = DtamParams::default().iterations)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.iterations)]
     pub iterations: usize,
     /// Primal-dual steps per a-search.
-    #[arg(long, default_value_t = DtamParams::default().steps_per_search)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.steps_per_search)]
     pub steps_per_search: usize,
     /// Most DTAM iterations (convergence usually stops it earlier).
-    #[arg(long, default_value_t = DtamParams::default().max_iterations)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.max_iterations)]
     pub max_iterations: usize,
     /// DTAM convergence: relative change of energy and d-a gap per iteration.
-    #[arg(long, default_value_t = DtamParams::default().tolerance)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.tolerance)]
     pub tolerance: f64,
     /// Refuse to run when the estimated memory exceeds this many MiB.
     #[arg(long, default_value_t = DEFAULT_MAX_MEMORY_MB)]

@@ -96,6 +96,8 @@ pub struct EvalTable {
     pub sweep: Vec<(Method, f64, DepthMetrics)>,
     /// The confidence threshold of [`EvalRow::confident`].
     pub min_confidence: f32,
+    /// `(method, threshold, metrics averaged over keyframes)` for [`EvalOptions::confidence_sweep`].
+    pub confidence_sweep: Vec<(Method, f32, DepthMetrics)>,
 }
 
 /// Settings [`evaluate`] adds to a base [`KeyframeConfig`].
@@ -109,6 +111,8 @@ pub struct EvalOptions {
     pub lambda_sweep: Vec<f64>,
     /// Confidence threshold of the masked metrics.
     pub min_confidence: f32,
+    /// Extra confidence thresholds: every method's metrics at each ([`EvalTable::confidence_sweep`]).
+    pub confidence_sweep: Vec<f32>,
 }
 
 /// Run `methods` on every keyframe. `base` gives the window, range, bins, DTAM parameters and
@@ -133,6 +137,7 @@ pub fn evaluate(
     let mut per_keyframe = Vec::new();
     let mut per_keyframe_conf: Vec<(Method, DepthMetrics)> = Vec::new();
     let mut sweep_per_kf: Vec<(Method, f64, DepthMetrics)> = Vec::new();
+    let mut conf_per_kf: Vec<(Method, f32, DepthMetrics)> = Vec::new();
     let mut timing_sums: Vec<StageTimings> = vec![StageTimings::default(); methods.len()];
     for learned in [false, true] {
         let wanted: Vec<usize> = (0..methods.len()).filter(|&i| methods[i].learned() == learned).collect();
@@ -158,6 +163,12 @@ pub fn evaluate(
                 let estimate = if m.tv() { result.tv.as_ref().expect("TV was run") } else { &result.wta };
                 per_keyframe.push((k, m, result.metrics(estimate)?));
                 per_keyframe_conf.push((m, result.metrics_at(estimate, options.min_confidence)?));
+                for &c in &options.confidence_sweep {
+                    // A threshold that masks every pixel has no metrics: skipped for that keyframe.
+                    if let Ok(d) = result.metrics_at(estimate, c) {
+                        conf_per_kf.push((m, c, d));
+                    }
+                }
                 if m.tv() {
                     for (l, e) in &result.sweep {
                         sweep_per_kf.push((m, *l, result.metrics(e)?));
@@ -201,7 +212,17 @@ pub fn evaluate(
             }
         }
     }
-    Ok(EvalTable { rows, per_keyframe, sweep, min_confidence: options.min_confidence })
+    let mut confidence_sweep = Vec::new();
+    for &m in methods {
+        for &c in &options.confidence_sweep {
+            let ms: Vec<DepthMetrics> =
+                conf_per_kf.iter().filter(|(pm, pc, _)| *pm == m && *pc == c).map(|(_, _, d)| *d).collect();
+            if !ms.is_empty() {
+                confidence_sweep.push((m, c, mean_metrics(&ms)));
+            }
+        }
+    }
+    Ok(EvalTable { rows, per_keyframe, sweep, min_confidence: options.min_confidence, confidence_sweep })
 }
 
 fn add_timings(sum: &mut StageTimings, t: &StageTimings) {

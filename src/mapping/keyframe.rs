@@ -63,7 +63,8 @@ pub struct KeyframeConfig {
     pub bins: usize,
     /// Regulariser after winner-take-all.
     pub regularizer: Regularizer,
-    /// DTAM parameters (used with [`Regularizer::Tv`]).
+    /// DTAM parameters in the normalised units of [`DtamParams::normalised`] (used with
+    /// [`Regularizer::Tv`]).
     pub dtam: DtamParams,
     /// Refuse to start when [`memory_estimate`] exceeds this many MiB.
     pub max_memory_mb: usize,
@@ -81,7 +82,7 @@ pub struct KeyframeConfig {
 pub const DEFAULT_BINS: usize = 128;
 
 /// Default of [`KeyframeConfig::min_evidence`] (chosen on validation scenes, SPEC.md §9.10).
-pub const DEFAULT_MIN_EVIDENCE: f64 = 0.5;
+pub const DEFAULT_MIN_EVIDENCE: f64 = 0.25;
 
 /// Default of [`KeyframeConfig::max_memory_mb`].
 pub const DEFAULT_MAX_MEMORY_MB: usize = 2048;
@@ -99,7 +100,7 @@ impl KeyframeConfig {
             far,
             bins: DEFAULT_BINS,
             regularizer: Regularizer::Tv,
-            dtam: DtamParams::default(),
+            dtam: dtam::MAPPING_DEFAULTS,
             max_memory_mb: DEFAULT_MAX_MEMORY_MB,
             level: 0,
             min_evidence: DEFAULT_MIN_EVIDENCE,

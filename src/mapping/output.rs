@@ -20,7 +20,7 @@ use crate::io::{npy_f32_header, write_atomic_with};
 use crate::mapping::keyframe::{DepthEstimate, KeyframeResult};
 
 /// Default `--min-confidence` (chosen on validation scenes, SPEC.md §9.12).
-pub const DEFAULT_MIN_CONFIDENCE: f32 = 0.0;
+pub const DEFAULT_MIN_CONFIDENCE: f32 = 0.1;
 
 /// [`write_outputs_with`] at full coverage (no confidence mask).
 ///

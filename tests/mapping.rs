@@ -17,12 +17,13 @@ fn fixture() -> Sequence {
     open(Path::new(FIXTURE)).unwrap()
 }
 
-/// Keyframe 20, five frames either side, 32 bins over 0.4..10 m, RGB, TV.
+/// Keyframe 20, five frames either side, 32 bins over 0.4..10 m, RGB, TV, level 1 (160x120).
 fn small_config() -> KeyframeConfig {
     let mut cfg = KeyframeConfig::new(20, 0.4, 10.0);
     cfg.past = 5;
     cfg.future = 5;
     cfg.bins = 32;
+    cfg.level = 1;
     cfg
 }
 

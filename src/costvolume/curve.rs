@@ -42,7 +42,7 @@ pub fn filter_evidence(costs: &mut Array3<f32>, counts: ArrayView3<u16>, fractio
 /// rule as [`super::CostVolume::winner_take_all`] (bit-identical on the unfiltered costs).
 pub fn winner_take_all_costs(costs: ArrayView3<f32>, bins: &InverseDepthBins) -> WtaDepth {
     let (h, w, k_count) = costs.dim();
-    let mut rows: Vec<Vec<(bool, f32, f32)>> = vec![Vec::new(); h];
+    let mut rows: Vec<Vec<(bool, f32, f64)>> = vec![Vec::new(); h];
     rows.par_iter_mut().enumerate().for_each(|(y, row)| {
         *row = (0..w)
             .map(|x| {
@@ -67,7 +67,7 @@ pub fn winner_take_all_costs(costs: ArrayView3<f32>, bins: &InverseDepthBins) ->
                 };
                 let bin = k as f64 + offset;
                 let rho = if offset == 0.0 { bins.rho(k) } else { bins.rho_min + bin * bins.step() };
-                (true, bin as f32, rho as f32)
+                (true, bin as f32, rho)
             })
             .collect();
     });
@@ -84,9 +84,8 @@ pub fn winner_take_all_costs(costs: ArrayView3<f32>, bins: &InverseDepthBins) ->
             }
             out.valid[[y, x]] = true;
             out.bin[[y, x]] = bin;
-            out.inverse_depth[[y, x]] = rho;
-            let r = f64::from(rho);
-            out.depth[[y, x]] = if r > 0.0 { (1.0 / r) as f32 } else { 0.0 };
+            out.inverse_depth[[y, x]] = rho as f32;
+            out.depth[[y, x]] = if rho > 0.0 { (1.0 / rho) as f32 } else { 0.0 };
         }
     }
     out

@@ -316,7 +316,8 @@ fn cli_eval_lambda_sweep_writes_csv_and_plot() {
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(lines[0], "method,lambda,rms,delta_1.25,abs_rel,coverage");
     // Sorted by λ, one row each, finite positive rms, δ in [0, 1].
-    let lambdas: Vec<f64> = lines[1..].iter().map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
+    let lambdas: Vec<f64> =
+        lines[1..].iter().map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
     assert_eq!(lambdas, vec![10.0, 100.0, 1000.0]);
     for l in &lines[1..] {
         assert!(l.starts_with("rgb-tv,"), "{l}");

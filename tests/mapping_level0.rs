@@ -105,8 +105,9 @@ fn memory_estimate_of_640x480_with_128_bins() {
 #[test]
 fn evidence_filter_drops_thinly_seen_cells() {
     let counts = Array3::from_shape_vec((1, 2, 4), vec![10u16, 4, 3, 0, 2, 2, 1, 0]).unwrap();
-    let base = Array3::from_shape_vec((1, 2, 4), vec![5.0f32, 1.0, 2.0, UNSEEN_COST, 3.0, 1.0, 0.5, UNSEEN_COST])
-        .unwrap();
+    let base =
+        Array3::from_shape_vec((1, 2, 4), vec![5.0f32, 1.0, 2.0, UNSEEN_COST, 3.0, 1.0, 0.5, UNSEEN_COST])
+            .unwrap();
     let mut c = base.clone();
     filter_evidence(&mut c, counts.view(), 0.0);
     assert_eq!(c, base, "fraction 0 keeps every seen cell");
@@ -116,7 +117,10 @@ fn evidence_filter_drops_thinly_seen_cells() {
     assert_eq!(c.as_slice().unwrap(), &[5.0, 1.0, UNSEEN_COST, UNSEEN_COST, 3.0, 1.0, 0.5, UNSEEN_COST]);
     let mut c = base.clone();
     filter_evidence(&mut c, counts.view(), 1.0);
-    assert_eq!(c.as_slice().unwrap(), &[5.0, UNSEEN_COST, UNSEEN_COST, UNSEEN_COST, 3.0, 1.0, UNSEEN_COST, UNSEEN_COST]);
+    assert_eq!(
+        c.as_slice().unwrap(),
+        &[5.0, UNSEEN_COST, UNSEEN_COST, UNSEEN_COST, 3.0, 1.0, UNSEEN_COST, UNSEEN_COST]
+    );
     // The WTA of the filtered array: pixel 0 picks bin 0 (the only cell left), pixel 1 bin 1.
     let bins = InverseDepthBins::new(0.1, 1.0, 4).unwrap();
     let w = winner_take_all_costs(c.view(), &bins);
@@ -216,8 +220,10 @@ fn dtam_stops_on_convergence_after_the_schedule() {
     assert_eq!(r2.iterations, 20);
     // More primal-dual steps per search also converge, and the result is thread-independent.
     let steps = DtamParams { steps_per_search: 3, ..p };
-    let a = threads(1, || solve(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &steps).unwrap());
-    let b = threads(3, || solve(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &steps).unwrap());
+    let a =
+        threads(1, || solve(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &steps).unwrap());
+    let b =
+        threads(3, || solve(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &steps).unwrap());
     assert_eq!(a.0.inverse_depth, b.0.inverse_depth);
     assert_eq!(a.1.energy, b.1.energy);
 }
@@ -269,8 +275,9 @@ fn min_confidence_masks_depth_and_lowers_coverage_and_eval_sweeps_run() {
         min_confidence: median,
         ..EvalOptions::default()
     };
-    let t = evaluate(&seq, &cfg, &[20], &[Method::RgbWta, Method::RgbTv], &options, |_| Ok(()), |_, _, _, _| {})
-        .unwrap();
+    let t =
+        evaluate(&seq, &cfg, &[20], &[Method::RgbWta, Method::RgbTv], &options, |_| Ok(()), |_, _, _, _| {})
+            .unwrap();
     assert_eq!(t.sweep.len(), 2);
     assert!(t.sweep.iter().all(|(m, _, _)| *m == Method::RgbTv));
     assert_eq!(t.confidence_sweep.len(), 4);

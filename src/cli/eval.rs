@@ -116,7 +116,12 @@ fn write_sweep(table: &EvalTable, out: &Path) -> Result<()> {
             .enumerate()
             .map(|(i, m)| Series {
                 name: m.name().to_string(),
-                points: table.sweep.iter().filter(|(pm, _, _)| pm == m).map(|(_, l, d)| (*l, pick(d))).collect(),
+                points: table
+                    .sweep
+                    .iter()
+                    .filter(|(pm, _, _)| pm == m)
+                    .map(|(_, l, d)| (*l, pick(d)))
+                    .collect(),
                 colour: COLOURS[i % COLOURS.len()],
             })
             .collect();

@@ -254,7 +254,8 @@ pub fn solve(
         a = exhaustive_search(costs, &range, bins, tv.primal(), theta, params.lambda);
         let e = total_energy(&tv, costs, bins, a.view(), theta, params.lambda);
         let g = rms_gap(tv.primal(), a.view());
-        let settled = energy.last().is_some_and(|&p| (e - p).abs() <= params.tolerance * e.abs().max(p.abs()));
+        let settled =
+            energy.last().is_some_and(|&p| (e - p).abs() <= params.tolerance * e.abs().max(p.abs()));
         let done = n + 1 >= params.iterations && settled && g <= GAP_TOLERANCE_BINS * bins.step();
         energy.push(e);
         gap.push(g);
@@ -263,8 +264,13 @@ pub fn solve(
             break;
         }
     }
-    let report =
-        DtamReport { iterations: energy.len(), energy, gap, converged, seconds: start.elapsed().as_secs_f64() };
+    let report = DtamReport {
+        iterations: energy.len(),
+        energy,
+        gap,
+        converged,
+        seconds: start.elapsed().as_secs_f64(),
+    };
     Ok((DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report))
 }
 

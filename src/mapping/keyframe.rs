@@ -12,13 +12,13 @@ use ndarray::{Array2, Array3};
 use serde::Serialize;
 
 use crate::costvolume::{confidence, cost_scale, filter_evidence, winner_take_all_costs, CostVolume};
+use crate::dtam::DtamResult;
 use crate::dtam::{self, DtamParams, DtamReport};
 use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
 use crate::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
 use crate::image::{to_gray, DepthMap, RgbImage};
 use crate::mapping::features::downsample_to;
-use crate::dtam::DtamResult;
 use crate::mapping::{FeatureExtractor, FeatureKind};
 use crate::sequence::Sequence;
 

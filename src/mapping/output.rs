@@ -53,9 +53,10 @@ pub fn write_outputs_with(result: &KeyframeResult, dir: &Path, min_confidence: f
     let masked: Vec<DepthEstimate> = full.iter().map(|(_, e)| result.masked(e, min_confidence)).collect();
     let estimates: Vec<(&str, &DepthEstimate)> = full.iter().map(|(n, _)| *n).zip(masked.iter()).collect();
     write_npy_2d(&push(dir.join("confidence.npy")), result.confidence.view())?;
-    let conf_pic = Array3::from_shape_fn((result.confidence.nrows(), result.confidence.ncols(), 3), |(y, x, _)| {
-        (result.confidence[[y, x]] * 255.0).round()
-    });
+    let conf_pic =
+        Array3::from_shape_fn((result.confidence.nrows(), result.confidence.ncols(), 3), |(y, x, _)| {
+            (result.confidence[[y, x]] * 255.0).round()
+        });
     save_rgb_png(&push(dir.join("confidence.png")), &conf_pic)?;
     for (name, e) in &estimates {
         write_npy_2d(&push(dir.join(format!("depth_{name}.npy"))), e.depth.view())?;

@@ -17,12 +17,13 @@ fn fixture() -> Sequence {
     open(Path::new(FIXTURE)).unwrap()
 }
 
-/// Keyframe 20, five frames either side, 32 bins over 0.4..10 m, RGB, TV.
+/// Keyframe 20, five frames either side, 32 bins over 0.4..10 m, RGB, TV, level 1 (160x120).
 fn small_config() -> KeyframeConfig {
     let mut cfg = KeyframeConfig::new(20, 0.4, 10.0);
     cfg.past = 5;
     cfg.future = 5;
     cfg.bins = 32;
+    cfg.level = 1;
     cfg
 }
 
@@ -294,7 +295,9 @@ fn cli_eval_writes_tables_for_the_requested_methods() {
     let md = std::fs::read_to_string(dir.path().join("table.md")).unwrap();
     let csv = std::fs::read_to_string(dir.path().join("table.csv")).unwrap();
     assert!(md.contains("| rgb-wta |") && md.contains("| rgb-tv |") && !md.contains("learned"), "{md}");
-    assert_eq!(csv.lines().count(), 3, "{csv}");
+    // Full coverage rows, then the rows at the default confidence threshold 0.1.
+    assert!(md.contains("| rgb-wta@0.1 |") && md.contains("| rgb-tv@0.1 |"), "{md}");
+    assert_eq!(csv.lines().count(), 5, "{csv}");
     let per = std::fs::read_to_string(dir.path().join("per_keyframe.csv")).unwrap();
     assert_eq!(per.lines().count(), 5, "{per}");
 }
@@ -311,17 +314,21 @@ fn cli_eval_lambda_sweep_writes_csv_and_plot() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let csv = std::fs::read_to_string(dir.path().join("lambda_sweep.csv")).unwrap();
     let lines: Vec<&str> = csv.lines().collect();
-    assert_eq!(lines[0], "lambda,rgb-tv_rms");
-    // Sorted by λ, one row each, finite positive rms.
+    assert_eq!(lines[0], "method,lambda,rms,delta_1.25,abs_rel,coverage");
+    // Sorted by λ, one row each, finite positive rms, δ in [0, 1].
     let lambdas: Vec<f64> =
-        lines[1..].iter().map(|l| l.split(',').next().unwrap().parse().unwrap()).collect();
+        lines[1..].iter().map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
     assert_eq!(lambdas, vec![10.0, 100.0, 1000.0]);
     for l in &lines[1..] {
-        let rms: f64 = l.split(',').nth(1).unwrap().parse().unwrap();
-        assert!(rms.is_finite() && rms > 0.0, "{l}");
+        assert!(l.starts_with("rgb-tv,"), "{l}");
+        let rms: f64 = l.split(',').nth(2).unwrap().parse().unwrap();
+        let delta: f64 = l.split(',').nth(3).unwrap().parse().unwrap();
+        assert!(rms.is_finite() && rms > 0.0 && (0.0..=1.0).contains(&delta), "{l}");
     }
-    let png = image::open(dir.path().join("lambda_sweep.png")).unwrap();
-    assert!(png.width() > 100 && png.height() > 100);
+    for f in ["lambda_sweep.png", "lambda_sweep_delta.png"] {
+        let png = image::open(dir.path().join(f)).unwrap();
+        assert!(png.width() > 100 && png.height() > 100);
+    }
     // A sweep needs a TV method.
     let bad = Command::new(env!("CARGO_BIN_EXE_densefeat"))
         .args(["eval", "--sequence", FIXTURE, "--keyframes", "20:10:20", "--methods", "rgb-wta"])

@@ -49,8 +49,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
         args.mapping.depth_range.0,
         args.mapping.depth_range.1
     );
-    let table =
-        run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &args.out, true, EvalOptions::default)?;
+    let table = run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &args.out, true, || {
+        EvalOptions { min_confidence: args.mapping.min_confidence, ..EvalOptions::default() }
+    })?;
     print_table(&table, &args.out);
     let out = args.out.canonicalize().unwrap_or(args.out.clone());
     println!(

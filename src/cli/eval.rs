@@ -9,7 +9,7 @@ use crate::error::{Error, Result};
 use crate::io::write_atomic_with;
 use crate::mapping::evaluate::{evaluate, EvalOptions, EvalTable, Method};
 use crate::mapping::keyframe::Regularizer;
-use crate::mapping::{write_outputs, FeatureKind};
+use crate::mapping::{write_outputs_with, FeatureKind};
 use crate::plot::{line_plot_png, Series};
 use crate::sequence::{open, Sequence};
 
@@ -39,10 +39,15 @@ pub struct EvalArgs {
     /// Also write every keyframe's depth files into OUT/kf_I_FEATURES/.
     #[arg(long)]
     pub save_depth: bool,
-    /// Comma-separated DTAM λ values: also run every TV method at each λ (the same λ for RGB and
-    /// learned features) and write `lambda_sweep.csv` and `lambda_sweep.png` (RMSE against λ).
+    /// Comma-separated DTAM λ values: also run every TV method at each λ on the same volumes (the
+    /// same λ for RGB and learned features) and write `lambda_sweep.csv`, `lambda_sweep.png` (rms
+    /// against λ) and `lambda_sweep_delta.png` (δ<1.25 against λ).
     #[arg(long, value_delimiter = ',')]
     pub lambda_sweep: Vec<f64>,
+    /// Comma-separated confidence thresholds: also write every method's metrics at each
+    /// (`confidence_sweep.csv`: coverage and accuracy against the threshold).
+    #[arg(long, value_delimiter = ',')]
+    pub confidence_sweep: Vec<f32>,
     /// Output folder (table.csv, table.md, per_keyframe.csv, timings.md).
     #[arg(long)]
     pub out: PathBuf,
@@ -55,20 +60,7 @@ pub struct EvalArgs {
 pub fn run(args: EvalArgs) -> Result<()> {
     let seq = open(&args.sequence)?;
     let keyframes = parse_keyframes(&args.keyframes)?;
-    let table = run_eval(&seq, &args.mapping, &keyframes, &args.methods, &args.out, args.save_depth, || {
-        EvalOptions { weights: args.weights.clone(), lambda_learned: args.lambda_learned }
-    })?;
-    print_table(&table, &args.out);
-    if !args.lambda_sweep.is_empty() {
-        lambda_sweep(&seq, &args, &keyframes)?;
-    }
-    Ok(())
-}
-
-/// RMSE of every TV method at each λ of `--lambda-sweep` (the paper's λ-sensitivity figure).
-fn lambda_sweep(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<()> {
-    let methods: Vec<Method> = args.methods.iter().copied().filter(|m| m.tv()).collect();
-    if methods.is_empty() {
+    if !args.lambda_sweep.is_empty() && !args.methods.iter().any(|m| m.tv()) {
         return Err(Error::invalid_argument("--lambda-sweep", "needs at least one TV method in --methods"));
     }
     if let Some(bad) = args.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
@@ -76,62 +68,74 @@ fn lambda_sweep(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<
     }
     let mut lambdas = args.lambda_sweep.clone();
     lambdas.sort_by(f64::total_cmp);
-    let bar = progress_bar();
-    let mut rms: Vec<Vec<(f64, f64)>> = vec![Vec::new(); methods.len()];
-    for &lambda in &lambdas {
-        let mut mapping = args.mapping.clone();
-        mapping.lambda = lambda;
-        let base = mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv);
-        let options = EvalOptions { weights: args.weights.clone(), lambda_learned: Some(lambda) };
-        let table = evaluate(
-            seq,
-            &base,
-            keyframes,
-            &methods,
-            &options,
-            |_| Ok(()),
-            |k, s, d, t| show_stage(&bar, &format!("λ = {lambda}, keyframe {k}: "), s, d, t),
-        )?;
-        for (i, row) in table.rows.iter().enumerate() {
-            rms[i].push((lambda, row.metrics.rms));
+    let table = run_eval(&seq, &args.mapping, &keyframes, &args.methods, &args.out, args.save_depth, || {
+        EvalOptions {
+            weights: args.weights.clone(),
+            lambda_learned: args.lambda_learned,
+            lambda_sweep: lambdas.clone(),
+            min_confidence: args.mapping.min_confidence,
+            confidence_sweep: args.confidence_sweep.clone(),
+        }
+    })?;
+    print_table(&table, &args.out);
+    if !table.confidence_sweep.is_empty() {
+        let mut csv = String::from("method,min_confidence,rms,delta_1.25,abs_rel,coverage\n");
+        for (m, c, d) in &table.confidence_sweep {
+            csv += &format!("{m},{c},{},{},{},{}\n", d.rms, d.delta_1_25, d.abs_rel, d.coverage);
+        }
+        write_text(&args.out.join("confidence_sweep.csv"), &csv)?;
+        println!("\nconfidence sweep:\n{csv}");
+    }
+    if !lambdas.is_empty() {
+        write_sweep(&table, &args.out)?;
+    }
+    Ok(())
+}
+
+/// `lambda_sweep.csv` and the plots `lambda_sweep.png` (rms) and `lambda_sweep_delta.png`
+/// (δ<1.25) against λ, from the volumes of the main evaluation (the paper's λ-sensitivity figure).
+fn write_sweep(table: &EvalTable, out: &Path) -> Result<()> {
+    let mut methods: Vec<Method> = Vec::new();
+    for (m, _, _) in &table.sweep {
+        if !methods.contains(m) {
+            methods.push(*m);
         }
     }
-    bar.finish_and_clear();
-    let mut csv = String::from("lambda");
-    for m in &methods {
-        csv += &format!(",{}_rms", m.name());
+    let mut csv = String::from("method,lambda,rms,delta_1.25,abs_rel,coverage\n");
+    for (m, l, d) in &table.sweep {
+        csv += &format!("{m},{l},{},{},{},{}\n", d.rms, d.delta_1_25, d.abs_rel, d.coverage);
     }
-    csv.push('\n');
-    for (j, &lambda) in lambdas.iter().enumerate() {
-        csv += &format!("{lambda}");
-        for r in &rms {
-            csv += &format!(",{}", r[j].1);
-        }
-        csv.push('\n');
-    }
-    write_text(&args.out.join("lambda_sweep.csv"), &csv)?;
+    write_text(&out.join("lambda_sweep.csv"), &csv)?;
     const COLOURS: [(u8, u8, u8); 4] = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189)];
-    let series: Vec<Series> = methods
-        .iter()
-        .zip(rms)
-        .enumerate()
-        .map(|(i, (m, points))| Series {
-            name: m.name().to_string(),
-            points,
-            colour: COLOURS[i % COLOURS.len()],
-        })
-        .collect();
-    let png = args.out.join("lambda_sweep.png");
-    line_plot_png(
-        &png,
-        "Keyframe RMSE against regularisation strength",
-        "λ (data term weighted by 1/λ)",
-        "rms (m)",
-        &series,
-        &[],
-        true,
-    )?;
-    println!("\nλ sweep (rms, m):\n{csv}wrote {} and lambda_sweep.csv", png.display());
+    for (file, ylabel, pick) in [
+        ("lambda_sweep.png", "rms (m)", (|d: &crate::eval::DepthMetrics| d.rms) as fn(&_) -> f64),
+        ("lambda_sweep_delta.png", "δ<1.25", |d: &crate::eval::DepthMetrics| d.delta_1_25),
+    ] {
+        let series: Vec<Series> = methods
+            .iter()
+            .enumerate()
+            .map(|(i, m)| Series {
+                name: m.name().to_string(),
+                points: table
+                    .sweep
+                    .iter()
+                    .filter(|(pm, _, _)| pm == m)
+                    .map(|(_, l, d)| (*l, pick(d)))
+                    .collect(),
+                colour: COLOURS[i % COLOURS.len()],
+            })
+            .collect();
+        line_plot_png(
+            &out.join(file),
+            &format!("Keyframe {ylabel} against regularisation strength"),
+            "λ (normalised data term weighted by 1/λ)",
+            ylabel,
+            &series,
+            &[],
+            true,
+        )?;
+    }
+    println!("\nλ sweep:\n{csv}wrote lambda_sweep.csv, lambda_sweep.png, lambda_sweep_delta.png");
     Ok(())
 }
 
@@ -160,7 +164,8 @@ pub fn run_eval(
         |r| {
             bar.println(summary(r));
             if save_depth {
-                write_outputs(r, &out.join(format!("kf_{:05}_{}", r.keyframe, r.features)))?;
+                let dir = out.join(format!("kf_{:05}_{}", r.keyframe, r.features));
+                write_outputs_with(r, &dir, mapping.min_confidence)?;
             }
             Ok(())
         },

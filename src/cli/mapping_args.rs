@@ -6,9 +6,12 @@ use std::time::Duration;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::dtam::{DtamParams, DEFAULT_LAMBDA};
+use crate::dtam::{DtamParams, MAPPING_DEFAULTS};
 use crate::error::{Error, Result};
-use crate::mapping::keyframe::{KeyframeConfig, Regularizer, Stage, DEFAULT_MAX_MEMORY_MB};
+use crate::mapping::keyframe::{
+    KeyframeConfig, Regularizer, Stage, DEFAULT_BINS, DEFAULT_MAX_MEMORY_MB, DEFAULT_MIN_EVIDENCE,
+};
+use crate::mapping::output::DEFAULT_MIN_CONFIDENCE;
 use crate::mapping::{FeatureKind, KeyframeResult};
 
 /// Mapping flags (SPEC.md §10, §11).
@@ -21,29 +24,49 @@ pub struct MappingArgs {
     #[arg(long, default_value = "0.4,10", value_parser = parse_pair_f64)]
     pub depth_range: (f64, f64),
     /// Number of inverse-depth hypotheses.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = DEFAULT_BINS)]
     pub bins: usize,
-    /// DTAM `λ` (data term weighted by 1/λ).
-    #[arg(long, default_value_t = DEFAULT_LAMBDA)]
+    /// Pyramid level of the output depth: 0 = the input resolution, 1 = half, ...
+    #[arg(long, default_value_t = 0)]
+    pub level: u32,
+    /// Evidence minimum: a cost-volume cell competes only when at least this fraction of the frames
+    /// that saw the pixel saw it (0 = any seen cell).
+    #[arg(long, default_value_t = DEFAULT_MIN_EVIDENCE)]
+    pub min_evidence: f64,
+    /// Mask output depth and point clouds where the confidence is below this (0 = keep all);
+    /// metrics are reported at this threshold and at full coverage.
+    #[arg(long, default_value_t = DEFAULT_MIN_CONFIDENCE)]
+    pub min_confidence: f32,
+    /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1).
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.lambda)]
     pub lambda: f64,
     /// Huber threshold ε, 1/m.
-    #[arg(long, default_value_t = DtamParams::default().epsilon)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.epsilon)]
     pub epsilon: f64,
     /// Edge weight α of `g = exp(-α ‖∇I‖^β)`.
-    #[arg(long, default_value_t = DtamParams::default().alpha)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.alpha)]
     pub alpha: f64,
     /// Edge weight exponent β.
-    #[arg(long, default_value_t = DtamParams::default().beta)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.beta)]
     pub beta: f64,
     /// First coupling weight θ.
-    #[arg(long, default_value_t = DtamParams::default().theta_start)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.theta_start)]
     pub theta_start: f64,
     /// Last coupling weight θ.
-    #[arg(long, default_value_t = DtamParams::default().theta_end)]
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.theta_end)]
     pub theta_end: f64,
-    /// DTAM iterations.
-    #[arg(long, default_value_t = DtamParams::default().iterations)]
+    /// Length of DTAM's θ schedule (iterations from θ start to θ end).
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.iterations)]
     pub iterations: usize,
+    /// Primal-dual steps per a-search.
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.steps_per_search)]
+    pub steps_per_search: usize,
+    /// Most DTAM iterations (convergence usually stops it earlier).
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.max_iterations)]
+    pub max_iterations: usize,
+    /// DTAM convergence: relative change of energy and d-a gap per iteration.
+    #[arg(long, default_value_t = MAPPING_DEFAULTS.tolerance)]
+    pub tolerance: f64,
     /// Refuse to run when the estimated memory exceeds this many MiB.
     #[arg(long, default_value_t = DEFAULT_MAX_MEMORY_MB)]
     pub max_memory_mb: usize,
@@ -69,8 +92,14 @@ impl MappingArgs {
                 theta_start: self.theta_start,
                 theta_end: self.theta_end,
                 iterations: self.iterations,
+                steps_per_search: self.steps_per_search,
+                max_iterations: self.max_iterations,
+                tolerance: self.tolerance,
             },
             max_memory_mb: self.max_memory_mb,
+            level: self.level,
+            min_evidence: self.min_evidence,
+            lambda_sweep: Vec::new(),
         }
     }
 }
@@ -157,10 +186,13 @@ pub fn summary(r: &KeyframeResult) -> String {
     );
     if let Some(d) = &r.dtam {
         s += &format!(
-            "\n  DTAM: {} iterations, energy {:.4e} -> {:.4e}",
+            "\n  DTAM: {} iterations ({}), energy {:.4e} -> {:.4e}, d-a gap {:.2e} 1/m, cost scale {:.4}",
             d.iterations,
+            if d.converged { "converged" } else { "hit --max-iterations" },
             d.energy.first().copied().unwrap_or(f64::NAN),
-            d.energy.last().copied().unwrap_or(f64::NAN)
+            d.energy.last().copied().unwrap_or(f64::NAN),
+            d.gap.last().copied().unwrap_or(f64::NAN),
+            r.cost_scale
         );
     }
     s

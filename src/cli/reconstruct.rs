@@ -6,7 +6,7 @@ use clap::Args;
 
 use crate::error::Result;
 use crate::eval::DepthMetrics;
-use crate::mapping::{reconstruct, write_outputs, FeatureKind, Regularizer};
+use crate::mapping::{reconstruct, write_outputs_with, FeatureKind, Regularizer};
 use crate::sequence::open;
 
 use super::mapping_args::{progress_bar, show_stage, summary, MappingArgs};
@@ -52,8 +52,16 @@ pub fn run(args: ReconstructArgs) -> Result<()> {
         if let Some(tv) = &result.tv {
             println!("  tv:  {}", metrics_line(&result.metrics(tv)?));
         }
+        let c = args.mapping.min_confidence;
+        if c > 0.0 {
+            println!("metrics at confidence >= {c}:");
+            println!("  wta: {}", metrics_line(&result.metrics_at(&result.wta, c)?));
+            if let Some(tv) = &result.tv {
+                println!("  tv:  {}", metrics_line(&result.metrics_at(tv, c)?));
+            }
+        }
     }
-    let files = write_outputs(&result, &args.out)?;
+    let files = write_outputs_with(&result, &args.out, args.mapping.min_confidence)?;
     println!("wrote {} files to {}", files.len(), args.out.display());
     Ok(())
 }

@@ -47,6 +47,7 @@
 //! assert_eq!(cv.count(1, 2, 1), 1);
 //! ```
 
+pub mod curve;
 mod fast;
 mod reference;
 mod wta;
@@ -56,6 +57,7 @@ use ndarray::{Array3, ArrayView3};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
 
+pub use curve::{confidence, cost_scale, filter_evidence, winner_take_all_costs};
 pub use fast::fast_kernel_name;
 pub use wta::{parabola_offset, WtaDepth};
 
@@ -249,6 +251,11 @@ impl CostVolume {
     pub fn costs(&self) -> Array3<f32> {
         let v = (0..self.counts.len()).map(|i| self.mean(i).unwrap_or(UNSEEN_COST)).collect();
         Array3::from_shape_vec(self.dim(), v).expect("length is H·W·K")
+    }
+
+    /// Every count `[H, W, K]`, borrowed.
+    pub fn counts_view(&self) -> ArrayView3<'_, u16> {
+        ArrayView3::from_shape(self.dim(), &self.counts).expect("length is H·W·K")
     }
 
     /// Every count `[H, W, K]`.

@@ -49,9 +49,24 @@ pub struct DtamParams {
     pub theta_start: f64,
     /// Last coupling weight.
     pub theta_end: f64,
-    /// Number of iterations (θ decays geometrically from `theta_start` to `theta_end` over them).
+    /// Length of the θ schedule: θ decays geometrically from `theta_start` to `theta_end` over
+    /// this many iterations and is then held at `theta_end` until convergence.
     pub iterations: usize,
+    /// Primal-dual steps per a-search.
+    pub steps_per_search: usize,
+    /// Hard cap on iterations (each = `steps_per_search` primal-dual steps and one a-search).
+    pub max_iterations: usize,
+    /// Convergence: after the schedule, stop once the energy changed by at most this fraction in
+    /// the last iteration and the rms `d - a` gap is at most [`GAP_TOLERANCE_BINS`] bins.
+    pub tolerance: f64,
 }
+
+/// Image width (pixels) at which [`DtamParams`] are stated; [`DtamParams::for_width`] rescales them
+/// to another width (SPEC.md §10.1).
+pub const REFERENCE_WIDTH: f64 = 640.0;
+
+/// The converged rms `d - a` gap, in bins (`Δρ`): `d` and `a` agree well inside a bin.
+pub const GAP_TOLERANCE_BINS: f64 = 0.1;
 
 impl Default for DtamParams {
     fn default() -> Self {
@@ -63,9 +78,28 @@ impl Default for DtamParams {
             theta_start: 0.05,
             theta_end: 1e-5,
             iterations: 200,
+            steps_per_search: 1,
+            max_iterations: 1000,
+            tolerance: 1e-3,
         }
     }
 }
+
+/// Defaults of the normalised parameters the mapping pipeline passes through
+/// [`DtamParams::normalised`] (`reconstruct`, `eval`, `demo`; SPEC.md §10.1): chosen on the
+/// validation scenes only (SUN3D study room f0935 and synthetic seeds 200000..200099).
+pub const MAPPING_DEFAULTS: DtamParams = DtamParams {
+    lambda: 100.0,
+    epsilon: 1e-3,
+    alpha: 10.0,
+    beta: 1.0,
+    theta_start: 1.0,
+    theta_end: 1e-6,
+    iterations: 200,
+    steps_per_search: 1,
+    max_iterations: 500,
+    tolerance: 1e-3,
+};
 
 /// Default `λ` for RGB cost volumes (mean L1 over 3 channels in grey levels), from a sweep on the
 /// hand-built plane scenes of tests/dtam.rs (SPEC.md §10); learned features need their own value.
@@ -103,16 +137,53 @@ impl DtamParams {
         if self.iterations == 0 {
             return Err(Error::invalid_argument("iterations", "need at least 1"));
         }
+        if self.steps_per_search == 0 {
+            return Err(Error::invalid_argument("steps-per-search", "need at least 1"));
+        }
+        if self.max_iterations < self.iterations {
+            return Err(Error::invalid_argument(
+                "max-iterations",
+                format!("{} is below --iterations {}", self.max_iterations, self.iterations),
+            ));
+        }
+        if !(self.tolerance >= 0.0 && self.tolerance.is_finite()) {
+            return Err(Error::invalid_argument("tolerance", format!("{}: need >= 0", self.tolerance)));
+        }
         Ok(())
     }
 
-    /// `θ` at iteration `n` (`0 <= n < iterations`): `θ_start (θ_end/θ_start)^(n/(N-1))`.
+    /// `θ` at iteration `n`: `θ_start (θ_end/θ_start)^(n/(N-1))` for `n < N = iterations`, then
+    /// `θ_end`.
     pub fn theta(&self, n: usize) -> f64 {
-        if self.iterations == 1 {
+        if self.iterations == 1 || n + 1 >= self.iterations {
             return self.theta_end;
         }
         let s = n as f64 / (self.iterations - 1) as f64;
         self.theta_start * (self.theta_end / self.theta_start).powf(s)
+    }
+
+    /// The parameters [`solve`] needs for a cost volume, from the normalised parameters the
+    /// mapping pipeline states (SPEC.md §10.1): `λ` weights the regulariser against the data term
+    /// divided by the volume's cost scale `s`, at [`REFERENCE_WIDTH`]; `θ` is in units of
+    /// `R² = (ρ_max - ρ_min)²` of that normalised energy; `ε` is per pixel at [`REFERENCE_WIDTH`].
+    /// With `r = width / REFERENCE_WIDTH`:
+    /// `λ' = λ s r`, `θ' = θ R² λ r`, `ε' = ε / r`.
+    ///
+    /// Then the solver's energy is `s` times
+    /// `λ r Σ ‖g∇d‖_ε' + Σ (d - a)²/(2 θ R²) + Σ C/s`: the a-search balances the normalised cost
+    /// against the coupling independently of `λ`, of the feature kind's cost units and of the image
+    /// size, and `λ r` keeps the discrete energy the Riemann sum of one continuous energy at every
+    /// resolution (an edge's length in pixels grows as `r`, an area's pixel count as `r²`).
+    pub fn normalised(&self, cost_scale: f64, width: usize, rho_range: f64) -> Self {
+        let r = width as f64 / REFERENCE_WIDTH;
+        let theta = |t: f64| t * rho_range * rho_range * self.lambda * r;
+        Self {
+            lambda: self.lambda * cost_scale * r,
+            theta_start: theta(self.theta_start),
+            theta_end: theta(self.theta_end),
+            epsilon: self.epsilon / r,
+            ..*self
+        }
     }
 }
 
@@ -123,6 +194,10 @@ pub struct DtamReport {
     pub iterations: usize,
     /// Full energy `E_θ(d, a)` after each iteration (with that iteration's `θ`).
     pub energy: Vec<f64>,
+    /// Root mean square of `d - a` after each iteration, 1/m.
+    pub gap: Vec<f64>,
+    /// Whether the convergence test stopped it (else `max_iterations` did).
+    pub converged: bool,
     /// Wall time of the whole solve, seconds.
     pub seconds: f64,
 }
@@ -168,15 +243,46 @@ pub fn solve(
     let range = CostRange::new(costs);
     let mut tv = HuberTv::new(init.to_owned(), g, params.epsilon);
     let mut a = init.to_owned();
-    let mut energy = Vec::with_capacity(params.iterations);
-    for n in 0..params.iterations {
+    let mut energy: Vec<f64> = Vec::with_capacity(params.iterations);
+    let mut gap: Vec<f64> = Vec::with_capacity(params.iterations);
+    let mut converged = false;
+    for n in 0..params.max_iterations {
         let theta = params.theta(n);
-        tv.step(a.view(), theta);
+        for _ in 0..params.steps_per_search {
+            tv.step(a.view(), theta);
+        }
         a = exhaustive_search(costs, &range, bins, tv.primal(), theta, params.lambda);
-        energy.push(total_energy(&tv, costs, bins, a.view(), theta, params.lambda));
+        let e = total_energy(&tv, costs, bins, a.view(), theta, params.lambda);
+        let g = rms_gap(tv.primal(), a.view());
+        let settled =
+            energy.last().is_some_and(|&p| (e - p).abs() <= params.tolerance * e.abs().max(p.abs()));
+        let done = n + 1 >= params.iterations && settled && g <= GAP_TOLERANCE_BINS * bins.step();
+        energy.push(e);
+        gap.push(g);
+        if done {
+            converged = true;
+            break;
+        }
     }
-    let report = DtamReport { iterations: params.iterations, energy, seconds: start.elapsed().as_secs_f64() };
+    let report = DtamReport {
+        iterations: energy.len(),
+        energy,
+        gap,
+        converged,
+        seconds: start.elapsed().as_secs_f64(),
+    };
     Ok((DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report))
+}
+
+/// `sqrt(mean (d - a)²)`, summed per row in f64, rows in order.
+pub fn rms_gap(d: ArrayView2<f32>, a: ArrayView2<f32>) -> f64 {
+    use rayon::prelude::*;
+    let (h, w) = d.dim();
+    let rows: Vec<f64> = (0..h)
+        .into_par_iter()
+        .map(|y| (0..w).map(|x| (f64::from(d[[y, x]]) - f64::from(a[[y, x]])).powi(2)).sum())
+        .collect();
+    (rows.iter().sum::<f64>() / (h * w).max(1) as f64).sqrt()
 }
 
 /// `E_θ(d, a)`, with `C(u, a)` linearly interpolated between hypotheses (unseen: 0). Summed per row

@@ -75,8 +75,10 @@ impl std::fmt::Display for Method {
 pub struct EvalRow {
     /// The method.
     pub method: Method,
-    /// Metrics averaged over keyframes (`count` summed, every other field the mean).
+    /// Metrics averaged over keyframes (`count` summed, every other field the mean), full coverage.
     pub metrics: DepthMetrics,
+    /// The same with pixels below [`EvalOptions::min_confidence`] masked.
+    pub confident: DepthMetrics,
     /// Mean wall time per keyframe and stage of the run that produced it (TV zero for WTA rows,
     /// whose volume is shared with the TV row).
     pub timings: StageTimings,
@@ -89,6 +91,13 @@ pub struct EvalTable {
     pub rows: Vec<EvalRow>,
     /// `(keyframe, method, metrics)` for every run.
     pub per_keyframe: Vec<(usize, Method, DepthMetrics)>,
+    /// `(method, λ, metrics averaged over keyframes)` for every TV method and
+    /// [`EvalOptions::lambda_sweep`] value.
+    pub sweep: Vec<(Method, f64, DepthMetrics)>,
+    /// The confidence threshold of [`EvalRow::confident`].
+    pub min_confidence: f32,
+    /// `(method, threshold, metrics averaged over keyframes)` for [`EvalOptions::confidence_sweep`].
+    pub confidence_sweep: Vec<(Method, f32, DepthMetrics)>,
 }
 
 /// Settings [`evaluate`] adds to a base [`KeyframeConfig`].
@@ -98,6 +107,12 @@ pub struct EvalOptions {
     pub weights: Option<PathBuf>,
     /// `λ` for the learned features' DTAM (`None`: the base config's).
     pub lambda_learned: Option<f64>,
+    /// Extra `λ` values at which every TV method also runs, on the same volumes.
+    pub lambda_sweep: Vec<f64>,
+    /// Confidence threshold of the masked metrics.
+    pub min_confidence: f32,
+    /// Extra confidence thresholds: every method's metrics at each ([`EvalTable::confidence_sweep`]).
+    pub confidence_sweep: Vec<f32>,
 }
 
 /// Run `methods` on every keyframe. `base` gives the window, range, bins, DTAM parameters and
@@ -120,6 +135,9 @@ pub fn evaluate(
         return Err(Error::invalid_argument("evaluation", "need at least one keyframe and one method"));
     }
     let mut per_keyframe = Vec::new();
+    let mut per_keyframe_conf: Vec<(Method, DepthMetrics)> = Vec::new();
+    let mut sweep_per_kf: Vec<(Method, f64, DepthMetrics)> = Vec::new();
+    let mut conf_per_kf: Vec<(Method, f32, DepthMetrics)> = Vec::new();
     let mut timing_sums: Vec<StageTimings> = vec![StageTimings::default(); methods.len()];
     for learned in [false, true] {
         let wanted: Vec<usize> = (0..methods.len()).filter(|&i| methods[i].learned() == learned).collect();
@@ -135,6 +153,8 @@ pub fn evaluate(
         }
         cfg.regularizer =
             if wanted.iter().any(|&i| methods[i].tv()) { Regularizer::Tv } else { Regularizer::None };
+        cfg.lambda_sweep =
+            if cfg.regularizer == Regularizer::Tv { options.lambda_sweep.clone() } else { Vec::new() };
         for &k in keyframes {
             cfg.keyframe = k;
             let result = reconstruct(seq, &cfg, |s, d, t| progress(k, s, d, t))?;
@@ -142,6 +162,18 @@ pub fn evaluate(
                 let m = methods[i];
                 let estimate = if m.tv() { result.tv.as_ref().expect("TV was run") } else { &result.wta };
                 per_keyframe.push((k, m, result.metrics(estimate)?));
+                per_keyframe_conf.push((m, result.metrics_at(estimate, options.min_confidence)?));
+                for &c in &options.confidence_sweep {
+                    // A threshold that masks every pixel has no metrics: skipped for that keyframe.
+                    if let Ok(d) = result.metrics_at(estimate, c) {
+                        conf_per_kf.push((m, c, d));
+                    }
+                }
+                if m.tv() {
+                    for (l, e) in &result.sweep {
+                        sweep_per_kf.push((m, *l, result.metrics(e)?));
+                    }
+                }
                 let mut t = result.timings;
                 if !m.tv() {
                     t.tv = 0.0;
@@ -165,10 +197,32 @@ pub fn evaluate(
                 wta: t.wta / n,
                 tv: t.tv / n,
             };
-            EvalRow { method: m, metrics: mean_metrics(&ms), timings }
+            let cs: Vec<DepthMetrics> =
+                per_keyframe_conf.iter().filter(|(pm, _)| *pm == m).map(|(_, d)| *d).collect();
+            EvalRow { method: m, metrics: mean_metrics(&ms), confident: mean_metrics(&cs), timings }
         })
         .collect();
-    Ok(EvalTable { rows, per_keyframe })
+    let mut sweep = Vec::new();
+    for &m in methods.iter().filter(|m| m.tv()) {
+        for &l in &options.lambda_sweep {
+            let ms: Vec<DepthMetrics> =
+                sweep_per_kf.iter().filter(|(pm, pl, _)| *pm == m && *pl == l).map(|(_, _, d)| *d).collect();
+            if !ms.is_empty() {
+                sweep.push((m, l, mean_metrics(&ms)));
+            }
+        }
+    }
+    let mut confidence_sweep = Vec::new();
+    for &m in methods {
+        for &c in &options.confidence_sweep {
+            let ms: Vec<DepthMetrics> =
+                conf_per_kf.iter().filter(|(pm, pc, _)| *pm == m && *pc == c).map(|(_, _, d)| *d).collect();
+            if !ms.is_empty() {
+                confidence_sweep.push((m, c, mean_metrics(&ms)));
+            }
+        }
+    }
+    Ok(EvalTable { rows, per_keyframe, sweep, min_confidence: options.min_confidence, confidence_sweep })
 }
 
 fn add_timings(sum: &mut StageTimings, t: &StageTimings) {
@@ -204,10 +258,9 @@ pub fn mean_metrics(ms: &[DepthMetrics]) -> DepthMetrics {
 const COLUMNS: [&str; 10] =
     ["method", "rms", "log", "abs rel", "sq rel", "δ<1.1", "δ<1.25", "δ<1.25²", "δ<1.25³", "coverage"];
 
-fn cells(r: &EvalRow) -> [String; 10] {
-    let m = &r.metrics;
+fn cells(name: &str, m: &DepthMetrics) -> [String; 10] {
     [
-        r.method.name().to_string(),
+        name.to_string(),
         format!("{:.4}", m.rms),
         format!("{:.4}", m.log_rms),
         format!("{:.4}", m.abs_rel),
@@ -221,13 +274,25 @@ fn cells(r: &EvalRow) -> [String; 10] {
 }
 
 impl EvalTable {
-    /// The table as Markdown (the paper's columns plus coverage).
+    /// The table as Markdown (the paper's columns plus coverage): full coverage, then (when the
+    /// threshold is positive) the rows at the confidence threshold, named `METHOD@c`.
     pub fn markdown(&self) -> String {
         let mut s = format!("| {} |\n|{}\n", COLUMNS.join(" | "), "---|".repeat(COLUMNS.len()));
-        for r in &self.rows {
-            let _ = writeln!(s, "| {} |", cells(r).join(" | "));
+        for (name, m) in self.named_rows() {
+            let _ = writeln!(s, "| {} |", cells(&name, &m).join(" | "));
         }
         s
+    }
+
+    fn named_rows(&self) -> Vec<(String, DepthMetrics)> {
+        let mut v: Vec<(String, DepthMetrics)> =
+            self.rows.iter().map(|r| (r.method.name().to_string(), r.metrics)).collect();
+        if self.min_confidence > 0.0 {
+            for r in &self.rows {
+                v.push((format!("{}@{}", r.method.name(), self.min_confidence), r.confident));
+            }
+        }
+        v
     }
 
     /// The table as CSV (ASCII column names).
@@ -235,8 +300,8 @@ impl EvalTable {
         let mut s = String::from(
             "method,rms,log_rms,abs_rel,sq_rel,delta_1.1,delta_1.25,delta_1.25^2,delta_1.25^3,coverage\n",
         );
-        for r in &self.rows {
-            let _ = writeln!(s, "{}", cells(r).join(","));
+        for (name, m) in self.named_rows() {
+            let _ = writeln!(s, "{}", cells(&name, &m).join(","));
         }
         s
     }

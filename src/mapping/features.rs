@@ -1,16 +1,20 @@
 //! What fills the cost volume: raw RGB (the DTAM baseline) or the learned features, on one common
-//! grid. The learned network outputs its features at pyramid level `L` (1 with block-1 stride 2,
-//! SPEC.md §8); the RGB baseline is brought to the same level with the 2x tent downsampling of
-//! SPEC.md §2.1, so both methods are matched and evaluated at the same resolution with the level-`L`
+//! output grid of pyramid level `L` (0 = the input resolution, the default; SPEC.md §11.1).
+//! RGB is tent-downsampled `L` times (SPEC.md §2.1). The learned network outputs its features at
+//! its own level `L_n` (1 with block-1 stride 2, 0 with block-1 stride 1, SPEC.md §8): when
+//! `L < L_n` they are bilinearly upsampled on the integer-centre grid of SPEC.md §2.1 (output pixel
+//! `i` sits at network pixel `i / 2^(L_n - L)`, clamped to the last network pixel), when `L > L_n`
+//! tent-downsampled. Both kinds are matched and evaluated on the same pixels with the level-`L`
 //! intrinsics of SPEC.md §2.6.
 
 use std::path::{Path, PathBuf};
 
 use ndarray::{Array3, ArrayView3};
+use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::geometry::PinholeCamera;
-use crate::image::RgbImage;
+use crate::image::{sample_bilinear, RgbImage};
 use crate::nn::{downsample2x, FeatureNet, NetworkImpl, NetworkWeights};
 
 /// The weights shipped in `fixtures/weights/`, compiled into the binary so that the demo and
@@ -58,21 +62,23 @@ pub struct FeatureMap {
     pub level: u32,
 }
 
-/// Turns images into feature maps of one [`FeatureKind`].
+/// Turns images into feature maps of one [`FeatureKind`] on the level-`level` grid.
 #[derive(Debug)]
 pub struct FeatureExtractor {
     kind: FeatureKind,
     net: Option<FeatureNet>,
     level: u32,
+    net_level: Option<u32>,
 }
 
 impl FeatureExtractor {
-    /// Load the network if needed. RGB features are produced at `rgb_level` (use
-    /// [`FeatureExtractor::network_level`] of a learned extractor to compare at the same grid).
+    /// Load the network if needed. Features are produced on the level-`level` grid (RGB
+    /// tent-downsampled; learned features resampled from the network's own level, see the module
+    /// documentation).
     ///
     /// # Errors
     /// Weight-file errors naming the file.
-    pub fn new(kind: FeatureKind, rgb_level: u32) -> Result<Self> {
+    pub fn new(kind: FeatureKind, level: u32) -> Result<Self> {
         let net = match &kind {
             FeatureKind::Rgb => None,
             FeatureKind::Learned(None) => Some(FeatureNet::new(NetworkWeights::from_safetensors_bytes(
@@ -81,11 +87,13 @@ impl FeatureExtractor {
             )?)?),
             FeatureKind::Learned(Some(p)) => Some(FeatureNet::new(NetworkWeights::load(p)?)?),
         };
-        let level = match &net {
-            Some(n) => Self::output_level(n),
-            None => rgb_level,
-        };
-        Ok(Self { kind, net, level })
+        let net_level = net.as_ref().map(Self::output_level);
+        Ok(Self { kind, net, level, net_level })
+    }
+
+    /// The level the network computes its features at (`None` for RGB).
+    pub fn network_output_level(&self) -> Option<u32> {
+        self.net_level
     }
 
     fn output_level(net: &FeatureNet) -> u32 {
@@ -129,9 +137,20 @@ impl FeatureExtractor {
     /// # Errors
     /// Shape errors from the kernels (not `[H, W, 3]`).
     pub fn extract(&self, rgb: &RgbImage) -> Result<FeatureMap> {
-        let data = match &self.net {
-            Some(net) => net.forward(rgb.view(), NetworkImpl::FAST)?.features().clone(),
-            None => downsample_to(rgb.view(), self.level)?,
+        let (h0, w0, _) = rgb.dim();
+        let data = match (&self.net, self.net_level) {
+            (Some(net), Some(nl)) => {
+                let f = net.forward(rgb.view(), NetworkImpl::FAST)?.features().clone();
+                match self.level.cmp(&nl) {
+                    std::cmp::Ordering::Equal => f,
+                    std::cmp::Ordering::Greater => downsample_to(f.view(), self.level - nl)?,
+                    std::cmp::Ordering::Less => {
+                        let s = 1usize << self.level;
+                        upsample_to(f.view(), nl - self.level, h0.div_ceil(s), w0.div_ceil(s))
+                    }
+                }
+            }
+            _ => downsample_to(rgb.view(), self.level)?,
         };
         Ok(FeatureMap { data, level: self.level })
     }
@@ -147,4 +166,28 @@ pub fn downsample_to(x: ArrayView3<f32>, level: u32) -> Result<Array3<f32>> {
         out = downsample2x(out.view())?;
     }
     Ok(out)
+}
+
+/// Bilinear upsampling by `2^levels` on the integer-centre grid (SPEC.md §2.1, §11.1): output pixel
+/// `(i, j)` (`[out_h, out_w]`) is [`sample_bilinear`] of `x` at `(i / 2^levels, j / 2^levels)`, each
+/// coordinate clamped to the last pixel of `x` (edge replication where the finer grid reaches past
+/// it). Row-parallel; every pixel is an independent f64-weighted sample, so the bits do not depend on
+/// the thread count.
+///
+/// # Panics
+/// If `x` has no pixel.
+pub fn upsample_to(x: ArrayView3<f32>, levels: u32, out_h: usize, out_w: usize) -> Array3<f32> {
+    let (h, w, c) = x.dim();
+    assert!(h > 0 && w > 0, "cannot upsample an empty feature map");
+    let s = f64::from(1u32 << levels);
+    let mut out = vec![0.0f32; out_h * out_w * c];
+    out.par_chunks_mut((out_w * c).max(1)).enumerate().for_each(|(i, row)| {
+        let yy = (i as f64 / s).min((h - 1) as f64);
+        for (j, px) in row.chunks_mut(c.max(1)).enumerate() {
+            let xx = (j as f64 / s).min((w - 1) as f64);
+            let inside = sample_bilinear(&x, xx, yy, px);
+            debug_assert!(inside, "clamped positions are inside");
+        }
+    });
+    Array3::from_shape_vec((out_h, out_w, c), out).expect("length is H·W·C")
 }

@@ -11,7 +11,8 @@ use std::time::Instant;
 use ndarray::{Array2, Array3};
 use serde::Serialize;
 
-use crate::costvolume::CostVolume;
+use crate::costvolume::{confidence, cost_scale, filter_evidence, winner_take_all_costs, CostVolume};
+use crate::dtam::DtamResult;
 use crate::dtam::{self, DtamParams, DtamReport};
 use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
@@ -62,17 +63,33 @@ pub struct KeyframeConfig {
     pub bins: usize,
     /// Regulariser after winner-take-all.
     pub regularizer: Regularizer,
-    /// DTAM parameters (used with [`Regularizer::Tv`]).
+    /// DTAM parameters in the normalised units of [`DtamParams::normalised`] (used with
+    /// [`Regularizer::Tv`]).
     pub dtam: DtamParams,
     /// Refuse to start when [`memory_estimate`] exceeds this many MiB.
     pub max_memory_mb: usize,
+    /// Pyramid level of the output grid (0 = the input resolution).
+    pub level: u32,
+    /// Evidence minimum: a cell competes (in WTA and the a-search) only when at least this
+    /// fraction of the frames that saw the pixel at all saw it (SPEC.md §9.10). 0 keeps every seen
+    /// cell.
+    pub min_evidence: f64,
+    /// Extra `λ` values: DTAM also runs at each on the same volume ([`KeyframeResult::sweep`]).
+    pub lambda_sweep: Vec<f64>,
 }
+
+/// Default of [`KeyframeConfig::bins`].
+pub const DEFAULT_BINS: usize = 128;
+
+/// Default of [`KeyframeConfig::min_evidence`] (chosen on validation scenes, SPEC.md §9.10).
+pub const DEFAULT_MIN_EVIDENCE: f64 = 0.25;
 
 /// Default of [`KeyframeConfig::max_memory_mb`].
 pub const DEFAULT_MAX_MEMORY_MB: usize = 2048;
 
 impl KeyframeConfig {
-    /// The paper's window (30, 30), RGB, 64 bins over `[near, far]`, TV with default parameters.
+    /// The paper's window (30, 30), RGB, [`DEFAULT_BINS`] bins over `[near, far]`, level 0, TV with
+    /// default parameters.
     pub fn new(keyframe: usize, near: f64, far: f64) -> Self {
         Self {
             keyframe,
@@ -81,10 +98,13 @@ impl KeyframeConfig {
             features: FeatureKind::Rgb,
             near,
             far,
-            bins: 64,
+            bins: DEFAULT_BINS,
             regularizer: Regularizer::Tv,
-            dtam: DtamParams::default(),
+            dtam: dtam::MAPPING_DEFAULTS,
             max_memory_mb: DEFAULT_MAX_MEMORY_MB,
+            level: 0,
+            min_evidence: DEFAULT_MIN_EVIDENCE,
+            lambda_sweep: Vec::new(),
         }
     }
 
@@ -122,6 +142,18 @@ impl KeyframeConfig {
         if self.regularizer == Regularizer::Tv {
             self.dtam.validate()?;
         }
+        if !(0.0..=1.0).contains(&self.min_evidence) {
+            return Err(Error::invalid_argument(
+                "min-evidence",
+                format!("{}: must be a fraction in [0, 1]", self.min_evidence),
+            ));
+        }
+        if self.level > 8 {
+            return Err(Error::invalid_argument("level", format!("{}: at most 8", self.level)));
+        }
+        if let Some(l) = self.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
+            return Err(Error::invalid_argument("lambda-sweep", format!("λ = {l}: must be positive")));
+        }
         InverseDepthBins::from_depth_range(self.near, self.far, self.bins)
     }
 }
@@ -135,6 +167,8 @@ pub fn memory_estimate(height: usize, width: usize, bins: usize, channels: usize
 }
 
 /// A depth estimate on the level-`L` grid.
+///
+/// [`KeyframeResult::confidence`] applies to both estimates of a keyframe.
 #[derive(Clone, Debug)]
 pub struct DepthEstimate {
     /// Inverse depth, 1/m.
@@ -218,6 +252,12 @@ pub struct KeyframeResult {
     pub timings: StageTimings,
     /// DTAM's report, with [`Regularizer::Tv`].
     pub dtam: Option<DtamReport>,
+    /// Per-pixel confidence in `[0, 1]` (SPEC.md §9.12).
+    pub confidence: Array2<f32>,
+    /// The cost scale `s` of the volume (SPEC.md §9.11); DTAM weights the data term by `1/(λ s)`.
+    pub cost_scale: f64,
+    /// DTAM at each [`KeyframeConfig::lambda_sweep`] value, in that order.
+    pub sweep: Vec<(f64, DepthEstimate)>,
     /// [`memory_estimate`] of this run, bytes.
     pub memory_estimate: u64,
 }
@@ -241,6 +281,26 @@ impl KeyframeResult {
         })?;
         depth_metrics(estimate.depth.view(), gt.view())
     }
+
+    /// [`KeyframeResult::metrics`] of the estimate with pixels below `min_confidence` masked out
+    /// (coverage then counts them as missing).
+    ///
+    /// # Errors
+    /// As [`KeyframeResult::metrics`].
+    pub fn metrics_at(&self, estimate: &DepthEstimate, min_confidence: f32) -> Result<DepthMetrics> {
+        self.metrics(&self.masked(estimate, min_confidence))
+    }
+
+    /// The estimate with depth 0 where the confidence is below `min_confidence`.
+    pub fn masked(&self, estimate: &DepthEstimate, min_confidence: f32) -> DepthEstimate {
+        let mut e = estimate.clone();
+        ndarray::Zip::from(&mut e.depth).and(&self.confidence).for_each(|z, &c| {
+            if c < min_confidence {
+                *z = 0.0;
+            }
+        });
+        e
+    }
 }
 
 /// The level-`level` ground truth: level-0 depth at pixels `2^level j` (SPEC.md §2.6).
@@ -263,15 +323,9 @@ pub fn reconstruct(
 ) -> Result<KeyframeResult> {
     let bins = cfg.validate()?;
     let live = cfg.live_frames(seq.len())?;
-    let level = FeatureExtractor::network_level()?;
+    let level = cfg.level;
     let camera = seq.camera.at_level(level);
     let extractor = FeatureExtractor::new(cfg.features.clone(), level)?;
-    if extractor.level() != level {
-        return Err(Error::invalid_argument(
-            "features",
-            format!("the weights output level {}, the shipped network level {level}", extractor.level()),
-        ));
-    }
     let mut timings = StageTimings::default();
     progress(Stage::Keyframe, 0, 1);
     let t = Instant::now();
@@ -288,7 +342,7 @@ pub fn reconstruct(
             "max-memory-mb",
             format!(
                 "the cost volume {}x{}x{} with {channels} feature channels needs about {} MiB, over the \
-                 limit of {} MiB: use fewer --bins, or raise --max-memory-mb",
+                 limit of {} MiB: use fewer --bins, a coarser --level, or raise --max-memory-mb",
                 camera.height,
                 camera.width,
                 cfg.bins,
@@ -317,35 +371,40 @@ pub fn reconstruct(
 
     progress(Stage::Wta, 0, 1);
     let t = Instant::now();
-    let w = cv.winner_take_all();
+    let mut costs: Array3<f32> = cv.costs();
+    filter_evidence(&mut costs, cv.counts_view(), cfg.min_evidence);
+    let conf = confidence(costs.view(), cv.counts_view(), cv.frames());
+    drop(cv);
+    let scale = cost_scale(costs.view());
+    let w = winner_take_all_costs(costs.view(), &bins);
     timings.wta = t.elapsed().as_secs_f64();
     progress(Stage::Wta, 1, 1);
-    let wta = DepthEstimate { inverse_depth: w.inverse_depth, depth: w.depth };
+    let wta = DepthEstimate { inverse_depth: w.inverse_depth.clone(), depth: w.depth.clone() };
 
-    let (tv, dtam) = match cfg.regularizer {
-        Regularizer::None => (None, None),
-        Regularizer::Tv => {
-            progress(Stage::Tv, 0, 1);
-            let t = Instant::now();
-            let costs: Array3<f32> = cv.costs();
-            drop(cv);
-            let grey = to_gray(&colour);
+    let (mut tv, mut dtam, mut sweep) = (None, None, Vec::new());
+    if cfg.regularizer == Regularizer::Tv {
+        progress(Stage::Tv, 0, 1 + cfg.lambda_sweep.len());
+        let t = Instant::now();
+        let grey = to_gray(&colour);
+        let run = |lambda: f64| -> Result<(DepthEstimate, DtamReport)> {
+            let params = DtamParams { lambda, ..cfg.dtam }.normalised(
+                scale,
+                camera.width,
+                bins.rho_max - bins.rho_min,
+            );
             let (res, report) =
-                dtam::solve(costs.view(), &bins, grey.view(), wta.inverse_depth.view(), &cfg.dtam)?;
-            let inverse_depth = res.inverse_depth;
-            let depth = Array2::from_shape_fn(inverse_depth.dim(), |(y, x)| {
-                let rho = inverse_depth[[y, x]];
-                if w.valid[[y, x]] && rho > 0.0 {
-                    1.0 / rho
-                } else {
-                    0.0
-                }
-            });
-            timings.tv = t.elapsed().as_secs_f64();
-            progress(Stage::Tv, 1, 1);
-            (Some(DepthEstimate { inverse_depth, depth }), Some(report))
+                dtam::solve(costs.view(), &bins, grey.view(), w.inverse_depth.view(), &params)?;
+            Ok((tv_estimate(res, &w.valid), report))
+        };
+        let (e, report) = run(cfg.dtam.lambda)?;
+        timings.tv = t.elapsed().as_secs_f64();
+        (tv, dtam) = (Some(e), Some(report));
+        for (i, &l) in cfg.lambda_sweep.iter().enumerate() {
+            progress(Stage::Tv, i + 1, 1 + cfg.lambda_sweep.len());
+            sweep.push((l, run(l)?.0));
         }
-    };
+        progress(Stage::Tv, 1 + cfg.lambda_sweep.len(), 1 + cfg.lambda_sweep.len());
+    }
 
     Ok(KeyframeResult {
         keyframe: cfg.keyframe,
@@ -361,6 +420,23 @@ pub fn reconstruct(
         gt_depth,
         timings,
         dtam,
+        confidence: conf,
+        cost_scale: scale,
+        sweep,
         memory_estimate: estimate,
     })
+}
+
+/// DTAM's `d` as an estimate: depth `1/d` where the pixel had a seen hypothesis and `d > 0`.
+fn tv_estimate(res: DtamResult, valid: &Array2<bool>) -> DepthEstimate {
+    let inverse_depth = res.inverse_depth;
+    let depth = Array2::from_shape_fn(inverse_depth.dim(), |(y, x)| {
+        let rho = inverse_depth[[y, x]];
+        if valid[[y, x]] && rho > 0.0 {
+            1.0 / rho
+        } else {
+            0.0
+        }
+    });
+    DepthEstimate { inverse_depth, depth }
 }

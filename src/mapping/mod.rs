@@ -13,4 +13,4 @@ pub use keyframe::{
     memory_estimate, reconstruct, DepthEstimate, KeyframeConfig, KeyframeResult, Regularizer, Stage,
     StageTimings,
 };
-pub use output::write_outputs;
+pub use output::{write_outputs, write_outputs_with};

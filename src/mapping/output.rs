@@ -19,11 +19,25 @@ use crate::image::{is_valid_depth, save_depth_png_mm, save_rgb_png};
 use crate::io::{npy_f32_header, write_atomic_with};
 use crate::mapping::keyframe::{DepthEstimate, KeyframeResult};
 
-/// Write every output of `result` into `dir` (created if missing); returns the paths written.
+/// Default `--min-confidence` (chosen on validation scenes, SPEC.md §9.12).
+pub const DEFAULT_MIN_CONFIDENCE: f32 = 0.1;
+
+/// [`write_outputs_with`] at full coverage (no confidence mask).
 ///
 /// # Errors
 /// [`Error::Io`] naming the file on a write failure.
 pub fn write_outputs(result: &KeyframeResult, dir: &Path) -> Result<Vec<PathBuf>> {
+    write_outputs_with(result, dir, 0.0)
+}
+
+/// Write every output of `result` into `dir` (created if missing), depth maps and point clouds
+/// masked (depth 0) where the confidence is below `min_confidence`; returns the paths written.
+/// `confidence.npy` / `confidence.png` hold the unmasked confidence map, and `metrics.json` the
+/// metrics at `min_confidence` and at full coverage.
+///
+/// # Errors
+/// [`Error::Io`] naming the file on a write failure.
+pub fn write_outputs_with(result: &KeyframeResult, dir: &Path, min_confidence: f32) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let mut written = Vec::new();
     let mut push = |p: PathBuf| {
@@ -32,10 +46,18 @@ pub fn write_outputs(result: &KeyframeResult, dir: &Path) -> Result<Vec<PathBuf>
     };
     save_rgb_png(&push(dir.join("keyframe.png")), &result.colour)?;
     let (near, far) = colour_range(result);
-    let mut estimates: Vec<(&str, &DepthEstimate)> = vec![("wta", &result.wta)];
+    let mut full: Vec<(&str, &DepthEstimate)> = vec![("wta", &result.wta)];
     if let Some(tv) = &result.tv {
-        estimates.push(("tv", tv));
+        full.push(("tv", tv));
     }
+    let masked: Vec<DepthEstimate> = full.iter().map(|(_, e)| result.masked(e, min_confidence)).collect();
+    let estimates: Vec<(&str, &DepthEstimate)> = full.iter().map(|(n, _)| *n).zip(masked.iter()).collect();
+    write_npy_2d(&push(dir.join("confidence.npy")), result.confidence.view())?;
+    let conf_pic =
+        Array3::from_shape_fn((result.confidence.nrows(), result.confidence.ncols(), 3), |(y, x, _)| {
+            (result.confidence[[y, x]] * 255.0).round()
+        });
+    save_rgb_png(&push(dir.join("confidence.png")), &conf_pic)?;
     for (name, e) in &estimates {
         write_npy_2d(&push(dir.join(format!("depth_{name}.npy"))), e.depth.view())?;
         write_pfm(&push(dir.join(format!("depth_{name}.pfm"))), e.depth.view())?;
@@ -48,8 +70,11 @@ pub fn write_outputs(result: &KeyframeResult, dir: &Path) -> Result<Vec<PathBuf>
         let pic = colour_depth_with_legend(gt.view(), near, far);
         save_rgb_png(&push(dir.join("depth_gt_color.png")), &pic)?;
         let mut metrics = serde_json::Map::new();
-        for (name, e) in &estimates {
+        for (name, e) in &full {
             metrics.insert(name.to_string(), serde_json::to_value(result.metrics(e)?).expect("plain data"));
+            if let Ok(m) = result.metrics_at(e, min_confidence) {
+                metrics.insert(format!("{name}_confident"), serde_json::to_value(m).expect("plain data"));
+            }
         }
         let doc = json!({
             "keyframe": result.keyframe,
@@ -61,9 +86,13 @@ pub fn write_outputs(result: &KeyframeResult, dir: &Path) -> Result<Vec<PathBuf>
             "depth_range_m": [1.0 / result.bins.rho_max, 1.0 / result.bins.rho_min],
             "colour_range_m": [near, far],
             "metrics": metrics,
+            "min_confidence": min_confidence,
+            "cost_scale": result.cost_scale,
             "timings_s": result.timings,
             "dtam": result.dtam.as_ref().map(|r| json!({
                 "iterations": r.iterations,
+                "converged": r.converged,
+                "last_gap": r.gap.last(),
                 "first_energy": r.energy.first(),
                 "last_energy": r.energy.last(),
                 "seconds": r.seconds,

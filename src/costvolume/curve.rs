@@ -1,0 +1,160 @@
+//! Per-pixel cost-curve analysis on a `[H, W, K]` cost array (SPEC.md §9.5, §9.10-§9.12):
+//! the evidence filter (a cell competes only when enough frames saw it), winner-take-all on an
+//! array, the per-volume cost scale that makes one `λ` serve every feature kind, and the confidence
+//! map. Every function is a per-pixel computation, row-parallel, so its bits do not depend on the
+//! thread count; the one reduction over pixels (the median of the scale) sorts first.
+
+use ndarray::{Array2, Array3, ArrayView3};
+use rayon::prelude::*;
+
+use super::{parabola_offset, WtaDepth, UNSEEN_COST};
+use crate::geometry::InverseDepthBins;
+
+/// Per-pixel evidence threshold: with `N_u = max_k N_{u,k}` (the most frames that saw any
+/// hypothesis of the pixel), a cell competes iff `N_{u,k} >= max(1, ceil(fraction · N_u))`.
+#[inline]
+pub fn evidence_threshold(max_count: u16, fraction: f64) -> u16 {
+    ((fraction * f64::from(max_count)).ceil() as u16).max(1)
+}
+
+/// Mean costs `[H, W, K]` from `costs` and `counts` with every cell below the evidence threshold
+/// (see [`evidence_threshold`]) replaced by [`UNSEEN_COST`]. `fraction = 0` keeps every seen cell.
+///
+/// # Panics
+/// If the shapes differ.
+pub fn filter_evidence(costs: &mut Array3<f32>, counts: ArrayView3<u16>, fraction: f64) {
+    assert_eq!(costs.dim(), counts.dim(), "costs and counts must agree");
+    let k = costs.dim().2;
+    let counts = counts.as_standard_layout();
+    let counts = counts.as_slice().expect("standard layout");
+    let costs = costs.as_slice_mut().expect("owned cost arrays are contiguous");
+    costs.par_chunks_mut(k.max(1)).zip(counts.par_chunks(k.max(1))).for_each(|(c, n)| {
+        let t = evidence_threshold(n.iter().copied().max().unwrap_or(0), fraction);
+        for (c, &n) in c.iter_mut().zip(n) {
+            if n < t {
+                *c = UNSEEN_COST;
+            }
+        }
+    });
+}
+
+/// Winner-take-all on a cost array (cells `>= UNSEEN_COST` are unseen): SPEC.md §9.5, the same
+/// rule as [`super::CostVolume::winner_take_all`] (bit-identical on the unfiltered costs).
+pub fn winner_take_all_costs(costs: ArrayView3<f32>, bins: &InverseDepthBins) -> WtaDepth {
+    let (h, w, k_count) = costs.dim();
+    let mut rows: Vec<Vec<(bool, f32, f64)>> = vec![Vec::new(); h];
+    rows.par_iter_mut().enumerate().for_each(|(y, row)| {
+        *row = (0..w)
+            .map(|x| {
+                let curve = costs.slice(ndarray::s![y, x, ..]);
+                let seen = |k: usize| (curve[k] < UNSEEN_COST).then_some(curve[k]);
+                let mut best: Option<(usize, f32)> = None;
+                for k in 0..k_count {
+                    if let Some(c) = seen(k) {
+                        if best.is_none_or(|(_, b)| c < b) {
+                            best = Some((k, c));
+                        }
+                    }
+                }
+                let Some((k, c0)) = best else { return (false, 0.0, 0.0) };
+                let offset = if k > 0 && k + 1 < k_count {
+                    match (seen(k - 1), seen(k + 1)) {
+                        (Some(cm), Some(cp)) => parabola_offset(cm.into(), c0.into(), cp.into()),
+                        _ => 0.0,
+                    }
+                } else {
+                    0.0
+                };
+                let bin = k as f64 + offset;
+                let rho = if offset == 0.0 { bins.rho(k) } else { bins.rho_min + bin * bins.step() };
+                (true, bin as f32, rho)
+            })
+            .collect();
+    });
+    let mut out = WtaDepth {
+        inverse_depth: Array2::zeros((h, w)),
+        depth: Array2::zeros((h, w)),
+        valid: Array2::from_elem((h, w), false),
+        bin: Array2::zeros((h, w)),
+    };
+    for (y, row) in rows.iter().enumerate() {
+        for (x, &(valid, bin, rho)) in row.iter().enumerate() {
+            if !valid {
+                continue;
+            }
+            out.valid[[y, x]] = true;
+            out.bin[[y, x]] = bin;
+            out.inverse_depth[[y, x]] = rho as f32;
+            out.depth[[y, x]] = if rho > 0.0 { (1.0 / rho) as f32 } else { 0.0 };
+        }
+    }
+    out
+}
+
+/// Minimum and median of a pixel's seen costs; `None` with fewer than 2 seen cells.
+fn min_median(curve: &[f32], scratch: &mut Vec<f32>) -> Option<(f32, f32)> {
+    scratch.clear();
+    scratch.extend(curve.iter().copied().filter(|&c| c < UNSEEN_COST));
+    if scratch.len() < 2 {
+        return None;
+    }
+    scratch.sort_by(f32::total_cmp);
+    Some((scratch[0], scratch[(scratch.len() - 1) / 2]))
+}
+
+/// The volume's cost scale `s`: the median over pixels (with at least two seen cells) of the
+/// pixel's spread `median_k C - min_k C` over seen cells (lower median for even counts). It has the
+/// units of the cost, so `C / s` is dimensionless and multiplying every feature by a constant leaves
+/// `C / s` unchanged. 1 when no pixel has a positive spread.
+pub fn cost_scale(costs: ArrayView3<f32>) -> f64 {
+    let (h, w, _) = costs.dim();
+    let mut spreads: Vec<f32> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let mut scratch = Vec::new();
+            (0..w)
+                .filter_map(|x| {
+                    let curve = costs.slice(ndarray::s![y, x, ..]);
+                    let curve = curve.to_vec();
+                    min_median(&curve, &mut scratch).map(|(lo, med)| med - lo)
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    if spreads.is_empty() {
+        return 1.0;
+    }
+    spreads.sort_by(f32::total_cmp);
+    let s = f64::from(spreads[(spreads.len() - 1) / 2]);
+    if s > 0.0 && s.is_finite() {
+        s
+    } else {
+        1.0
+    }
+}
+
+/// Per-pixel confidence in `[0, 1]`: `(1 - C_min / C_med) · N_{u,k*} / N`, the cost curve's
+/// sharpness (0 for a flat curve, 1 when the best cost is 0 and the median is not) times the
+/// fraction of the `frames` live frames that saw the winning cell `k*` (the first argmin). 0 where
+/// fewer than two cells are seen.
+///
+/// # Panics
+/// If the shapes differ.
+pub fn confidence(costs: ArrayView3<f32>, counts: ArrayView3<u16>, frames: usize) -> Array2<f32> {
+    assert_eq!(costs.dim(), counts.dim(), "costs and counts must agree");
+    let (h, w, _) = costs.dim();
+    let mut out = Array2::<f32>::zeros((h, w));
+    let slice = out.as_slice_mut().expect("owned arrays are contiguous");
+    slice.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
+        let mut scratch = Vec::new();
+        for x in 0..w {
+            let curve = costs.slice(ndarray::s![y, x, ..]).to_vec();
+            let Some((lo, med)) = min_median(&curve, &mut scratch) else { continue };
+            let sharp = if med > 0.0 { 1.0 - f64::from(lo) / f64::from(med) } else { 0.0 };
+            let k = curve.iter().position(|&c| c == lo).expect("the minimum is a seen cell");
+            let evidence = f64::from(counts[[y, x, k]]) / frames.max(1) as f64;
+            row[x] = (sharp.clamp(0.0, 1.0) * evidence.min(1.0)) as f32;
+        }
+    });
+    out
+}

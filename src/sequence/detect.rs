@@ -105,8 +105,8 @@ pub fn open_with(path: impl AsRef<Path>, options: &OpenOptions) -> Result<Sequen
 fn no_format(path: &Path) -> Error {
     let mut what = String::from(
         "not a sequence in any known format: looked for rgb.txt or associations.txt (TUM RGB-D / \
-         ICL-NUIM), images/ with poses.txt and K.txt (DeepVideoMVS / 7-Scenes), imL + imR \
-         or im0 + im1 as .png/.jpg (rectified stereo pair)",
+         ICL-NUIM), images/ with poses.txt and K.txt (DeepVideoMVS / 7-Scenes), imL.png + imR.png \
+         or im0.png + im1.png, each also as .jpg/.jpeg (rectified stereo pair)",
     );
     let mut subs: Vec<String> = std::fs::read_dir(path)
         .map(|rd| {

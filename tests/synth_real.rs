@@ -140,7 +140,8 @@ fn real_frames_warp_onto_each_other_after_a_brightness_fit() {
         );
         assert!(good.affine_error < 6.0, "{good:?}");
         assert!(good.affine_error * 2.0 < bad.affine_error, "good {good:?} wrong pose {bad:?}");
-        assert!(good.affine_error * 2.0 < good.identity_error, "{good:?}");
+        // Better than no warp too (by less where the view is mostly a plain wall).
+        assert!(good.affine_error * 1.5 < good.identity_error, "{good:?}");
     }
 }
 

@@ -1,12 +1,12 @@
 //! `densefeat texture-atlas`: cut the photo-texture atlas of the realistic synthetic style
 //! (`fixtures/textures/atlas.jpg`) from the frames of the TRAINING scenes.
 //!
-//! Selection is automatic and deterministic: from each source, [`FRAMES_PER_SOURCE`] frames evenly
-//! spread over the sequence; in each frame, among [`TILE`]-pixel windows on a [`STRIDE`]-pixel grid,
-//! the window that lies on one surface (valid depth on at least [`MIN_VALID_DEPTH`] of it, depth spread at most
-//! [`MAX_DEPTH_SPREAD`] of its median) with the most texture (mean absolute grey gradient), neither
-//! flat nor clipped. The chosen windows are pasted into a grid of [`ATLAS_COLUMNS`] columns and
-//! written as JPEG; `crops.txt` lists, per tile, the scene, frame and window.
+//! Selection is automatic and deterministic: from each source, 16 frames evenly spread over the
+//! sequence; in each frame, among 128-pixel windows on a 16-pixel grid, the window that lies on one
+//! surface (valid depth on at least 80 % of it, `(p95 - p5) / median` depth at most 0.3) with the
+//! most texture (mean absolute grey gradient in 1.5..14), neither flat nor clipped. The chosen
+//! windows are pasted into a grid of 8 columns (whole rows only) and written as JPEG; `crops.txt`
+//! lists, per tile, the scene, frame and window.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

@@ -61,7 +61,7 @@ pub struct DtamParams {
     pub tolerance: f64,
 }
 
-/// Image width (pixels) at which [`DtamParams`] are stated; [`DtamParams::for_width`] rescales them
+/// Image width (pixels) at which [`DtamParams`] are stated; [`DtamParams::normalised`] rescales them
 /// to another width (SPEC.md §10.1).
 pub const REFERENCE_WIDTH: f64 = 640.0;
 

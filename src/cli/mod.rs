@@ -18,6 +18,7 @@ pub mod mapping_args;
 pub mod reconstruct;
 pub mod synth;
 pub mod train;
+pub mod validate;
 
 /// Dense monocular reconstruction with learned good features to match.
 #[derive(Debug, Parser)]

@@ -69,7 +69,7 @@ pub struct KeyframeConfig {
 }
 
 /// Default of [`KeyframeConfig::max_memory_mb`].
-pub const DEFAULT_MAX_MEMORY_MB: usize = 2048;
+pub const DEFAULT_MAX_MEMORY_MB: usize = crate::memory::DEFAULT_MAX_MEMORY_MB;
 
 impl KeyframeConfig {
     /// The paper's window (30, 30), RGB, 64 bins over `[near, far]`, TV with default parameters.

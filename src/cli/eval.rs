@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 
 use crate::error::{Error, Result};
-use crate::io::write_atomic_with;
+use crate::io::{write_atomic_with, Staging};
 use crate::mapping::evaluate::{evaluate, EvalOptions, EvalTable, Method};
 use crate::mapping::keyframe::Regularizer;
 use crate::mapping::{write_outputs, FeatureKind};
@@ -14,6 +14,7 @@ use crate::plot::{line_plot_png, Series};
 use crate::sequence::{open, Sequence};
 
 use super::mapping_args::{parse_keyframes, progress_bar, show_stage, summary, MappingArgs};
+use super::validate::{flag, mapping_preflight, positive};
 
 /// Arguments of `densefeat eval`.
 #[derive(Debug, Clone, Args)]
@@ -55,18 +56,50 @@ pub struct EvalArgs {
 pub fn run(args: EvalArgs) -> Result<()> {
     let seq = open(&args.sequence)?;
     let keyframes = parse_keyframes(&args.keyframes)?;
-    let table = run_eval(&seq, &args.mapping, &keyframes, &args.methods, &args.out, args.save_depth, || {
+    preflight(&seq, &args, &keyframes)?;
+    let mut staging = Staging::new();
+    let out = staging.dir(&args.out)?;
+    let table = run_eval(&seq, &args.mapping, &keyframes, &args.methods, &out, args.save_depth, || {
         EvalOptions { weights: args.weights.clone(), lambda_learned: args.lambda_learned }
     })?;
-    print_table(&table, &args.out);
     if !args.lambda_sweep.is_empty() {
-        lambda_sweep(&seq, &args, &keyframes)?;
+        lambda_sweep(&seq, &args, &keyframes, &out)?;
     }
+    staging.commit()?;
+    print_table(&table, &args.out);
     Ok(())
 }
 
+/// Every check of `eval`'s flags and inputs that runs before the evaluation (SPEC.md §14.1).
+fn preflight(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<()> {
+    if args.methods.is_empty() {
+        return Err(flag("methods", "empty: name at least one method"));
+    }
+    if let Some(l) = args.lambda_learned {
+        positive("lambda-learned", l)?;
+    }
+    if !args.lambda_sweep.is_empty() {
+        if !args.methods.iter().any(|m| m.tv()) {
+            return Err(flag("lambda-sweep", "needs at least one TV method in --methods"));
+        }
+        if let Some(bad) = args.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
+            return Err(flag("lambda-sweep", format!("λ = {bad}: must be positive")));
+        }
+    }
+    let learned = FeatureKind::Learned(args.weights.clone());
+    let mut kinds = Vec::new();
+    if args.methods.iter().any(|m| !m.learned()) {
+        kinds.push(FeatureKind::Rgb);
+    }
+    if args.methods.iter().any(|m| m.learned()) {
+        kinds.push(learned);
+    }
+    let cfg = args.mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv);
+    mapping_preflight(seq, &cfg, keyframes, &kinds, "eval")
+}
+
 /// RMSE of every TV method at each λ of `--lambda-sweep` (the paper's λ-sensitivity figure).
-fn lambda_sweep(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<()> {
+fn lambda_sweep(seq: &Sequence, args: &EvalArgs, keyframes: &[usize], out: &Path) -> Result<()> {
     let methods: Vec<Method> = args.methods.iter().copied().filter(|m| m.tv()).collect();
     if methods.is_empty() {
         return Err(Error::invalid_argument("--lambda-sweep", "needs at least one TV method in --methods"));
@@ -109,7 +142,7 @@ fn lambda_sweep(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<
         }
         csv.push('\n');
     }
-    write_text(&args.out.join("lambda_sweep.csv"), &csv)?;
+    write_text(&out.join("lambda_sweep.csv"), &csv)?;
     const COLOURS: [(u8, u8, u8); 4] = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189)];
     let series: Vec<Series> = methods
         .iter()
@@ -121,7 +154,7 @@ fn lambda_sweep(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<
             colour: COLOURS[i % COLOURS.len()],
         })
         .collect();
-    let png = args.out.join("lambda_sweep.png");
+    let png = out.join("lambda_sweep.png");
     line_plot_png(
         &png,
         "Keyframe RMSE against regularisation strength",
@@ -131,7 +164,7 @@ fn lambda_sweep(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<
         &[],
         true,
     )?;
-    println!("\nλ sweep (rms, m):\n{csv}wrote {} and lambda_sweep.csv", png.display());
+    println!("\nλ sweep (rms, m):\n{csv}wrote lambda_sweep.png and lambda_sweep.csv");
     Ok(())
 }
 

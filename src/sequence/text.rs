@@ -111,8 +111,14 @@ pub(crate) fn list_pngs(dir: &Path) -> Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for entry in entries {
         let p = entry.map_err(|e| Error::io(dir, e))?.path();
-        if p.is_file() && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
-            out.push(p);
+        if !p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+            continue;
+        }
+        // Follow links; a loop or a dangling link is an error naming it, not a silently missing frame.
+        match std::fs::metadata(&p) {
+            Ok(m) if m.is_file() => out.push(p),
+            Ok(_) => {}
+            Err(e) => return Err(Error::io(&p, e)),
         }
     }
     out.sort();

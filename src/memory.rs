@@ -2,8 +2,8 @@
 //! estimates its peak first and refuses, before any heavy work or write, when the estimate is above
 //! `--max-memory-mb` (default [`DEFAULT_MAX_MEMORY_MB`]), naming the flags that shrink it.
 //!
-//! The estimates are upper-bound models of the big arrays, checked against measured peak resident
-//! memory in `tests/reliability.rs` (`memory_models_bound_measured_peaks` documents the figures).
+//! The estimates are upper-bound models of the big arrays; SPEC.md §14.3 lists them beside measured
+//! peak resident memory.
 
 use crate::error::{Error, Result};
 
@@ -46,7 +46,7 @@ pub fn cost_volume_bytes(height: usize, width: usize, bins: usize, channels: usi
 /// One forward pass of the feature network on a `height x width` image with `channels` channels
 /// and block-1 stride `stride`: six level-1 maps of `C` f32 (block outputs, aggregation, im2col
 /// panels) plus 16 bytes a level-0 pixel (the decoded image and its f32 copy). Measured peak
-/// resident memory is 0.6-0.8 of this (SPEC.md §14.3).
+/// resident memory is 0.77-0.99 of this (SPEC.md §14.3).
 pub fn network_forward_bytes(height: usize, width: usize, channels: usize, stride: usize) -> u64 {
     let s = stride.max(1) as u64;
     let (h1, w1) = ((height as u64).div_ceil(s), (width as u64).div_ceil(s));
@@ -55,7 +55,7 @@ pub fn network_forward_bytes(height: usize, width: usize, channels: usize, strid
 
 /// One training step on a `width x height` crop: `48 C + 64` bytes a crop pixel (two images'
 /// activations kept for the backward pass, their gradients, the rendered pair), measured
-/// 0.75-0.8 of this at C = 32 (SPEC.md §14.3).
+/// 0.8-0.94 of this at C = 32 (SPEC.md §14.3).
 pub fn train_step_bytes(width: usize, height: usize, channels: usize) -> u64 {
     product(&[width as u64, height as u64, 48u64.saturating_mul(channels as u64).saturating_add(64)])
 }

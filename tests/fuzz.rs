@@ -42,7 +42,11 @@ static CASE: AtomicU64 = AtomicU64::new(0);
 
 fn over_cap(size: usize) {
     use std::io::Write;
-    let _ = writeln!(std::io::stderr(), "fuzz: allocation of {size} bytes over the hard cap in case {}", CASE.load(Ordering::SeqCst));
+    let _ = writeln!(
+        std::io::stderr(),
+        "fuzz: allocation of {size} bytes over the hard cap in case {}",
+        CASE.load(Ordering::SeqCst)
+    );
 }
 
 // SAFETY: forwards to the system allocator; the bookkeeping is thread-local Cells without
@@ -95,7 +99,17 @@ impl Rng {
 }
 
 const NASTY: [&str; 12] = [
-    "nan", "NaN", "inf", "-inf", "1e308", "-1e308", "1e400", "18446744073709551616", "-0", "0", "4294967295",
+    "nan",
+    "NaN",
+    "inf",
+    "-inf",
+    "1e308",
+    "-1e308",
+    "1e400",
+    "18446744073709551616",
+    "-0",
+    "0",
+    "4294967295",
     "99999999999999999999",
 ];
 
@@ -241,7 +255,11 @@ fn fuzz(t: &Target) {
             errors += 1;
         }
     }
-    eprintln!("fuzz {}: {n} cases, {errors} rejected with an error, {:.1} s", t.name, start.elapsed().as_secs_f64());
+    eprintln!(
+        "fuzz {}: {n} cases, {errors} rejected with an error, {:.1} s",
+        t.name,
+        start.elapsed().as_secs_f64()
+    );
     std::fs::write(&t.file, &t.seed).unwrap();
 }
 

@@ -319,7 +319,10 @@ fn kill_and_check(
     } else if &now == new {
         "new"
     } else {
-        panic!("after a kill at {hook:?} / {delay:?} the folder is a mix: {:?}", now.keys().collect::<Vec<_>>());
+        panic!(
+            "after a kill at {hook:?} / {delay:?} the folder is a mix: {:?}",
+            now.keys().collect::<Vec<_>>()
+        );
     }
 }
 

@@ -114,7 +114,11 @@ fn median_ms(mut v: Vec<f64>) -> f64 {
 pub fn run(args: &BenchTvArgs) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
     // The costs (f32), their pruning range and about 16 f32 DTAM arrays per pixel.
-    let bytes = crate::memory::product(&[height as u64, width as u64, (args.bins as u64).saturating_mul(8).saturating_add(64)]);
+    let bytes = crate::memory::product(&[
+        height as u64,
+        width as u64,
+        (args.bins as u64).saturating_mul(8).saturating_add(64),
+    ]);
     let what = format!("the {height}x{width}x{} TV problem", args.bins);
     args.memory.check(&what, bytes, "use a smaller --size or fewer --bins")?;
     if args.runs < 5 {

@@ -19,8 +19,8 @@ use crate::error::{Error, Result};
 use crate::geometry::{relative_pose, InverseDepthBins};
 use crate::image::{is_valid_depth, DepthMap};
 use crate::io::{write_atomic, Staging};
-use crate::memory;
 use crate::mapping::features::{FeatureExtractor, FeatureKind};
+use crate::memory;
 use crate::plot::{grid_of_plots_png, Marker, Panel, Series};
 use crate::sequence::{open, Sequence};
 
@@ -326,7 +326,12 @@ pub fn csv_path(png: &Path) -> PathBuf {
 
 /// The checks that run before any curve is computed (SPEC.md §14.1): frame size, keyframe, pixels,
 /// weights files and the memory of the largest volume.
-fn preflight(args: &CostcurveArgs, seq: &Sequence, kinds: &[FeatureKind], pixels: &[(usize, usize)]) -> Result<()> {
+fn preflight(
+    args: &CostcurveArgs,
+    seq: &Sequence,
+    kinds: &[FeatureKind],
+    pixels: &[(usize, usize)],
+) -> Result<()> {
     frames_big_enough(seq, "costcurve")?;
     if args.keyframe >= seq.len() {
         return Err(flag("keyframe", format!("{}: the sequence has {} frames", args.keyframe, seq.len())));
@@ -336,7 +341,10 @@ fn preflight(args: &CostcurveArgs, seq: &Sequence, kinds: &[FeatureKind], pixels
         return Err(flag("pixels", format!("{p:?} is outside the {w0}x{h0} image")));
     }
     if csv_path(&args.out) == args.out {
-        return Err(flag("out", format!("{}: give the PNG a .png name (the CSV goes beside it)", args.out.display())));
+        return Err(flag(
+            "out",
+            format!("{}: give the PNG a .png name (the CSV goes beside it)", args.out.display()),
+        ));
     }
     let level = FeatureExtractor::network_level()?;
     for kind in kinds {
@@ -346,7 +354,8 @@ fn preflight(args: &CostcurveArgs, seq: &Sequence, kinds: &[FeatureKind], pixels
         if !matches!(kind, FeatureKind::Rgb) {
             bytes = bytes.saturating_add(memory::network_forward_bytes(h0, w0, channels, stride));
         }
-        let what = format!("the {}x{}x{} cost volume with {channels} channels", grid.height, grid.width, args.bins);
+        let what =
+            format!("the {}x{}x{} cost volume with {channels} channels", grid.height, grid.width, args.bins);
         args.memory.check(&what, bytes, "use fewer --bins")?;
     }
     Ok(())

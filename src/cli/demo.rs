@@ -56,7 +56,8 @@ pub fn run(args: DemoArgs) -> Result<()> {
     super::validate::mapping_preflight(&seq, &cfg, &[args.keyframe], &kinds, "demo")?;
     let mut staging = crate::io::Staging::new();
     let out = staging.dir(&args.out)?;
-    let table = run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &out, true, EvalOptions::default)?;
+    let table =
+        run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &out, true, EvalOptions::default)?;
     staging.commit()?;
     print_table(&table, &args.out);
     let out = args.out.canonicalize().unwrap_or(args.out.clone());

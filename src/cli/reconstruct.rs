@@ -43,7 +43,7 @@ pub struct ReconstructArgs {
 pub fn run(args: ReconstructArgs) -> Result<()> {
     let seq = open(&args.sequence)?;
     let cfg = args.mapping.config(args.keyframe, args.features.clone(), args.regularizer);
-    mapping_preflight(&seq, &cfg, &[args.keyframe], &[args.features.clone()], "reconstruct")?;
+    mapping_preflight(&seq, &cfg, &[args.keyframe], std::slice::from_ref(&args.features), "reconstruct")?;
     let mut staging = Staging::new();
     let out = staging.dir(&args.out)?;
     let bar = progress_bar();

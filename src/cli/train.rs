@@ -276,7 +276,11 @@ fn dump(
 pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
     let crop = validate::size("crop", &args.crop)?;
     let bytes = crate::memory::train_step_bytes(crop.0, crop.1, NetworkConfig::default().channels);
-    args.memory.check(&format!("a training step on a {}x{} crop", crop.0, crop.1), bytes, "use a smaller --crop")?;
+    args.memory.check(
+        &format!("a training step on a {}x{} crop", crop.0, crop.1),
+        bytes,
+        "use a smaller --crop",
+    )?;
     let data = DataSet::open(DataConfig {
         crop,
         synthetic_scenes: 1,

@@ -41,7 +41,8 @@ pub fn size(name: &str, text: &str) -> Result<(usize, usize)> {
     let bad = |what: &str| flag(name, format!("{text:?}: {what}"));
     let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| bad("expected WIDTHxHEIGHT, e.g. 320x240"))?;
     let side = |v: &str, which: &str| -> Result<usize> {
-        let n: usize = v.trim().parse().map_err(|_| bad(&format!("{which} is not a non-negative integer")))?;
+        let n: usize =
+            v.trim().parse().map_err(|_| bad(&format!("{which} is not a non-negative integer")))?;
         if n == 0 || n > MAX_SIDE {
             return Err(bad(&format!("{which} {n} must be in 1..={MAX_SIDE}")));
         }
@@ -101,9 +102,10 @@ pub fn feature_channels(kind: &crate::mapping::FeatureKind) -> Result<(usize, us
     use crate::nn::NetworkWeights;
     let w = match kind {
         FeatureKind::Rgb => return Ok((3, 1)),
-        FeatureKind::Learned(None) => {
-            NetworkWeights::from_safetensors_bytes(SHIPPED_WEIGHTS, std::path::Path::new(SHIPPED_WEIGHTS_NAME))?
-        }
+        FeatureKind::Learned(None) => NetworkWeights::from_safetensors_bytes(
+            SHIPPED_WEIGHTS,
+            std::path::Path::new(SHIPPED_WEIGHTS_NAME),
+        )?,
         FeatureKind::Learned(Some(p)) => NetworkWeights::load(p)?,
     };
     Ok((w.config.channels, w.config.b1_stride))
@@ -144,7 +146,8 @@ pub fn mapping_preflight(
         let (channels, stride) = feature_channels(kind)?;
         let mut bytes = crate::memory::cost_volume_bytes(grid.height, grid.width, cfg.bins, channels);
         if !matches!(kind, crate::mapping::FeatureKind::Rgb) {
-            let net = crate::memory::network_forward_bytes(seq.camera.height, seq.camera.width, channels, stride);
+            let net =
+                crate::memory::network_forward_bytes(seq.camera.height, seq.camera.width, channels, stride);
             bytes = bytes.saturating_add(net);
         }
         let what = format!(

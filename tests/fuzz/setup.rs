@@ -21,7 +21,12 @@ fn copy_dir(from: &Path, to: &Path) {
     }
 }
 
-fn target(name: &'static str, file: &Path, text: bool, read: impl Fn() -> densefeat::error::Result<()> + 'static) -> Target {
+fn target(
+    name: &'static str,
+    file: &Path,
+    text: bool,
+    read: impl Fn() -> densefeat::error::Result<()> + 'static,
+) -> Target {
     let seed = std::fs::read(file).unwrap();
     Target { name, file: file.to_path_buf(), seed, text, read: Box::new(read) }
 }
@@ -68,7 +73,12 @@ pub fn targets(dir: &Path) -> Vec<Target> {
     }
     let mut gt = String::from("# timestamp tx ty tz qx qy qz qw\n");
     for k in 0..9 {
-        gt += &format!("{:.4} {:.4} 0.0000 1.0000 0.0000 0.0000 {:.4} 1.0000\n", 99.5 + 0.5 * k as f64, 0.01 * k as f64, 0.001 * k as f64);
+        gt += &format!(
+            "{:.4} {:.4} 0.0000 1.0000 0.0000 0.0000 {:.4} 1.0000\n",
+            99.5 + 0.5 * k as f64,
+            0.01 * k as f64,
+            0.001 * k as f64
+        );
     }
     std::fs::write(tum.join("rgb.txt"), rgb_txt).unwrap();
     std::fs::write(tum.join("depth.txt"), depth_txt).unwrap();
@@ -81,7 +91,11 @@ pub fn targets(dir: &Path) -> Vec<Target> {
     out.push(target("tum_rgb_list", &tum2.join("rgb.txt"), true, move || open(&s).map(drop)));
 
     let cam = dir.join("camera.txt");
-    std::fs::write(&cam, "# fx fy cx cy k1 k2 p1 p2 k3\n517.3 516.5 318.6 255.3 0.2624 -0.9531 -0.0054 0.0026 1.1633\n16 12\n").unwrap();
+    std::fs::write(
+        &cam,
+        "# fx fy cx cy k1 k2 p1 p2 k3\n517.3 516.5 318.6 255.3 0.2624 -0.9531 -0.0054 0.0026 1.1633\n16 12\n",
+    )
+    .unwrap();
     let p = cam.clone();
     out.push(target("camera_file", &cam, true, move || read_camera_file(&p, (16, 12)).map(drop)));
 

@@ -42,6 +42,7 @@ pub mod geometry;
 pub mod image;
 pub mod io;
 pub mod mapping;
+pub mod memory;
 pub mod nn;
 pub mod plot;
 pub mod sequence;

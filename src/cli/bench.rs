@@ -55,6 +55,9 @@ pub struct ForwardArgs {
     /// Also print where the time goes: mean ms and GFLOP/s per kind of operation.
     #[arg(long)]
     pub profile: bool,
+    /// Memory limit.
+    #[command(flatten)]
+    pub memory: super::validate::MemoryLimit,
 }
 
 /// Arguments of `densefeat bench gemm`.
@@ -69,6 +72,9 @@ pub struct GemmArgs {
     /// Timed runs, after one warm-up run.
     #[arg(long, default_value_t = 10)]
     pub runs: usize,
+    /// Memory limit.
+    #[command(flatten)]
+    pub memory: super::validate::MemoryLimit,
 }
 
 /// Rows of `A` (and `C`) per parallel SGEMM task.
@@ -144,6 +150,10 @@ fn pattern(h: usize, w: usize) -> Array3<f32> {
 
 fn run_forward(args: &ForwardArgs) -> Result<()> {
     let (w, h) = parse_size(&args.size)?;
+    let gemm = crate::memory::product(&[3, args.gemm_size as u64, args.gemm_size as u64, 4]);
+    let net = crate::memory::network_forward_bytes(h, w, NetworkConfig::default().channels, args.b1_stride);
+    let what = format!("the network on {w}x{h} and a {} GEMM", args.gemm_size);
+    args.memory.check(&what, net.max(gemm), "use a smaller --size or --gemm-size")?;
     if args.runs < MIN_RUNS {
         return Err(Error::invalid_argument("--runs", format!("{} is below {MIN_RUNS}", args.runs)));
     }
@@ -200,6 +210,8 @@ fn run_gemm(args: &GemmArgs) -> Result<()> {
     if args.size == 0 {
         return Err(Error::invalid_argument("--size", "must be at least 1"));
     }
+    let bytes = crate::memory::product(&[3, args.size as u64, args.size as u64, 4]);
+    args.memory.check(&format!("a {} GEMM", args.size), bytes, "use a smaller --size")?;
     let gflops = pool(args.threads)?.install(|| gemm_gflops(args.size, args.runs));
     println!("| n | threads | runs | median GFLOP/s |");
     println!("|---|---|---|---|");

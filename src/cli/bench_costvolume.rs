@@ -41,6 +41,9 @@ pub struct BenchCostvolumeArgs {
     /// `M̄`); `meta.json` (camera, `T_nr`, hypotheses, kernel, timing).
     #[arg(long)]
     pub dump: Option<std::path::PathBuf>,
+    /// Memory limit.
+    #[command(flatten)]
+    pub memory: super::validate::MemoryLimit,
 }
 
 /// Inputs of [`bench_inputs`].
@@ -88,6 +91,9 @@ pub fn bench_inputs(width: usize, height: usize, channels: usize, bins: usize) -
 /// [`Error::InvalidArgument`] for bad arguments.
 pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
+    let bytes = crate::memory::cost_volume_bytes(height, width, args.bins, args.channels);
+    let what = format!("the {height}x{width}x{} volume with {} channels", args.bins, args.channels);
+    args.memory.check(&what, bytes, "use a smaller --size, fewer --bins or --channels")?;
     if args.runs < 10 {
         return Err(Error::invalid_argument("--runs", format!("{}: must be at least 10", args.runs)));
     }
@@ -138,7 +144,10 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
         seen * 100.0
     );
     if let Some(dir) = &args.dump {
-        dump(dir, &bench_inputs(width, height, args.channels, args.bins)?, kernel, args.threads, median)?;
+        let mut staging = crate::io::Staging::new();
+        let staged = staging.dir(dir)?;
+        dump(&staged, &bench_inputs(width, height, args.channels, args.bins)?, kernel, args.threads, median)?;
+        staging.commit()?;
         println!("  inputs and one frame's volume written to {}", dir.display());
     }
     if let Some(cpu) = cpu {

@@ -27,6 +27,9 @@ pub struct BenchTvArgs {
     /// Timed iterations (at least 5) after two warm-up iterations; the full solve runs 3 times.
     #[arg(long, default_value_t = 20)]
     pub runs: usize,
+    /// Memory limit.
+    #[command(flatten)]
+    pub memory: super::validate::MemoryLimit,
 }
 
 /// Inputs of the DTAM benchmark (see [`tv_inputs`]).
@@ -110,6 +113,14 @@ fn median_ms(mut v: Vec<f64>) -> f64 {
 /// [`Error::InvalidArgument`] for bad arguments.
 pub fn run(args: &BenchTvArgs) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
+    // The costs (f32), their pruning range and about 16 f32 DTAM arrays per pixel.
+    let bytes = crate::memory::product(&[
+        height as u64,
+        width as u64,
+        (args.bins as u64).saturating_mul(8).saturating_add(64),
+    ]);
+    let what = format!("the {height}x{width}x{} TV problem", args.bins);
+    args.memory.check(&what, bytes, "use a smaller --size or fewer --bins")?;
     if args.runs < 5 {
         return Err(Error::invalid_argument("--runs", format!("{}: must be at least 5", args.runs)));
     }

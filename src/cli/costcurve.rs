@@ -18,10 +18,13 @@ use crate::costvolume::CostVolume;
 use crate::error::{Error, Result};
 use crate::geometry::{relative_pose, InverseDepthBins};
 use crate::image::{is_valid_depth, DepthMap};
-use crate::io::write_atomic;
+use crate::io::{write_atomic, Staging};
 use crate::mapping::features::{FeatureExtractor, FeatureKind};
+use crate::memory;
 use crate::plot::{grid_of_plots_png, Marker, Panel, Series};
 use crate::sequence::{open, Sequence};
+
+use super::validate::{feature_channels, flag, frames_big_enough, MemoryLimit};
 
 /// Arguments of `densefeat costcurve`.
 #[derive(Debug, Clone, Args)]
@@ -50,6 +53,9 @@ pub struct CostcurveArgs {
     /// Output PNG; the raw curves go to the same path with extension `.csv`.
     #[arg(long)]
     pub out: PathBuf,
+    /// Memory limit.
+    #[command(flatten)]
+    pub memory: MemoryLimit,
 }
 
 /// One recorded cost curve.
@@ -318,6 +324,43 @@ pub fn csv_path(png: &Path) -> PathBuf {
     png.with_extension("csv")
 }
 
+/// The checks that run before any curve is computed (SPEC.md §14.1): frame size, keyframe, pixels,
+/// weights files and the memory of the largest volume.
+fn preflight(
+    args: &CostcurveArgs,
+    seq: &Sequence,
+    kinds: &[FeatureKind],
+    pixels: &[(usize, usize)],
+) -> Result<()> {
+    frames_big_enough(seq, "costcurve")?;
+    if args.keyframe >= seq.len() {
+        return Err(flag("keyframe", format!("{}: the sequence has {} frames", args.keyframe, seq.len())));
+    }
+    let (w0, h0) = (seq.camera.width, seq.camera.height);
+    if let Some(p) = pixels.iter().find(|(x, y)| *x >= w0 || *y >= h0) {
+        return Err(flag("pixels", format!("{p:?} is outside the {w0}x{h0} image")));
+    }
+    if csv_path(&args.out) == args.out {
+        return Err(flag(
+            "out",
+            format!("{}: give the PNG a .png name (the CSV goes beside it)", args.out.display()),
+        ));
+    }
+    let level = FeatureExtractor::network_level()?;
+    for kind in kinds {
+        let (channels, stride) = feature_channels(kind)?;
+        let grid = seq.camera.at_level(level);
+        let mut bytes = memory::cost_volume_bytes(grid.height, grid.width, args.bins, channels);
+        if !matches!(kind, FeatureKind::Rgb) {
+            bytes = bytes.saturating_add(memory::network_forward_bytes(h0, w0, channels, stride));
+        }
+        let what =
+            format!("the {}x{}x{} cost volume with {channels} channels", grid.height, grid.width, args.bins);
+        args.memory.check(&what, bytes, "use fewer --bins")?;
+    }
+    Ok(())
+}
+
 /// Runs the command.
 ///
 /// # Errors
@@ -327,17 +370,23 @@ pub fn run(args: CostcurveArgs) -> Result<()> {
     let kinds = args.features.split(',').map(|k| k.trim().parse()).collect::<Result<Vec<FeatureKind>>>()?;
     let counts = parse_list("--frames", &args.frames)?;
     let (near, far) = parse_range(&args.depth_range)?;
-    let bins = InverseDepthBins::from_depth_range(near, far, args.bins)?;
+    let bins = InverseDepthBins::from_depth_range(near, far, args.bins)
+        .map_err(|e| flag(if args.bins < 2 { "bins" } else { "depth-range" }, e.to_string()))?;
     let seq = open(&args.sequence)?;
+    preflight(&args, &seq, &kinds, &pixels)?;
+    let mut staging = Staging::new();
+    let png = staging.file(&args.out)?;
+    let csv_staged = staging.file(&csv_path(&args.out))?;
     let start = std::time::Instant::now();
     let curves = cost_curves(&seq, args.keyframe, &pixels, &kinds, &counts, bins)?;
     let title = format!(
         "Keyframe {}: cost vs inverse depth, each curve normalised to [0, 1]; lines: minima, green: ground truth",
         args.keyframe
     );
-    grid_of_plots_png(&args.out, &title, &panels(&curves, &bins))?;
+    grid_of_plots_png(&png, &title, &panels(&curves, &bins))?;
+    write_atomic(&csv_staged, curves_csv(&curves, &bins).as_bytes())?;
+    staging.commit()?;
     let csv = csv_path(&args.out);
-    write_atomic(&csv, curves_csv(&curves, &bins).as_bytes())?;
     eprintln!(
         "costcurve: {} curves -> {} and {} in {:.2} s",
         curves.len(),

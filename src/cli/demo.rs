@@ -7,6 +7,8 @@ use clap::Args;
 
 use crate::error::Result;
 use crate::mapping::evaluate::{EvalOptions, Method};
+use crate::mapping::keyframe::Regularizer;
+use crate::mapping::FeatureKind;
 use crate::sequence::open;
 
 use super::eval::{print_table, run_eval};
@@ -49,9 +51,16 @@ pub fn run(args: DemoArgs) -> Result<()> {
         args.mapping.depth_range.0,
         args.mapping.depth_range.1
     );
-    let table = run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &args.out, true, || {
-        EvalOptions { min_confidence: args.mapping.min_confidence, ..EvalOptions::default() }
+    let cfg = args.mapping.config(args.keyframe, FeatureKind::Rgb, Regularizer::Tv);
+    let kinds = [FeatureKind::Rgb, FeatureKind::Learned(None)];
+    super::validate::mapping_preflight(&seq, &cfg, &[args.keyframe], &kinds, "demo")?;
+    let mut staging = crate::io::Staging::new();
+    let out = staging.dir(&args.out)?;
+    let table = run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &out, true, || EvalOptions {
+        min_confidence: args.mapping.min_confidence,
+        ..EvalOptions::default()
     })?;
+    staging.commit()?;
     print_table(&table, &args.out);
     let out = args.out.canonicalize().unwrap_or(args.out.clone());
     println!(

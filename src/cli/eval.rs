@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 
 use crate::error::{Error, Result};
-use crate::io::write_atomic_with;
+use crate::io::{write_atomic_with, Staging};
 use crate::mapping::evaluate::{evaluate, EvalOptions, EvalTable, Method};
 use crate::mapping::keyframe::Regularizer;
 use crate::mapping::{write_outputs_with, FeatureKind};
@@ -14,6 +14,7 @@ use crate::plot::{line_plot_png, Series};
 use crate::sequence::{open, Sequence};
 
 use super::mapping_args::{parse_keyframes, progress_bar, show_stage, summary, MappingArgs};
+use super::validate::{flag, mapping_preflight, positive};
 
 /// Arguments of `densefeat eval`.
 #[derive(Debug, Clone, Args)]
@@ -60,36 +61,64 @@ pub struct EvalArgs {
 pub fn run(args: EvalArgs) -> Result<()> {
     let seq = open(&args.sequence)?;
     let keyframes = parse_keyframes(&args.keyframes)?;
-    if !args.lambda_sweep.is_empty() && !args.methods.iter().any(|m| m.tv()) {
-        return Err(Error::invalid_argument("--lambda-sweep", "needs at least one TV method in --methods"));
-    }
-    if let Some(bad) = args.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
-        return Err(Error::invalid_argument("--lambda-sweep", format!("λ = {bad}: must be positive")));
-    }
+    preflight(&seq, &args, &keyframes)?;
     let mut lambdas = args.lambda_sweep.clone();
     lambdas.sort_by(f64::total_cmp);
-    let table = run_eval(&seq, &args.mapping, &keyframes, &args.methods, &args.out, args.save_depth, || {
-        EvalOptions {
+    let mut staging = Staging::new();
+    let out = staging.dir(&args.out)?;
+    let table =
+        run_eval(&seq, &args.mapping, &keyframes, &args.methods, &out, args.save_depth, || EvalOptions {
             weights: args.weights.clone(),
             lambda_learned: args.lambda_learned,
             lambda_sweep: lambdas.clone(),
             min_confidence: args.mapping.min_confidence,
             confidence_sweep: args.confidence_sweep.clone(),
-        }
-    })?;
-    print_table(&table, &args.out);
+        })?;
+    let mut sweep_csv = None;
     if !table.confidence_sweep.is_empty() {
         let mut csv = String::from("method,min_confidence,rms,delta_1.25,abs_rel,coverage\n");
         for (m, c, d) in &table.confidence_sweep {
             csv += &format!("{m},{c},{},{},{},{}\n", d.rms, d.delta_1_25, d.abs_rel, d.coverage);
         }
-        write_text(&args.out.join("confidence_sweep.csv"), &csv)?;
-        println!("\nconfidence sweep:\n{csv}");
+        write_text(&out.join("confidence_sweep.csv"), &csv)?;
+        sweep_csv = Some(csv);
     }
     if !lambdas.is_empty() {
-        write_sweep(&table, &args.out)?;
+        write_sweep(&table, &out)?;
+    }
+    staging.commit()?;
+    print_table(&table, &args.out);
+    if let Some(csv) = sweep_csv {
+        println!("\nconfidence sweep:\n{csv}");
     }
     Ok(())
+}
+
+/// Every check of `eval`'s flags and inputs that runs before the evaluation (SPEC.md §14.1).
+fn preflight(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<()> {
+    if args.methods.is_empty() {
+        return Err(flag("methods", "empty: name at least one method"));
+    }
+    if let Some(l) = args.lambda_learned {
+        positive("lambda-learned", l)?;
+    }
+    if !args.lambda_sweep.is_empty() {
+        if !args.methods.iter().any(|m| m.tv()) {
+            return Err(flag("lambda-sweep", "needs at least one TV method in --methods"));
+        }
+        if let Some(bad) = args.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
+            return Err(flag("lambda-sweep", format!("λ = {bad}: must be positive")));
+        }
+    }
+    let mut kinds = Vec::new();
+    if args.methods.iter().any(|m| !m.learned()) {
+        kinds.push(FeatureKind::Rgb);
+    }
+    if args.methods.iter().any(|m| m.learned()) {
+        kinds.push(FeatureKind::Learned(args.weights.clone()));
+    }
+    let cfg = args.mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv);
+    mapping_preflight(seq, &cfg, keyframes, &kinds, "eval")
 }
 
 /// `lambda_sweep.csv` and the plots `lambda_sweep.png` (rms) and `lambda_sweep_delta.png`

@@ -6,10 +6,12 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 
 use crate::error::Result;
-use crate::image::{load_rgb, save_rgb_png};
-use crate::io::write_npy_f32;
+use crate::image::{load_rgb, read_dimensions, save_rgb_png};
+use crate::io::{write_npy_f32, Staging};
 use crate::nn::viz::pca_rgb;
 use crate::nn::{FeatureNet, NetworkImpl, NetworkWeights};
+
+use super::validate::{flag, MemoryLimit};
 
 /// The shipped trained weights (fixtures/weights/MODEL_CARD.md), in the source tree.
 pub const DEFAULT_WEIGHTS: &str =
@@ -29,6 +31,9 @@ pub struct FeaturesArgs {
     /// Also write a PNG of the features' top three principal components.
     #[arg(long)]
     pub viz: Option<PathBuf>,
+    /// Memory limit.
+    #[command(flatten)]
+    pub memory: MemoryLimit,
 }
 
 /// Computes the features of `image` with the weights at `weights`.
@@ -48,11 +53,23 @@ pub fn features_of(image: &Path, weights: &Path) -> Result<ndarray::Array3<f32>>
 /// Reading or writing errors naming the file.
 pub fn run(args: FeaturesArgs) -> Result<()> {
     let start = std::time::Instant::now();
+    // Up front (SPEC.md §14.1): the image header, the weights, the memory, the output paths.
+    let (w, h) = read_dimensions(&args.image)?;
+    let config = NetworkWeights::load(&args.weights)?.config;
+    let bytes = crate::memory::network_forward_bytes(h, w, config.channels, config.b1_stride);
+    args.memory.check(&format!("the network on a {w}x{h} image"), bytes, "use a smaller image")?;
+    if args.viz.as_ref() == Some(&args.out) {
+        return Err(flag("viz", "is the same file as --out"));
+    }
+    let mut staging = Staging::new();
+    let out = staging.file(&args.out)?;
+    let viz = args.viz.as_ref().map(|v| staging.file(v)).transpose()?;
     let feats = features_of(&args.image, &args.weights)?;
-    write_npy_f32(&args.out, feats.view())?;
-    if let Some(viz) = &args.viz {
+    write_npy_f32(&out, feats.view())?;
+    if let Some(viz) = &viz {
         save_rgb_png(viz, &pca_rgb(feats.view())?)?;
     }
+    staging.commit()?;
     let (h, w, c) = feats.dim();
     eprintln!(
         "features: {} -> {} [{h}, {w}, {c}] in {:.2} s",

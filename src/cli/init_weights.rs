@@ -87,8 +87,12 @@ pub fn run(args: InitWeightsArgs) -> Result<()> {
     };
     let config =
         NetworkConfig { blocks: args.blocks, channels: args.channels, b1_stride: args.b1_stride, input_mean };
+    config.validate()?;
+    let mut staging = crate::io::Staging::new();
+    let out = staging.file(&args.out)?;
     let weights = NetworkWeights::xavier_uniform(&config, args.seed)?;
-    weights.save(&args.out)?;
+    weights.save(&out)?;
+    staging.commit()?;
     let [r, g, b] = input_mean;
     eprintln!(
         "init-weights: wrote {} ({} blocks, {} channels, b1 stride {}, mean {r},{g},{b}, {})",

@@ -19,6 +19,7 @@ pub mod reconstruct;
 pub mod synth;
 pub mod texture_atlas;
 pub mod train;
+pub mod validate;
 
 /// Dense monocular reconstruction with learned good features to match.
 #[derive(Debug, Parser)]

@@ -6,10 +6,12 @@ use clap::Args;
 
 use crate::error::Result;
 use crate::eval::DepthMetrics;
+use crate::io::Staging;
 use crate::mapping::{reconstruct, write_outputs_with, FeatureKind, Regularizer};
 use crate::sequence::open;
 
 use super::mapping_args::{progress_bar, show_stage, summary, MappingArgs};
+use super::validate::mapping_preflight;
 
 /// Arguments of `densefeat reconstruct`.
 #[derive(Debug, Clone, Args)]
@@ -41,6 +43,9 @@ pub struct ReconstructArgs {
 pub fn run(args: ReconstructArgs) -> Result<()> {
     let seq = open(&args.sequence)?;
     let cfg = args.mapping.config(args.keyframe, args.features.clone(), args.regularizer);
+    mapping_preflight(&seq, &cfg, &[args.keyframe], std::slice::from_ref(&args.features), "reconstruct")?;
+    let mut staging = Staging::new();
+    let out = staging.dir(&args.out)?;
     let bar = progress_bar();
     let result = reconstruct(&seq, &cfg, |s, d, t| show_stage(&bar, "", s, d, t));
     bar.finish_and_clear();
@@ -61,7 +66,8 @@ pub fn run(args: ReconstructArgs) -> Result<()> {
             }
         }
     }
-    let files = write_outputs_with(&result, &args.out, args.mapping.min_confidence)?;
+    let files = write_outputs_with(&result, &out, args.mapping.min_confidence)?;
+    staging.commit()?;
     println!("wrote {} files to {}", files.len(), args.out.display());
     Ok(())
 }

@@ -32,19 +32,12 @@ pub struct SynthArgs {
     pub quiet: bool,
 }
 
-/// Parse `WIDTHxHEIGHT` (e.g. `320x240`) into non-zero `(width, height)`.
+/// Parse `WIDTHxHEIGHT` (e.g. `320x240`) into `(width, height)`, each in `1..=8192`.
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] naming `--size` when the text is not two positive integers joined by `x`.
 pub fn parse_size(text: &str) -> Result<(usize, usize)> {
-    let bad = |what: &str| Error::invalid_argument("--size", format!("{text:?}: {what}"));
-    let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| bad("expected WIDTHxHEIGHT, e.g. 320x240"))?;
-    let w: usize = w.trim().parse().map_err(|_| bad("width is not a non-negative integer"))?;
-    let h: usize = h.trim().parse().map_err(|_| bad("height is not a non-negative integer"))?;
-    if w == 0 || h == 0 {
-        return Err(bad("width and height must be at least 1"));
-    }
-    Ok((w, h))
+    super::validate::size("size", text)
 }
 
 /// Render the sequence the arguments describe.
@@ -67,12 +60,15 @@ pub fn run(args: SynthArgs) -> Result<()> {
             eprintln!("synth: {line}");
         }
     }
-    write_scene(&scene, &args.out, |done, total| {
+    let mut staging = crate::io::Staging::new();
+    let out = staging.dir(&args.out)?;
+    write_scene(&scene, &out, |done, total| {
         if !quiet {
             eprint!("\rsynth: {done}/{total} frames");
             let _ = std::io::stderr().flush();
         }
     })?;
+    staging.commit()?;
     if !quiet {
         eprintln!(
             "\rsynth: wrote {} frames of {width}x{height} to {} in {:.1} s",

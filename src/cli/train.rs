@@ -6,7 +6,7 @@ use std::time::Instant;
 use clap::Args;
 
 use crate::cli::init_weights::parse_mean;
-use crate::cli::synth::parse_size;
+use crate::cli::validate::{self, MemoryLimit};
 use crate::error::{Error, Result};
 use crate::geometry::InverseDepthBins;
 use crate::io::write_npy_f32;
@@ -117,6 +117,9 @@ pub struct TrainArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Memory limit.
+    #[command(flatten)]
+    pub memory: MemoryLimit,
 }
 
 fn parse_pair(text: &str, name: &str) -> Result<(f64, f64)> {
@@ -157,7 +160,7 @@ impl TrainArgs {
             },
             supervision: Supervision::default(),
             data: DataConfig {
-                crop: parse_size(&self.crop)?,
+                crop: validate::size("crop", &self.crop)?,
                 rule: PairRule {
                     min_baseline,
                     max_baseline,
@@ -193,6 +196,12 @@ fn pool(threads: usize) -> Result<rayon::ThreadPool> {
 /// Whatever training returns.
 pub fn run(args: TrainArgs) -> Result<()> {
     let cfg = args.config()?;
+    let (w, h) = cfg.data.crop;
+    let bytes = crate::memory::train_step_bytes(w, h, cfg.network.channels);
+    args.memory.check(&format!("a training step on a {w}x{h} crop"), bytes, "use a smaller --crop")?;
+    for (name, v) in [("lr", args.lr), ("rho-max", args.rho_max)] {
+        validate::positive(name, v)?;
+    }
     let t = Instant::now();
     pool(args.threads)?
         .install(|| train(&cfg, &args.out, args.resume.as_deref(), args.stop_after, !args.quiet))?;
@@ -226,6 +235,9 @@ pub struct BenchTrainArgs {
     /// `benches/compare/train_torch.py`).
     #[arg(long)]
     pub dump: Option<PathBuf>,
+    /// Memory limit.
+    #[command(flatten)]
+    pub memory: MemoryLimit,
 }
 
 /// Writes what `benches/compare/train_torch.py` needs to recompute the step in PyTorch.
@@ -275,7 +287,13 @@ fn dump(
 /// # Errors
 /// Bad arguments.
 pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
-    let crop = parse_size(&args.crop)?;
+    let crop = validate::size("crop", &args.crop)?;
+    let bytes = crate::memory::train_step_bytes(crop.0, crop.1, NetworkConfig::default().channels);
+    args.memory.check(
+        &format!("a training step on a {}x{} crop", crop.0, crop.1),
+        bytes,
+        "use a smaller --crop",
+    )?;
     let data = DataSet::open(DataConfig {
         crop,
         synthetic_scenes: 1,
@@ -291,7 +309,10 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
     let imp = NetworkImpl::FAST;
     let pool = pool(args.threads)?;
     if let Some(dir) = &args.dump {
-        pool.install(|| dump(dir, &pair, &weights, &loss, &sup))?;
+        let mut staging = crate::io::Staging::new();
+        let staged = staging.dir(dir)?;
+        pool.install(|| dump(&staged, &pair, &weights, &loss, &sup))?;
+        staging.commit()?;
         println!("wrote the pair, weights, losses and gradients to {}", dir.display());
     }
     let (ms_step, ms_fwd, stage) = pool.install(|| -> Result<(Vec<f64>, Vec<f64>, Vec<StepTimes>)> {

@@ -26,7 +26,8 @@ pub struct PinholeCamera {
 }
 
 impl PinholeCamera {
-    /// Validated constructor: every value finite, focal lengths non-zero, size non-zero.
+    /// Validated constructor: every value finite, `fx > 0`, `fy` non-zero (negative for an upward y
+    /// axis, ICL-NUIM), size non-zero.
     ///
     /// # Errors
     /// [`Error::InvalidArgument`] naming the first bad value.
@@ -40,6 +41,12 @@ impl PinholeCamera {
             return Err(Error::invalid_argument(
                 "focal length",
                 format!("fx = {fx}, fy = {fy}: must be non-zero"),
+            ));
+        }
+        if fx < 0.0 {
+            return Err(Error::invalid_argument(
+                "focal length",
+                format!("fx = {fx}: must be positive (only fy may be negative, for an upward y axis: SPEC.md §2.6)"),
             ));
         }
         if width == 0 || height == 0 {

@@ -1,4 +1,5 @@
-//! Atomic writes: write to a temporary name in the same folder, flush, then rename over the target.
+//! Atomic writes: write to a temporary name in the same folder (`.NAME.densefeat-tmp-PID`, removed
+//! by the next staging in that folder if a kill leaves it), flush, then rename over the target.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -8,7 +9,7 @@ use crate::error::{Error, Result};
 
 fn temp_name(path: &Path) -> PathBuf {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+    path.with_file_name(format!(".{name}{}tmp-{}", super::staging::TEMP_MARKER, std::process::id()))
 }
 
 /// Write `bytes` to `path` atomically.
@@ -34,6 +35,7 @@ pub fn write_atomic_with(
         fill(&mut w)?;
         let file = w.into_inner().map_err(|e| e.into_error())?;
         file.sync_all()?;
+        super::hook("write");
         std::fs::rename(&tmp, path)
     })();
     result.map_err(|e| {

@@ -85,7 +85,7 @@ pub const DEFAULT_BINS: usize = 128;
 pub const DEFAULT_MIN_EVIDENCE: f64 = 0.25;
 
 /// Default of [`KeyframeConfig::max_memory_mb`].
-pub const DEFAULT_MAX_MEMORY_MB: usize = 2048;
+pub const DEFAULT_MAX_MEMORY_MB: usize = crate::memory::DEFAULT_MAX_MEMORY_MB;
 
 impl KeyframeConfig {
     /// The paper's window (30, 30), RGB, [`DEFAULT_BINS`] bins over `[near, far]`, level 0, TV with

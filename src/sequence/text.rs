@@ -115,9 +115,14 @@ pub(crate) fn list_files_with(dir: &Path, extensions: &[&str]) -> Result<Vec<Pat
     let mut out = Vec::new();
     for entry in entries {
         let p = entry.map_err(|e| Error::io(dir, e))?.path();
-        let wanted = p.extension().is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)));
-        if wanted && p.is_file() {
-            out.push(p);
+        if !p.extension().is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x))) {
+            continue;
+        }
+        // Follow links; a loop or a dangling link is an error naming it, not a silently missing frame.
+        match std::fs::metadata(&p) {
+            Ok(m) if m.is_file() => out.push(p),
+            Ok(_) => {}
+            Err(e) => return Err(Error::io(&p, e)),
         }
     }
     out.sort();

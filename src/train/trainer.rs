@@ -1,12 +1,11 @@
 //! The training loop (SPEC.md §13.6): batches of pairs, AdamW, validation, a CSV log, a PNG plot
 //! of the curves, checkpoints and resume. Bit-identical weights for any thread count.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::error::{Error, Result};
-use crate::io::write_atomic;
+use crate::io::{write_atomic, Staging};
 use crate::nn::{NetworkConfig, NetworkImpl, NetworkWeights};
 use crate::plot::{grid_of_plots_png, Panel, Series};
 use crate::train::checkpoint::Checkpoint;
@@ -239,7 +238,6 @@ pub fn train(
             "steps, batch, val_every and ckpt_every must be at least 1",
         ));
     }
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let paths = RunPaths::new(out);
     let imp = NetworkImpl::FAST;
     let fingerprint = cfg.fingerprint();
@@ -276,9 +274,8 @@ pub fn train(
             }
         }
     }
-    write_atomic(&paths.csv, csv_text.as_bytes())?;
-    let mut csv =
-        std::fs::OpenOptions::new().append(true).open(&paths.csv).map_err(|e| Error::io(&paths.csv, e))?;
+    // The log is kept in memory and written with the checkpoint, the weights and the plot as one
+    // staged set (SPEC.md §14.2): the folder always holds a matching four, or what it held before.
     let last = stop_after.unwrap_or(cfg.steps).min(cfg.steps);
     let bar = if progress {
         let b = indicatif::ProgressBar::new(cfg.steps as u64);
@@ -337,7 +334,8 @@ pub fn train(
             pairs_per_s,
             elapsed_s: start.elapsed().as_secs_f64(),
         };
-        writeln!(csv, "{}", csv_line(&row)).map_err(|e| Error::io(&paths.csv, e))?;
+        csv_text.push_str(&csv_line(&row));
+        csv_text.push('\n');
         smoothed = Some(smoothed.map_or(loss, |s| 0.98 * s + 0.02 * loss));
         let mut msg = format!("loss {:.3}", smoothed.unwrap_or(loss));
         if let Some((vl, vd, vw)) = val_res {
@@ -352,10 +350,14 @@ pub fn train(
         if step % cfg.ckpt_every == 0 || step == last {
             let mut w = weights.clone();
             w.provenance = format!("densefeat train: step {step} of {}; {}", cfg.steps, fingerprint);
+            let mut staging = Staging::new();
+            let staged = RunPaths::new(&staging.dir(out)?);
             Checkpoint { step, weights: w.clone(), adam: adam.clone(), train_config: fingerprint.clone() }
-                .save(&paths.checkpoint)?;
-            w.save(&paths.weights)?;
-            plot_curves(&paths.csv, &paths.plot)?;
+                .save(&staged.checkpoint)?;
+            w.save(&staged.weights)?;
+            write_atomic(&staged.csv, csv_text.as_bytes())?;
+            plot_curves(&staged.csv, &staged.plot)?;
+            staging.commit()?;
         }
     }
     bar.finish();

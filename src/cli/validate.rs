@@ -1,0 +1,160 @@
+//! Up-front checks shared by the subcommands (SPEC.md §14.1): the one way to say "flag X: problem",
+//! the size and range parsers that name their flag, the frame-size check, and the memory-limit flag.
+//! Every subcommand runs these before any heavy work or any write.
+
+use clap::Args;
+
+use crate::error::{Error, Result};
+use crate::memory::DEFAULT_MAX_MEMORY_MB;
+use crate::sequence::Sequence;
+
+/// Largest image or crop side any command accepts (the renderer's limit), pixels.
+pub const MAX_SIDE: usize = 8192;
+
+/// Smallest frame side (level-0 pixels) a reconstruction accepts: below it the level-1 grid has
+/// fewer than 8x8 cells and no depth metric means anything.
+pub const MIN_FRAME_SIDE: usize = 16;
+
+/// The one "flag X: problem" error: `name` with or without its leading `--`.
+pub fn flag(name: &str, what: impl Into<String>) -> Error {
+    let name = if name.starts_with("--") { name.to_string() } else { format!("--{name}") };
+    Error::invalid_argument(name, what)
+}
+
+/// `Ok` if `v` is finite and `> 0`, else an error naming `name`.
+///
+/// # Errors
+/// [`flag`] error.
+pub fn positive(name: &str, v: f64) -> Result<()> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(flag(name, format!("{v}: must be a finite number > 0")))
+    }
+}
+
+/// Parse `WIDTHxHEIGHT` for flag `name`, each side in `1..=`[`MAX_SIDE`].
+///
+/// # Errors
+/// [`flag`] error naming `name`.
+pub fn size(name: &str, text: &str) -> Result<(usize, usize)> {
+    let bad = |what: &str| flag(name, format!("{text:?}: {what}"));
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| bad("expected WIDTHxHEIGHT, e.g. 320x240"))?;
+    let side = |v: &str, which: &str| -> Result<usize> {
+        let n: usize =
+            v.trim().parse().map_err(|_| bad(&format!("{which} is not a non-negative integer")))?;
+        if n == 0 || n > MAX_SIDE {
+            return Err(bad(&format!("{which} {n} must be in 1..={MAX_SIDE}")));
+        }
+        Ok(n)
+    };
+    Ok((side(w, "width")?, side(h, "height")?))
+}
+
+/// Refuse a sequence whose frames are smaller than [`MIN_FRAME_SIDE`], naming its first frame.
+///
+/// # Errors
+/// [`Error::BadFile`] naming the first colour image.
+pub fn frames_big_enough(seq: &Sequence, command: &str) -> Result<()> {
+    let (w, h) = (seq.camera.width, seq.camera.height);
+    if w >= MIN_FRAME_SIDE && h >= MIN_FRAME_SIDE {
+        return Ok(());
+    }
+    let file = seq.frames.first().map(|f| f.rgb.clone()).unwrap_or_else(|| seq.root.clone());
+    Err(Error::bad_file(
+        file,
+        format!("frames are {w}x{h} pixels; {command} needs at least {MIN_FRAME_SIDE}x{MIN_FRAME_SIDE}"),
+    ))
+}
+
+/// The memory-limit flag of every command that allocates in proportion to its arguments.
+#[derive(Debug, Clone, Copy, Args)]
+pub struct MemoryLimit {
+    /// Refuse to run when the estimated memory exceeds this many MiB.
+    #[arg(long, default_value_t = DEFAULT_MAX_MEMORY_MB)]
+    pub max_memory_mb: usize,
+}
+
+impl Default for MemoryLimit {
+    fn default() -> Self {
+        Self { max_memory_mb: DEFAULT_MAX_MEMORY_MB }
+    }
+}
+
+impl MemoryLimit {
+    /// [`crate::memory::check`] against this limit.
+    ///
+    /// # Errors
+    /// As [`crate::memory::check`].
+    pub fn check(&self, what: &str, bytes: u64, shrink: &str) -> Result<()> {
+        crate::memory::check(self.max_memory_mb, what, bytes, shrink)
+    }
+}
+
+/// Feature channels and the network's block-1 stride of a feature kind (`(3, 1)` for RGB), reading
+/// a weights file's header and tensors now so that a bad file is reported before any work.
+///
+/// # Errors
+/// Weight-file errors naming the file.
+pub fn feature_channels(kind: &crate::mapping::FeatureKind) -> Result<(usize, usize)> {
+    use crate::mapping::features::{SHIPPED_WEIGHTS, SHIPPED_WEIGHTS_NAME};
+    use crate::mapping::FeatureKind;
+    use crate::nn::NetworkWeights;
+    let w = match kind {
+        FeatureKind::Rgb => return Ok((3, 1)),
+        FeatureKind::Learned(None) => NetworkWeights::from_safetensors_bytes(
+            SHIPPED_WEIGHTS,
+            std::path::Path::new(SHIPPED_WEIGHTS_NAME),
+        )?,
+        FeatureKind::Learned(Some(p)) => NetworkWeights::load(p)?,
+    };
+    Ok((w.config.channels, w.config.b1_stride))
+}
+
+/// Everything a keyframe reconstruction can check before it starts (SPEC.md §14.1): frame size,
+/// bins, depth range, DTAM parameters, every keyframe and its window, every weights file, and the
+/// memory estimate of the largest feature kind against `max_memory_mb`.
+///
+/// # Errors
+/// The first problem, naming the flag or file.
+pub fn mapping_preflight(
+    seq: &Sequence,
+    cfg: &crate::mapping::keyframe::KeyframeConfig,
+    keyframes: &[usize],
+    kinds: &[crate::mapping::FeatureKind],
+    command: &str,
+) -> Result<()> {
+    use crate::geometry::InverseDepthBins;
+    use crate::mapping::keyframe::Regularizer;
+    frames_big_enough(seq, command)?;
+    if cfg.bins < 2 {
+        return Err(flag("bins", format!("{}: need at least 2", cfg.bins)));
+    }
+    InverseDepthBins::from_depth_range(cfg.near, cfg.far, cfg.bins)
+        .map_err(|e| flag("depth-range", format!("{},{}: {e}", cfg.near, cfg.far)))?;
+    if cfg.regularizer == Regularizer::Tv {
+        cfg.dtam.validate()?;
+    }
+    for &k in keyframes {
+        let mut c = cfg.clone();
+        c.keyframe = k;
+        c.live_frames(seq.len()).map_err(|e| flag("keyframe", e.to_string()))?;
+    }
+    let level = crate::mapping::FeatureExtractor::network_level()?;
+    let grid = seq.camera.at_level(level);
+    for kind in kinds {
+        let (channels, stride) = feature_channels(kind)?;
+        let mut bytes = crate::memory::cost_volume_bytes(grid.height, grid.width, cfg.bins, channels);
+        if !matches!(kind, crate::mapping::FeatureKind::Rgb) {
+            let net =
+                crate::memory::network_forward_bytes(seq.camera.height, seq.camera.width, channels, stride);
+            bytes = bytes.saturating_add(net);
+        }
+        let what = format!(
+            "the {}x{}x{} cost volume with {channels} feature channels",
+            grid.height, grid.width, cfg.bins
+        );
+        crate::memory::check(cfg.max_memory_mb, &what, bytes, "use fewer --bins")?;
+    }
+    Ok(())
+}

@@ -7,7 +7,8 @@
 use ndarray::{Array2, Array3, ArrayView3};
 use rayon::prelude::*;
 
-use super::{parabola_offset, WtaDepth, UNSEEN_COST};
+use super::wta::refined_minimum;
+use super::{WtaDepth, UNSEEN_COST};
 use crate::geometry::InverseDepthBins;
 
 /// Per-pixel evidence threshold: with `N_u = max_k N_{u,k}` (the most frames that saw any
@@ -42,32 +43,12 @@ pub fn filter_evidence(costs: &mut Array3<f32>, counts: ArrayView3<u16>, fractio
 /// rule as [`super::CostVolume::winner_take_all`] (bit-identical on the unfiltered costs).
 pub fn winner_take_all_costs(costs: ArrayView3<f32>, bins: &InverseDepthBins) -> WtaDepth {
     let (h, w, k_count) = costs.dim();
-    let mut rows: Vec<Vec<(bool, f32, f64)>> = vec![Vec::new(); h];
+    let mut rows: Vec<Vec<Option<(f64, f64)>>> = vec![Vec::new(); h];
     rows.par_iter_mut().enumerate().for_each(|(y, row)| {
         *row = (0..w)
             .map(|x| {
                 let curve = costs.slice(ndarray::s![y, x, ..]);
-                let seen = |k: usize| (curve[k] < UNSEEN_COST).then_some(curve[k]);
-                let mut best: Option<(usize, f32)> = None;
-                for k in 0..k_count {
-                    if let Some(c) = seen(k) {
-                        if best.is_none_or(|(_, b)| c < b) {
-                            best = Some((k, c));
-                        }
-                    }
-                }
-                let Some((k, c0)) = best else { return (false, 0.0, 0.0) };
-                let offset = if k > 0 && k + 1 < k_count {
-                    match (seen(k - 1), seen(k + 1)) {
-                        (Some(cm), Some(cp)) => parabola_offset(cm.into(), c0.into(), cp.into()),
-                        _ => 0.0,
-                    }
-                } else {
-                    0.0
-                };
-                let bin = k as f64 + offset;
-                let rho = if offset == 0.0 { bins.rho(k) } else { bins.rho_min + bin * bins.step() };
-                (true, bin as f32, rho)
+                refined_minimum(k_count, |k| (curve[k] < UNSEEN_COST).then_some(curve[k]), bins)
             })
             .collect();
     });
@@ -78,14 +59,10 @@ pub fn winner_take_all_costs(costs: ArrayView3<f32>, bins: &InverseDepthBins) ->
         bin: Array2::zeros((h, w)),
     };
     for (y, row) in rows.iter().enumerate() {
-        for (x, &(valid, bin, rho)) in row.iter().enumerate() {
-            if !valid {
-                continue;
+        for (x, r) in row.iter().enumerate() {
+            if let Some((bin, rho)) = *r {
+                out.set(y, x, bin, rho);
             }
-            out.valid[[y, x]] = true;
-            out.bin[[y, x]] = bin;
-            out.inverse_depth[[y, x]] = rho as f32;
-            out.depth[[y, x]] = if rho > 0.0 { (1.0 / rho) as f32 } else { 0.0 };
         }
     }
     out

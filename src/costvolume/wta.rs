@@ -36,33 +36,52 @@ pub(super) fn winner_take_all(cv: &CostVolume) -> WtaDepth {
             for (k, c) in curve.iter_mut().enumerate() {
                 *c = cv.cost(y, x, k);
             }
-            // The first (lowest-k) minimum among seen cells.
-            let mut best: Option<(usize, f32)> = None;
-            for (k, c) in curve.iter().enumerate() {
-                if let Some(c) = *c {
-                    if best.is_none_or(|(_, b)| c < b) {
-                        best = Some((k, c));
-                    }
-                }
-            }
-            let Some((k, c0)) = best else { continue };
-            let offset = if k > 0 && k + 1 < k_count {
-                match (curve[k - 1], curve[k + 1]) {
-                    (Some(cm), Some(cp)) => parabola_offset(cm.into(), c0.into(), cp.into()),
-                    _ => 0.0,
-                }
-            } else {
-                0.0
-            };
-            let bin = k as f64 + offset;
-            let rho = if offset == 0.0 { bins.rho(k) } else { bins.rho_min + bin * bins.step() };
+            let Some((bin, rho)) = refined_minimum(k_count, |k| curve[k], &bins) else { continue };
             out.valid[[y, x]] = true;
-            out.bin[[y, x]] = bin as f32;
-            out.inverse_depth[[y, x]] = rho as f32;
-            out.depth[[y, x]] = if rho > 0.0 { (1.0 / rho) as f32 } else { 0.0 };
+            out.set(y, x, bin, rho);
         }
     }
     out
+}
+
+impl WtaDepth {
+    /// Stores pixel `(y, x)`'s refined bin and inverse depth (and the depth `1/ρ`, 0 for `ρ <= 0`).
+    pub(super) fn set(&mut self, y: usize, x: usize, bin: f64, rho: f64) {
+        self.valid[[y, x]] = true;
+        self.bin[[y, x]] = bin as f32;
+        self.inverse_depth[[y, x]] = rho as f32;
+        self.depth[[y, x]] = if rho > 0.0 { (1.0 / rho) as f32 } else { 0.0 };
+    }
+}
+
+/// The first (lowest-k) minimum among the seen cells of one cost curve (`cost(k)` is `None` for
+/// an unseen cell), refined by [`parabola_offset`] when both neighbours are seen: the refined
+/// bin `k* + δ` and its inverse depth. `None` when no cell is seen.
+pub(super) fn refined_minimum(
+    k_count: usize,
+    cost: impl Fn(usize) -> Option<f32>,
+    bins: &crate::geometry::InverseDepthBins,
+) -> Option<(f64, f64)> {
+    let mut best: Option<(usize, f32)> = None;
+    for k in 0..k_count {
+        if let Some(c) = cost(k) {
+            if best.is_none_or(|(_, b)| c < b) {
+                best = Some((k, c));
+            }
+        }
+    }
+    let (k, c0) = best?;
+    let offset = if k > 0 && k + 1 < k_count {
+        match (cost(k - 1), cost(k + 1)) {
+            (Some(cm), Some(cp)) => parabola_offset(cm.into(), c0.into(), cp.into()),
+            _ => 0.0,
+        }
+    } else {
+        0.0
+    };
+    let bin = k as f64 + offset;
+    let rho = if offset == 0.0 { bins.rho(k) } else { bins.rho_min + bin * bins.step() };
+    Some((bin, rho))
 }
 
 /// Vertex of the parabola through `(-1, cm), (0, c0), (1, cp)`:

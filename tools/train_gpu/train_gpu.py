@@ -28,6 +28,7 @@ import torch
 import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benches" / "compare"))
+import train_torch  # noqa: E402
 from torch_network import build, read_safetensors  # noqa: E402
 
 # ---------------------------------------------------------------- data
@@ -254,16 +255,10 @@ def scale_loss(fr, fl, geo, rho, cfg):
 
 
 def forward(net, mean, s, imgs):
-    """SPEC §8.1-8.2 (as benches/compare/train_torch.py): every block output and the aggregated
-    features, each cropped to its level."""
-    n_blocks = len(net.blocks)
-    h, w = imgs.shape[2:]
-    m = 1 << (n_blocks - 1 + (1 if s == 2 else 0))
-    x = F.pad(imgs - mean, (0, -(-w // m) * m - w, 0, -(-h // m) * m - h), mode="replicate")
-    a, outs = net(x)
-    lev = lambda k: k + (1 if s == 2 else 0)
-    crop = lambda t, l: t[:, :, : -(-h // 2**l), : -(-w // 2**l)]
-    return [(lev(k), crop(o, lev(k))) for k, o in enumerate(outs)] + [(lev(0), crop(a, lev(0)))]
+    """Every block output and the aggregated features, each cropped to its level:
+    `benches/compare/train_torch.forward` (SPEC §8.1-8.2) as one list [(level, maps)], L last."""
+    blocks, agg = train_torch.forward(net, mean, s, imgs)
+    return blocks + [agg]
 
 
 # cuDNN's grid_sample refuses tensors of 2^31 elements or more: pairs are taken in chunks below it.

@@ -36,7 +36,7 @@ pub(super) fn winner_take_all(cv: &CostVolume) -> WtaDepth {
             for (k, c) in curve.iter_mut().enumerate() {
                 *c = cv.cost(y, x, k);
             }
-            let Some((bin, rho)) = refined_minimum(k_count, |k| curve[k], &bins) else { continue };
+            let Some((bin, rho)) = refined_minimum(k_count, |k| curve[k], bins) else { continue };
             out.valid[[y, x]] = true;
             out.set(y, x, bin, rho);
         }

@@ -7,6 +7,7 @@
 //! (SPEC.md): pixel centres at integer coordinates, channels-last `[H, W, C]` `f32` tensors,
 //! camera-to-world poses in metres, inverse depth `ρ = 1/z`.
 //!
+//! - [`backend`]: the one seam for compute backends: the op list and the CPU backend.
 //! - [`costvolume`]: the multi-view feature cost volume (paper eq. 4) and winner-take-all depth.
 //! - [`dtam`]: Huber-TV regularisation of inverse depth (DTAM's primal-dual optimiser).
 //! - [`mapping`]: keyframe reconstruction with RGB or learned features, outputs and evaluation.
@@ -33,6 +34,7 @@
 #![deny(missing_docs)]
 #![deny(rustdoc::broken_intra_doc_links)]
 
+pub mod backend;
 pub mod cli;
 pub mod costvolume;
 pub mod dtam;

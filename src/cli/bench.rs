@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use crate::cli::synth::parse_size;
 use crate::error::{Error, Result};
-use crate::nn::{FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
+use crate::nn::{FeatureNet, NetworkConfig, NetworkWeights};
 
 /// Arguments of `densefeat bench`.
 #[derive(Debug, Clone, Args)]
@@ -58,6 +58,9 @@ pub struct ForwardArgs {
     /// Memory limit.
     #[command(flatten)]
     pub memory: super::validate::MemoryLimit,
+    /// Where the network runs.
+    #[command(flatten)]
+    pub backend: super::backend_flag::BackendFlag,
 }
 
 /// Arguments of `densefeat bench gemm`.
@@ -149,6 +152,8 @@ fn pattern(h: usize, w: usize) -> Array3<f32> {
 }
 
 fn run_forward(args: &ForwardArgs) -> Result<()> {
+    let backend = args.backend.resolve()?;
+    let backend = backend.as_ref();
     let (w, h) = parse_size(&args.size)?;
     let gemm = crate::memory::product(&[3, args.gemm_size as u64, args.gemm_size as u64, 4]);
     let net = crate::memory::network_forward_bytes(h, w, NetworkConfig::default().channels, args.b1_stride);
@@ -164,12 +169,12 @@ fn run_forward(args: &ForwardArgs) -> Result<()> {
     let pool = pool(args.threads)?;
     let (ms, peak) = pool.install(|| -> Result<(f64, f64)> {
         for _ in 0..WARMUP {
-            net.forward(image.view(), NetworkImpl::FAST)?;
+            net.forward(image.view(), backend)?;
         }
         let mut times = Vec::with_capacity(args.runs);
         for _ in 0..args.runs {
             let start = Instant::now();
-            std::hint::black_box(net.forward(image.view(), NetworkImpl::FAST)?);
+            std::hint::black_box(net.forward(image.view(), backend)?);
             times.push(start.elapsed().as_secs_f64() * 1e3);
         }
         Ok((median(times), gemm_gflops(args.gemm_size, 10)))
@@ -188,7 +193,8 @@ fn run_forward(args: &ForwardArgs) -> Result<()> {
         100.0 * gflops / peak
     );
     if args.profile {
-        let (rows, total) = pool.install(|| crate::nn::profile_forward(&net, image.view(), args.runs))?;
+        let (rows, total) =
+            pool.install(|| crate::nn::profile_forward(&net, backend, image.view(), args.runs))?;
         println!("\nprofile (mean per forward pass, {} passes):", args.runs);
         println!("| operation | calls | ms | share | GFLOP/s |");
         println!("|---|---|---|---|---|");

@@ -179,7 +179,7 @@ pub fn cost_curves(
     let rgb_level = FeatureExtractor::network_level()?;
     let mut curves = Vec::new();
     for kind in kinds {
-        let ex = FeatureExtractor::new(kind.clone(), rgb_level)?;
+        let ex = FeatureExtractor::new(kind.clone(), rgb_level, crate::backend::default_backend())?;
         let camera = ex.camera(&seq.camera);
         let grid: Vec<_> =
             pixels.iter().map(|&p| grid_pixel(p, ex.level(), (camera.width, camera.height))).collect();

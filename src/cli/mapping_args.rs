@@ -6,6 +6,7 @@ use std::time::Duration;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
+use super::backend_flag::BackendFlag;
 use crate::dtam::{DtamParams, MAPPING_DEFAULTS};
 use crate::error::{Error, Result};
 use crate::mapping::keyframe::{
@@ -70,12 +71,23 @@ pub struct MappingArgs {
     /// Refuse to run when the estimated memory exceeds this many MiB.
     #[arg(long, default_value_t = DEFAULT_MAX_MEMORY_MB)]
     pub max_memory_mb: usize,
+    /// Where the ops run.
+    #[command(flatten)]
+    pub backend: BackendFlag,
 }
 
 impl MappingArgs {
     /// A configuration for `keyframe` with these flags.
-    pub fn config(&self, keyframe: usize, features: FeatureKind, regularizer: Regularizer) -> KeyframeConfig {
-        KeyframeConfig {
+    ///
+    /// # Errors
+    /// `--backend` names a backend this build does not have.
+    pub fn config(
+        &self,
+        keyframe: usize,
+        features: FeatureKind,
+        regularizer: Regularizer,
+    ) -> Result<KeyframeConfig> {
+        Ok(KeyframeConfig {
             keyframe,
             past: self.window.0,
             future: self.window.1,
@@ -100,7 +112,8 @@ impl MappingArgs {
             level: self.level,
             min_evidence: self.min_evidence,
             lambda_sweep: Vec::new(),
-        }
+            backend: self.backend.resolve()?,
+        })
     }
 }
 

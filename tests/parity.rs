@@ -357,3 +357,22 @@ fn end_to_end_on_the_fixture() {
         );
     }
 }
+
+/// `--backend` is resolved before any work: an unknown or unavailable backend is refused with a
+/// message naming the flag, and nothing is written.
+#[test]
+fn unavailable_backends_are_refused_up_front() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, want) in [("gpu", "--backend cpu"), ("tpu", "--backend")] {
+        let out = dir.path().join(name);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_densefeat"))
+            .args(["reconstruct", "--sequence", FIXTURE, "--keyframe", "5", "--backend", name, "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{name}: accepted");
+        assert!(err.contains(want), "{name}: {err}");
+        assert!(!out.exists(), "{name}: wrote {}", out.display());
+    }
+}

@@ -87,24 +87,10 @@ const WARMUP: usize = 2;
 /// Fewest timed forward runs.
 const MIN_RUNS: usize = 20;
 
-pub(crate) fn pool(threads: usize) -> Result<rayon::ThreadPool> {
-    if threads == 0 {
-        return Err(Error::invalid_argument("--threads", "must be at least 1"));
-    }
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| Error::invalid_argument("--threads", e.to_string()))
-}
+pub(crate) use crate::runtime::thread_pool as pool;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) / 2.0
-    }
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
+    crate::runtime::median(&mut v)
 }
 
 /// Median GFLOP/s of `C = A B` for `n x n` f32 matrices, split over rayon in blocks of

@@ -3,11 +3,14 @@
 
 use std::time::Instant;
 
+use std::sync::Arc;
+
 use clap::Args;
 use nalgebra::{Translation3, UnitQuaternion};
 use ndarray::Array3;
 
 use super::synth::parse_size;
+use crate::backend::{Backend, CpuBackend};
 use crate::costvolume::{fast_kernel_name, CostVolume, CostVolumeImpl, UNSEEN_COST};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
@@ -44,6 +47,9 @@ pub struct BenchCostvolumeArgs {
     /// Memory limit.
     #[command(flatten)]
     pub memory: super::validate::MemoryLimit,
+    /// Where the volume is built (`--reference` overrides it with the CPU reference).
+    #[command(flatten)]
+    pub backend: super::backend_flag::BackendFlag,
 }
 
 /// Inputs of [`bench_inputs`].
@@ -90,6 +96,8 @@ pub fn bench_inputs(width: usize, height: usize, channels: usize, bins: usize) -
 /// # Errors
 /// [`Error::InvalidArgument`] for bad arguments.
 pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
+    let backend: Arc<dyn Backend> =
+        if args.reference { Arc::new(CpuBackend::reference()) } else { args.backend.resolve()? };
     let (width, height) = parse_size(&args.size)?;
     let bytes = crate::memory::cost_volume_bytes(height, width, args.bins, args.channels);
     let what = format!("the {height}x{width}x{} volume with {} channels", args.bins, args.channels);
@@ -102,12 +110,10 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     }
     let BenchInputs { reference, live, camera: cam, bins, t_nr } =
         bench_inputs(width, height, args.channels, args.bins)?;
-    let imp = if args.reference { CostVolumeImpl::Reference } else { CostVolumeImpl::Fast };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads)
-        .build()
-        .map_err(|e| Error::invalid_argument("--threads", e.to_string()))?;
-    let mut cv = CostVolume::with_impl(reference, cam, bins, imp)?;
+    let pool = crate::runtime::thread_pool(args.threads)?;
+    let mut cv = backend.cost_volume(&backend.upload_owned(reference)?, cam, bins)?;
+    // Uploads are explicit and outside the timed loop (SPEC.md §15.2).
+    let live = backend.upload_owned(live)?;
     let mut times = Vec::with_capacity(args.runs);
     let mut cpu_start = None;
     pool.install(|| -> Result<()> {
@@ -116,20 +122,25 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
                 cpu_start = process_cpu_seconds();
             }
             let start = Instant::now();
-            cv.add_frame(live.view(), &t_nr)?;
+            cv.add_frame(&live, &t_nr)?;
             if run >= 2 {
                 times.push(start.elapsed().as_secs_f64());
             }
         }
         Ok(())
     })?;
+    let cv = cv.finish()?;
     let cpu = cpu_start.zip(process_cpu_seconds()).map(|(a, b)| (b - a) / args.runs as f64);
     let total: f64 = times.iter().sum::<f64>() / args.runs as f64;
     times.sort_by(f64::total_cmp);
     let median = times[times.len() / 2];
     let hyps = (width * height * args.bins) as f64;
     let seen = cv.counts().iter().filter(|&&n| n > 0).count() as f64 / hyps;
-    let kernel = if args.reference { "reference" } else { fast_kernel_name() };
+    let kernel = match (args.reference, backend.name()) {
+        (true, _) => "reference".to_string(),
+        (false, "cpu") => fast_kernel_name().to_string(),
+        (false, _) => backend.device(),
+    };
     println!(
         "cost volume {width}x{height}, K={}, C={}, {} thread(s), {kernel}: median {:.2} ms per added frame \
          over {} runs (min {:.2}, max {:.2}), {:.1} M hypotheses/s, {:.1}% of cells in view",
@@ -146,7 +157,13 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     if let Some(dir) = &args.dump {
         let mut staging = crate::io::Staging::new();
         let staged = staging.dir(dir)?;
-        dump(&staged, &bench_inputs(width, height, args.channels, args.bins)?, kernel, args.threads, median)?;
+        dump(
+            &staged,
+            &bench_inputs(width, height, args.channels, args.bins)?,
+            &kernel,
+            args.threads,
+            median,
+        )?;
         staging.commit()?;
         println!("  inputs and one frame's volume written to {}", dir.display());
     }

@@ -117,18 +117,12 @@ impl MappingArgs {
     }
 }
 
-fn pair<T: std::str::FromStr>(s: &str) -> std::result::Result<(T, T), String> {
-    let (a, b) = s.split_once(',').ok_or_else(|| format!("{s:?}: expected two values A,B"))?;
-    let p = |v: &str| v.trim().parse::<T>().map_err(|_| format!("{v:?} is not a number"));
-    Ok((p(a)?, p(b)?))
-}
-
 /// Parses `P,F`.
 ///
 /// # Errors
 /// A message for clap.
 pub fn parse_pair_usize(s: &str) -> std::result::Result<(usize, usize), String> {
-    pair(s)
+    super::validate::pair(s)
 }
 
 /// Parses `A,B` reals.
@@ -136,7 +130,7 @@ pub fn parse_pair_usize(s: &str) -> std::result::Result<(usize, usize), String> 
 /// # Errors
 /// A message for clap.
 pub fn parse_pair_f64(s: &str) -> std::result::Result<(f64, f64), String> {
-    pair(s)
+    super::validate::pair(s)
 }
 
 /// Parses `START:STEP:END` (END inclusive) into keyframe indices.

@@ -124,9 +124,7 @@ pub struct TrainArgs {
 }
 
 fn parse_pair(text: &str, name: &str) -> Result<(f64, f64)> {
-    let bad = || Error::invalid_argument(name, format!("{text:?}: expected two numbers a,b"));
-    let (a, b) = text.split_once(',').ok_or_else(bad)?;
-    Ok((a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?))
+    super::validate::pair(text).map_err(|e| super::validate::flag(name, e))
 }
 
 impl TrainArgs {
@@ -184,12 +182,7 @@ impl TrainArgs {
     }
 }
 
-fn pool(threads: usize) -> Result<rayon::ThreadPool> {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| Error::invalid_argument("--threads", e.to_string()))
-}
+use crate::runtime::thread_pool as pool;
 
 /// Runs `densefeat train`.
 ///

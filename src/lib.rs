@@ -17,6 +17,7 @@
 //! - [`eval`]: depth metrics and the photometric warp check.
 //! - [`nn`]: the feature network (the paper's CNN), its kernels and PyTorch-compatible weights.
 //! - [`runtime`]: the CPU-feature probe, thread pools and the median every command shares.
+//! - [`perf`]: benchmark inputs, the SGEMM peak and CPU time for `densefeat bench` and `benches/`.
 //! - [`plot`]: line plots and grids of them as PNG (diagnostics such as cost curves).
 //! - [`testing`]: error-budget comparisons shared by the test suites.
 //! - [`train`]: the paper's deeply supervised cost-volume loss, backpropagation and the trainer.
@@ -47,6 +48,7 @@ pub mod io;
 pub mod mapping;
 pub mod memory;
 pub mod nn;
+pub mod perf;
 pub mod plot;
 pub mod runtime;
 pub mod sequence;

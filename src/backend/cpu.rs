@@ -150,6 +150,10 @@ impl VolumeBuilder for CpuVolume {
         self.0.frames()
     }
 
+    fn snapshot(&self) -> Result<CostVolume> {
+        Ok(self.0.clone())
+    }
+
     fn finish(self: Box<Self>) -> Result<CostVolume> {
         Ok(self.0)
     }

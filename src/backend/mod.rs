@@ -163,6 +163,11 @@ pub trait VolumeBuilder: Send {
     fn add_frame(&mut self, live: &Tensor, t_nr: &Pose) -> Result<()>;
     /// Frames added so far.
     fn frames(&self) -> usize;
+    /// A host copy of the volume so far (for diagnostics that look at it while it fills).
+    ///
+    /// # Errors
+    /// Device read-back failures.
+    fn snapshot(&self) -> Result<CostVolume>;
     /// The finished volume on the host (sums, counts; SPEC.md §9.3).
     ///
     /// # Errors

@@ -14,8 +14,8 @@ use std::sync::Arc;
 use ndarray::{Array1, Array3, Array4};
 
 use densefeat::backend::{self, Backend, CpuBackend, Tensor};
-use densefeat::error::Error;
 use densefeat::costvolume::UNSEEN_COST;
+use densefeat::error::Error;
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use densefeat::mapping::keyframe::{reconstruct, KeyframeConfig, Regularizer};
 use densefeat::mapping::FeatureKind;
@@ -68,7 +68,10 @@ fn backends() -> Vec<Arc<dyn Backend>> {
         match backend::by_name(name) {
             Ok(b) => out.push(b),
             Err(e) => {
-                if *name == "gpu" && cfg!(feature = "gpu") && std::env::var_os("DENSEFEAT_REQUIRE_GPU").is_some() {
+                if *name == "gpu"
+                    && cfg!(feature = "gpu")
+                    && std::env::var_os("DENSEFEAT_REQUIRE_GPU").is_some()
+                {
                     panic!("DENSEFEAT_REQUIRE_GPU is set but the gpu backend is unavailable: {e}");
                 }
                 eprintln!("SKIPPED ({name}: {e})");
@@ -294,7 +297,9 @@ fn cost_volume_counts_exact_costs_within_the_9_6_budget_and_wta_exact() {
             let want = build(&reference(), &case, false);
             // WTA on one cost array is exact on every backend (argmin and parabola in f64).
             let wts = want.costs();
-            if let Some(wg) = supported(b.as_ref(), "winner_take_all", b.winner_take_all(wts.view(), &case.bins)) {
+            if let Some(wg) =
+                supported(b.as_ref(), "winner_take_all", b.winner_take_all(wts.view(), &case.bins))
+            {
                 let wr = reference().winner_take_all(wts.view(), &case.bins).unwrap();
                 assert_eq!(wg.valid, wr.valid, "{} WTA validity", b.name());
                 let ib = |a: &ndarray::Array2<f32>| a.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
@@ -357,9 +362,22 @@ fn every_network_op_is_deterministic_run_after_run() {
     for b in backends() {
         type Op<'a> = Box<dyn Fn(&dyn Backend, &[Tensor]) -> Tensor + 'a>;
         let ops: Vec<(&str, Op)> = vec![
-            ("conv3x3 s1", Box::new(|be: &dyn Backend, t: &[Tensor]| be.conv3x3(&t[0], &conv, 1, Activation::Relu).unwrap())),
-            ("conv3x3 s2", Box::new(|be: &dyn Backend, t: &[Tensor]| be.conv3x3(&t[0], &conv, 2, Activation::None).unwrap())),
-            ("deconv5x5s2", Box::new(|be: &dyn Backend, t: &[Tensor]| be.deconv5x5s2(&t[0], &deconv).unwrap())),
+            (
+                "conv3x3 s1",
+                Box::new(|be: &dyn Backend, t: &[Tensor]| {
+                    be.conv3x3(&t[0], &conv, 1, Activation::Relu).unwrap()
+                }),
+            ),
+            (
+                "conv3x3 s2",
+                Box::new(|be: &dyn Backend, t: &[Tensor]| {
+                    be.conv3x3(&t[0], &conv, 2, Activation::None).unwrap()
+                }),
+            ),
+            (
+                "deconv5x5s2",
+                Box::new(|be: &dyn Backend, t: &[Tensor]| be.deconv5x5s2(&t[0], &deconv).unwrap()),
+            ),
             ("downsample2x", Box::new(|be: &dyn Backend, t: &[Tensor]| be.downsample2x(&t[0]).unwrap())),
             ("concat", Box::new(|be: &dyn Backend, t: &[Tensor]| be.concat(&t[0], &t[1]).unwrap())),
             ("add", Box::new(|be: &dyn Backend, t: &[Tensor]| be.add(&t[0], &t[1]).unwrap())),

@@ -118,7 +118,10 @@ impl GpuBackend {
     /// The buffer of a tensor of this backend, or [`Error::Unsupported`] naming where it lives.
     fn buffer<'a>(&self, x: &'a Tensor) -> Result<&'a GpuBuffer> {
         x.device_buffer(NAME).and_then(|b| b.as_any().downcast_ref::<GpuBuffer>()).ok_or_else(|| {
-            unsupported(format!("a tensor on `{}`: upload it to the GPU first (Backend::upload)", x.location()))
+            unsupported(format!(
+                "a tensor on `{}`: upload it to the GPU first (Backend::upload)",
+                x.location()
+            ))
         })
     }
 
@@ -179,7 +182,14 @@ impl GpuBackend {
 
     /// Runs kernel `name` over `params[0]` outputs: binding 0 the parameters, then `inputs`, then
     /// `out`. Submitted, not waited for (a download waits).
-    fn dispatch(&self, name: &'static str, body: &str, params: &[u32], inputs: &[&wgpu::Buffer], out: &Tensor) {
+    fn dispatch(
+        &self,
+        name: &'static str,
+        body: &str,
+        params: &[u32],
+        inputs: &[&wgpu::Buffer],
+        out: &Tensor,
+    ) {
         let n = params[0];
         if n == 0 {
             return;
@@ -203,9 +213,13 @@ impl GpuBackend {
         let groups = n.div_ceil(WORKGROUP);
         let gx = groups.min(MAX_GROUPS_X);
         let gy = groups.div_ceil(gx);
-        let mut encoder = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });
+        let mut encoder =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });
         {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(name), timestamp_writes: None });
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(name),
+                timestamp_writes: None,
+            });
             pass.set_pipeline(&pipeline);
             pass.set_bind_group(0, &group, &[]);
             pass.dispatch_workgroups(gx, gy, 1);
@@ -272,7 +286,8 @@ impl Backend for GpuBackend {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let mut encoder = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("download") });
+        let mut encoder =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("download") });
         encoder.copy_buffer_to_buffer(&src.buffer, 0, &staging, 0, size);
         self.queue.submit([encoder.finish()]);
         let (tx, rx) = std::sync::mpsc::channel();
@@ -377,7 +392,10 @@ impl Backend for GpuBackend {
     fn add(&self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
         let (ab, bb) = (self.buffer(a)?, self.buffer(b)?);
         if a.dim() != b.dim() {
-            return Err(Error::invalid_argument("add", format!("shapes differ: {:?} and {:?}", a.dim(), b.dim())));
+            return Err(Error::invalid_argument(
+                "add",
+                format!("shapes differ: {:?} and {:?}", a.dim(), b.dim()),
+            ));
         }
         let out = self.alloc(a.dim())?;
         self.dispatch("add", kernels::ADD, &params([ab.len]), &[&ab.buffer, &bb.buffer], &out);
@@ -404,7 +422,9 @@ impl Backend for GpuBackend {
         _camera: PinholeCamera,
         _bins: InverseDepthBins,
     ) -> Result<Box<dyn VolumeBuilder>> {
-        Err(unsupported("cost_volume: no WGSL cost volume yet (SPEC.md §15.5); use --backend cpu for mapping"))
+        Err(unsupported(
+            "cost_volume: no WGSL cost volume yet (SPEC.md §15.5); use --backend cpu for mapping",
+        ))
     }
 
     fn winner_take_all(&self, _costs: ArrayView3<f32>, _bins: &InverseDepthBins) -> Result<WtaDepth> {

@@ -26,6 +26,8 @@
 //! [`NAMES`], and register it in `tests/parity.rs`'s backend list; CONTRIBUTING.md walks through it.
 
 mod cpu;
+#[cfg(feature = "gpu")]
+mod gpu;
 mod tensor;
 
 use std::fmt::Debug;
@@ -41,6 +43,8 @@ use crate::nn::weights::LayerParams;
 use crate::nn::{Activation, NetworkConfig};
 
 pub use cpu::CpuBackend;
+#[cfg(feature = "gpu")]
+pub use gpu::{GpuBackend, GpuBuffer};
 pub use tensor::{DeviceBuffer, Tensor};
 
 /// Every op the product runs, on one kind of hardware. See the module documentation for the list
@@ -178,25 +182,35 @@ pub trait VolumeBuilder: Send {
 /// The names `--backend` accepts, in the order `densefeat --help` lists them.
 pub const NAMES: &[&str] = &["cpu", "gpu"];
 
-/// The backend called `name`: `cpu` (always there) or `gpu`.
+/// The backend called `name`: `cpu` (always there) or `gpu` (the wgpu backend, SPEC.md §15.5).
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] (flag `--backend`) for an unknown name; [`Error::Unsupported`] for
-/// `gpu`: no GPU backend exists in this build yet (issue 11's wgpu backend is the next step).
+/// `gpu` in a build without the cargo feature `gpu`, or when wgpu finds no adapter.
 pub fn by_name(name: &str) -> Result<Arc<dyn Backend>> {
     match name {
         "cpu" => Ok(Arc::new(CpuBackend::default())),
-        "gpu" => Err(Error::Unsupported {
-            backend: "gpu".into(),
-            what:
-                "this build has no GPU backend yet (the wgpu backend is not implemented); use --backend cpu"
-                    .into(),
-        }),
+        "gpu" => gpu_backend(),
         other => Err(Error::invalid_argument(
             "--backend",
             format!("{other:?}: expected one of {}", NAMES.join(", ")),
         )),
     }
+}
+
+#[cfg(feature = "gpu")]
+fn gpu_backend() -> Result<Arc<dyn Backend>> {
+    Ok(GpuBackend::shared()?)
+}
+
+#[cfg(not(feature = "gpu"))]
+fn gpu_backend() -> Result<Arc<dyn Backend>> {
+    Err(Error::Unsupported {
+        backend: "gpu".into(),
+        what: "this build has no GPU backend (built without the cargo feature `gpu`: \
+               cargo build --features gpu); use --backend cpu"
+            .into(),
+    })
 }
 
 /// The default backend: the CPU with its fastest kernels.

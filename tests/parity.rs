@@ -66,7 +66,10 @@ fn backends() -> Vec<Arc<dyn Backend>> {
     let mut out = Vec::new();
     for name in backend::NAMES {
         match backend::by_name(name) {
-            Ok(b) => out.push(b),
+            Ok(b) => {
+                eprintln!("backend {name}: {}", b.device());
+                out.push(b);
+            }
             Err(e) => {
                 if *name == "gpu"
                     && cfg!(feature = "gpu")

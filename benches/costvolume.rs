@@ -1,10 +1,10 @@
 //! Adding one live frame to a cost volume at the size the paper's mapping runs: 320x240, K = 64
 //! hypotheses, C = 32 learned channels (and RGB), on 1 and 2 threads. `cargo bench --bench costvolume`.
-//! The same inputs as `densefeat bench costvolume` (`cli::bench_costvolume::bench_inputs`).
+//! The same inputs as `densefeat bench costvolume` (`perf::bench_inputs`).
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use densefeat::cli::bench_costvolume::{bench_inputs, BenchInputs};
 use densefeat::costvolume::{fast_kernel_name, CostVolume};
+use densefeat::perf::{bench_inputs, BenchInputs};
 
 fn add_frame(c: &mut Criterion) {
     for channels in [32, 3] {

@@ -3,7 +3,8 @@
 //! reads as FLOP/s. Names: `fast_featurenet_<w>x<h>_b1s<stride>`.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use densefeat::nn::{FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
+use densefeat::backend::CpuBackend;
+use densefeat::nn::{FeatureNet, NetworkConfig, NetworkWeights};
 use ndarray::Array3;
 use std::hint::black_box;
 
@@ -23,7 +24,7 @@ fn bench_forward(c: &mut Criterion) {
             group.throughput(Throughput::Elements(net.flops(h, w) as u64));
             group.bench_function(format!("fast_featurenet_{w}x{h}_b1s{b1_stride}"), |bench| {
                 bench.iter(|| {
-                    black_box(net.forward(black_box(image.view()), NetworkImpl::FAST).expect("forward"))
+                    black_box(net.forward(black_box(image.view()), &CpuBackend::default()).expect("forward"))
                 })
             });
         }

@@ -5,8 +5,9 @@
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use densefeat::backend::CpuBackend;
 use densefeat::geometry::{InverseDepthBins, Warp};
-use densefeat::nn::{NetworkConfig, NetworkImpl};
+use densefeat::nn::NetworkConfig;
 use densefeat::train::data::{DataConfig, DataSet};
 use densefeat::train::loss::{scale_loss, LossConfig};
 use densefeat::train::step::{depth_at_level, pair_step, Supervision};
@@ -27,10 +28,10 @@ fn train(c: &mut Criterion) {
         LossConfig { bins: InverseDepthBins::new(0.0, 4.0, 256).expect("bins"), ..LossConfig::default() };
     let sup = Supervision::default();
     let (out_r, _) =
-        densefeat::train::backprop::forward_with_tape(&weights, pair.ref_rgb.view(), NetworkImpl::FAST)
+        densefeat::train::backprop::forward_with_tape(&weights, pair.ref_rgb.view(), &CpuBackend::default())
             .expect("forward");
     let (out_l, _) =
-        densefeat::train::backprop::forward_with_tape(&weights, pair.live_rgb.view(), NetworkImpl::FAST)
+        densefeat::train::backprop::forward_with_tape(&weights, pair.live_rgb.view(), &CpuBackend::default())
             .expect("forward");
     let warp = Warp::new(&pair.ref_camera.at_level(1), &pair.live_camera.at_level(1), &pair.t_lr);
     let depth = depth_at_level(pair.ref_depth.view(), 1);
@@ -40,7 +41,7 @@ fn train(c: &mut Criterion) {
             b.iter(|| {
                 pool.install(|| {
                     let mut g = weights.zeros_like();
-                    pair_step(&weights, &pair, &loss, &sup, NetworkImpl::FAST, Some((&mut g, 1.0)))
+                    pair_step(&weights, &pair, &loss, &sup, &CpuBackend::default(), Some((&mut g, 1.0)))
                         .expect("step")
                 })
             })

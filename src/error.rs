@@ -46,6 +46,15 @@ pub enum Error {
         /// What is wrong with it.
         what: String,
     },
+    /// A backend cannot run an op, a shape or a tensor it was given (SPEC.md §15): never a silent
+    /// fallback to another backend.
+    #[error("backend {backend}: unsupported: {what}")]
+    Unsupported {
+        /// The backend's name (`--backend`).
+        backend: String,
+        /// What it cannot do, and what to use instead.
+        what: String,
+    },
     /// A command-line or API argument is out of range.
     #[error("invalid {name}: {what}")]
     InvalidArgument {

@@ -7,6 +7,7 @@
 //! (SPEC.md): pixel centres at integer coordinates, channels-last `[H, W, C]` `f32` tensors,
 //! camera-to-world poses in metres, inverse depth `ρ = 1/z`.
 //!
+//! - [`backend`]: the one seam for compute backends: the op list and the CPU backend.
 //! - [`costvolume`]: the multi-view feature cost volume (paper eq. 4) and winner-take-all depth.
 //! - [`dtam`]: Huber-TV regularisation of inverse depth (DTAM's primal-dual optimiser).
 //! - [`mapping`]: keyframe reconstruction with RGB or learned features, outputs and evaluation.
@@ -15,6 +16,8 @@
 //! - [`sequence`]: posed RGB-D sequences (TUM, ICL-NUIM, DeepVideoMVS / 7-Scenes, stereo pairs).
 //! - [`eval`]: depth metrics and the photometric warp check.
 //! - [`nn`]: the feature network (the paper's CNN), its kernels and PyTorch-compatible weights.
+//! - [`runtime`]: the CPU-feature probe, thread pools and the median every command shares.
+//! - [`perf`]: benchmark inputs, the SGEMM peak and CPU time for `densefeat bench` and `benches/`.
 //! - [`plot`]: line plots and grids of them as PNG (diagnostics such as cost curves).
 //! - [`testing`]: error-budget comparisons shared by the test suites.
 //! - [`train`]: the paper's deeply supervised cost-volume loss, backpropagation and the trainer.
@@ -33,6 +36,7 @@
 #![deny(missing_docs)]
 #![deny(rustdoc::broken_intra_doc_links)]
 
+pub mod backend;
 pub mod cli;
 pub mod costvolume;
 pub mod dtam;
@@ -44,7 +48,9 @@ pub mod io;
 pub mod mapping;
 pub mod memory;
 pub mod nn;
+pub mod perf;
 pub mod plot;
+pub mod runtime;
 pub mod sequence;
 pub mod synth;
 pub mod testing;

@@ -4,8 +4,9 @@
 use std::path::Path;
 use std::process::Command;
 
-use densefeat::cli::costcurve::{cost_curves, frame_order, grid_pixel, normalise, parse_pixels};
+use densefeat::cli::costcurve::parse_pixels;
 use densefeat::geometry::InverseDepthBins;
+use densefeat::mapping::costcurve::{cost_curves, frame_order, grid_pixel, normalise};
 use densefeat::mapping::features::FeatureKind;
 use densefeat::plot::PANEL_SIZE;
 
@@ -49,7 +50,16 @@ fn curves_are_recorded_at_clamped_frame_counts_with_ground_truth() {
     let seq = densefeat::sequence::open(FIXTURE).unwrap();
     let bins = InverseDepthBins::from_depth_range(0.4, 10.0, 32).unwrap();
     // Keyframe 20 of 40: 39 live frames, so 100 is clamped to 39.
-    let curves = cost_curves(&seq, 20, &[(200, 150)], &[FeatureKind::Rgb], &[3, 100], bins).unwrap();
+    let curves = cost_curves(
+        &seq,
+        20,
+        &[(200, 150)],
+        &[FeatureKind::Rgb],
+        &[3, 100],
+        bins,
+        &densefeat::backend::default_backend(),
+    )
+    .unwrap();
     let counts: Vec<usize> = curves.iter().map(|c| c.frames_added).collect();
     assert_eq!(counts, vec![3, 39]);
     for c in &curves {
@@ -64,9 +74,27 @@ fn curves_are_recorded_at_clamped_frame_counts_with_ground_truth() {
     let (k, _) = normalise(&last.costs).unwrap();
     let gt_bin = bins.bin_of(last.gt_inverse_depth.unwrap());
     assert!((k as f64 - gt_bin).abs() <= 2.0, "argmin bin {k}, ground truth bin {gt_bin}");
-    let err = cost_curves(&seq, 40, &[(0, 0)], &[FeatureKind::Rgb], &[2], bins).unwrap_err();
+    let err = cost_curves(
+        &seq,
+        40,
+        &[(0, 0)],
+        &[FeatureKind::Rgb],
+        &[2],
+        bins,
+        &densefeat::backend::default_backend(),
+    )
+    .unwrap_err();
     assert!(err.to_string().contains("keyframe"), "{err}");
-    let err = cost_curves(&seq, 0, &[(320, 0)], &[FeatureKind::Rgb], &[2], bins).unwrap_err();
+    let err = cost_curves(
+        &seq,
+        0,
+        &[(320, 0)],
+        &[FeatureKind::Rgb],
+        &[2],
+        bins,
+        &densefeat::backend::default_backend(),
+    )
+    .unwrap_err();
     assert!(err.to_string().contains("outside"), "{err}");
 }
 

@@ -401,15 +401,23 @@ fn fronto_parallel_and_slanted_planes_are_recovered() {
 fn shipped_weights_are_built_in_and_rgb_matches_their_grid() {
     use densefeat::mapping::{FeatureExtractor, FeatureKind};
     let level = FeatureExtractor::network_level().unwrap();
-    let learned = FeatureExtractor::new(FeatureKind::Learned(None), level).unwrap();
+    let learned =
+        FeatureExtractor::new(FeatureKind::Learned(None), level, densefeat::backend::default_backend())
+            .unwrap();
     assert_eq!(learned.network_output_level(), Some(level));
-    let rgb = FeatureExtractor::new(FeatureKind::Rgb, level).unwrap();
+    let rgb = FeatureExtractor::new(FeatureKind::Rgb, level, densefeat::backend::default_backend()).unwrap();
     let img = Array3::from_shape_fn((24, 33, 3), |(y, x, c)| ((y * 7 + x * 3 + c * 50) % 256) as f32);
     let (fl, fr) = (learned.extract(&img).unwrap(), rgb.extract(&img).unwrap());
     assert_eq!((fl.level, fr.level), (level, level));
     // At level 0 both kinds have the input's size (learned features upsampled, SPEC §11.1).
-    let l0 = FeatureExtractor::new(FeatureKind::Learned(None), 0).unwrap().extract(&img).unwrap();
-    let r0 = FeatureExtractor::new(FeatureKind::Rgb, 0).unwrap().extract(&img).unwrap();
+    let l0 = FeatureExtractor::new(FeatureKind::Learned(None), 0, densefeat::backend::default_backend())
+        .unwrap()
+        .extract(&img)
+        .unwrap();
+    let r0 = FeatureExtractor::new(FeatureKind::Rgb, 0, densefeat::backend::default_backend())
+        .unwrap()
+        .extract(&img)
+        .unwrap();
     assert_eq!((l0.data.dim().0, l0.data.dim().1, r0.data.dim().0, r0.data.dim().1), (24, 33, 24, 33));
     assert_eq!((fl.data.dim().0, fl.data.dim().1), (fr.data.dim().0, fr.data.dim().1));
     assert_eq!(fl.data.dim().2, 32);

@@ -86,8 +86,10 @@ fn level0_output_has_the_input_resolution_and_level0_ground_truth() {
     }
     // Learned features at level 0 are the network's level-1 features upsampled (shipped weights
     // have block-1 stride 2).
-    let l0 = FeatureExtractor::new(FeatureKind::Learned(None), 0).unwrap();
-    let l1 = FeatureExtractor::new(FeatureKind::Learned(None), 1).unwrap();
+    let l0 =
+        FeatureExtractor::new(FeatureKind::Learned(None), 0, densefeat::backend::default_backend()).unwrap();
+    let l1 =
+        FeatureExtractor::new(FeatureKind::Learned(None), 1, densefeat::backend::default_backend()).unwrap();
     assert_eq!(l0.network_output_level(), Some(1));
     let f0 = l0.extract(&frame.rgb).unwrap().data;
     let f1 = l1.extract(&frame.rgb).unwrap().data;

@@ -2,6 +2,7 @@
 //! reference network within the propagated budget of §8.7, and bit-identical features for any
 //! thread count.
 
+use densefeat::backend::CpuBackend;
 use densefeat::nn::budget::{depth, max_products, relative_budget, LayerCheckExecutor};
 use densefeat::nn::network::{pad_edge, run_network, Executor};
 use densefeat::nn::weights::LayerParams;
@@ -57,7 +58,7 @@ fn block_outputs_have_level_sizes() {
     // SPEC §2.6: level l is ceil(W / 2^l) x ceil(H / 2^l); B1 stride 2 puts block k on level k.
     let net =
         FeatureNet::new(weights(&NetworkConfig { channels: 4, ..NetworkConfig::default() }, 1)).unwrap();
-    let out = net.forward(image(240, 320, 1).view(), NetworkImpl::FAST).unwrap();
+    let out = net.forward(image(240, 320, 1).view(), &CpuBackend::default()).unwrap();
     let want = [[120, 160, 4], [60, 80, 4], [30, 40, 4], [15, 20, 4], [8, 10, 4]];
     let got: Vec<&[usize]> = out.blocks.iter().map(|b| b.shape()).collect();
     assert_eq!(got, want.iter().map(|s| &s[..]).collect::<Vec<_>>());
@@ -65,7 +66,7 @@ fn block_outputs_have_level_sizes() {
     assert_eq!(got, want.iter().map(|s| &s[..]).collect::<Vec<_>>());
     let stride1 = NetworkConfig { channels: 4, b1_stride: 1, ..NetworkConfig::default() };
     let net = FeatureNet::new(weights(&stride1, 1)).unwrap();
-    let out = net.forward(image(13, 17, 1).view(), NetworkImpl::FAST).unwrap();
+    let out = net.forward(image(13, 17, 1).view(), &CpuBackend::default()).unwrap();
     let got: Vec<&[usize]> = out.blocks.iter().map(|b| b.shape()).collect();
     assert_eq!(got, vec![&[13, 17, 4][..], &[7, 9, 4], &[4, 5, 4], &[2, 3, 4], &[1, 2, 4]]);
 }
@@ -75,7 +76,7 @@ fn odd_sizes_give_ceil_sizes_for_every_configuration() {
     for config in every_config(3) {
         let net = FeatureNet::new(weights(&config, 2)).unwrap();
         for (h, w) in [(1, 1), (17, 13), (13, 17), (33, 47)] {
-            let out = net.forward(image(h, w, 3).view(), NetworkImpl::FAST).unwrap();
+            let out = net.forward(image(h, w, 3).view(), &CpuBackend::default()).unwrap();
             assert_eq!(out.blocks.len(), config.blocks);
             assert_eq!(out.aggregated.len(), config.blocks);
             for k in 0..config.blocks {
@@ -101,8 +102,8 @@ fn padding_replicates_bottom_right_edges_and_keeps_the_origin() {
     let padded = pad_edge(img.view(), 32, 32);
     assert_eq!(padded[[31, 31, 2]], img[[16, 12, 2]]);
     assert_eq!(padded[[5, 20, 1]], img[[5, 12, 1]]);
-    let a = net.forward(img.view(), NetworkImpl::FAST).unwrap();
-    let b = net.forward(padded.view(), NetworkImpl::FAST).unwrap();
+    let a = net.forward(img.view(), &CpuBackend::default()).unwrap();
+    let b = net.forward(padded.view(), &CpuBackend::default()).unwrap();
     for k in 0..config.blocks {
         let (h, w, _) = a.aggregated[k].dim();
         let crop = b.aggregated[k].slice(ndarray::s![..h, ..w, ..]).to_owned();
@@ -117,13 +118,13 @@ fn input_mean_is_subtracted_without_scaling() {
     let shift = [10.0f32, 20.0, 30.0];
     let mut w0 = weights(&base, 5);
     let img = image(20, 24, 5);
-    let out0 = FeatureNet::new(w0.clone()).unwrap().forward(img.view(), NetworkImpl::FAST).unwrap();
+    let out0 = FeatureNet::new(w0.clone()).unwrap().forward(img.view(), &CpuBackend::default()).unwrap();
     w0.config.input_mean = shift;
     let mut shifted = img.clone();
     for ((_, _, c), v) in shifted.indexed_iter_mut() {
         *v += shift[c];
     }
-    let out1 = FeatureNet::new(w0).unwrap().forward(shifted.view(), NetworkImpl::FAST).unwrap();
+    let out1 = FeatureNet::new(w0).unwrap().forward(shifted.view(), &CpuBackend::default()).unwrap();
     assert_eq!(bits(out0.features()), bits(out1.features()));
 }
 
@@ -172,17 +173,17 @@ fn network_structure_matches_spec() {
     let config = NetworkConfig { blocks: 3, channels: 8, b1_stride: 1, input_mean: [0.0; 3] };
     let mut rec = Recorder(Vec::new());
     run_network(&mut rec, &weights(&config, 6), image(6, 10, 6).view()).unwrap();
+    // The input pyramid first (levels 0 and 1), then the blocks.
     let want = [
         "image [8, 12, 3]",
+        "image [4, 6, 3]",
         "conv [8, 12, 3] -> c8 s1 Relu",
         "conv [8, 12, 8] -> c8 s1 Relu",
         "conv [8, 12, 8] -> c8 s1 None",
-        "image [8, 12, 3]",
         "concat [8, 12, 8] [8, 12, 3]",
         "conv [8, 12, 11] -> c8 s2 Relu",
         "conv [4, 6, 8] -> c8 s1 Relu",
         "conv [4, 6, 8] -> c8 s1 None",
-        "image [4, 6, 3]",
         "concat [4, 6, 8] [4, 6, 3]",
         "conv [4, 6, 11] -> c8 s2 Relu",
         "conv [2, 3, 8] -> c8 s1 Relu",
@@ -229,8 +230,8 @@ fn fast_network_matches_reference_network_within_relative_budget() {
         let wts = weights(&config, 10 + i as u64);
         let img = image(h, w, 20 + i as u64);
         let net = FeatureNet::new(wts).unwrap();
-        let fast = net.forward(img.view(), NetworkImpl::FAST).unwrap();
-        let reference = net.forward(img.view(), NetworkImpl::REFERENCE).unwrap();
+        let fast = net.forward(img.view(), &CpuBackend::default()).unwrap();
+        let reference = net.forward(img.view(), &CpuBackend::reference()).unwrap();
         let budget = relative_budget(&config);
         for (name, got, want) in [
             ("block", &fast.blocks, &reference.blocks),
@@ -261,7 +262,7 @@ fn relative_budget_of_the_paper_network() {
 fn features_independent_of_thread_count() {
     let net = FeatureNet::new(weights(&NetworkConfig::default(), 8)).unwrap();
     let img = image(47, 61, 8);
-    let run = |n: usize| thread_pool(n).install(|| net.forward(img.view(), NetworkImpl::FAST).unwrap());
+    let run = |n: usize| thread_pool(n).install(|| net.forward(img.view(), &CpuBackend::default()).unwrap());
     let one = run(1);
     for n in [2, 3, 8] {
         let other = run(n);
@@ -292,8 +293,8 @@ fn flops_count_every_layer() {
 fn rejects_images_that_are_not_rgb() {
     let net =
         FeatureNet::new(weights(&NetworkConfig { channels: 2, ..NetworkConfig::default() }, 1)).unwrap();
-    assert!(net.forward(Array3::zeros((4, 4, 1)).view(), NetworkImpl::FAST).is_err());
-    assert!(net.forward(Array3::zeros((0, 4, 3)).view(), NetworkImpl::FAST).is_err());
+    assert!(net.forward(Array3::zeros((4, 4, 1)).view(), &CpuBackend::default()).is_err());
+    assert!(net.forward(Array3::zeros((0, 4, 3)).view(), &CpuBackend::default()).is_err());
 }
 
 #[test]
@@ -302,7 +303,8 @@ fn profile_counts_every_operation_of_the_paper_network() {
     let config = NetworkConfig::default();
     let net = FeatureNet::new(NetworkWeights::xavier_uniform(&config, 1).unwrap()).unwrap();
     let img = ndarray::Array3::from_shape_fn((37, 45, 3), |(y, x, c)| ((y * 5 + x * 3 + c) % 255) as f32);
-    let (rows, total_ms) = profile_forward(&net, img.view(), 2).unwrap();
+    let (rows, total_ms) =
+        profile_forward(&net, &densefeat::backend::CpuBackend::default(), img.view(), 2).unwrap();
     let calls = |prefix: &str| {
         rows.iter().filter(|(k, _)| k.starts_with(prefix)).map(|(_, t)| t.calls).sum::<usize>()
     };

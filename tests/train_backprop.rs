@@ -2,8 +2,9 @@
 //! the forward pass, thread-count determinism of the gradients, and the backward passes of the
 //! downsampling and concatenation helpers.
 
+use densefeat::backend::CpuBackend;
 use densefeat::nn::{concat_channels, concat_channels_backward, downsample2x, downsample2x_backward};
-use densefeat::nn::{FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
+use densefeat::nn::{FeatureNet, NetworkConfig, NetworkWeights};
 use densefeat::train::backprop::{backward, forward_with_tape};
 use ndarray::{Array3, ArrayView3};
 
@@ -46,7 +47,7 @@ impl Probe {
         Probe { r_blocks, r_feat }
     }
     fn loss(&self, weights: &NetworkWeights, img: ArrayView3<f32>) -> f64 {
-        let out = FeatureNet::new(weights.clone()).unwrap().forward(img, NetworkImpl::REFERENCE).unwrap();
+        let out = FeatureNet::new(weights.clone()).unwrap().forward(img, &CpuBackend::reference()).unwrap();
         let dot = |a: &Array3<f32>, b: &Array3<f32>| {
             a.iter().zip(b).map(|(x, y)| f64::from(*x) * f64::from(*y)).sum::<f64>()
         };
@@ -56,8 +57,8 @@ impl Probe {
         }
         l
     }
-    fn grads(&self, weights: &NetworkWeights, img: ArrayView3<f32>, imp: NetworkImpl) -> NetworkWeights {
-        let (_, tape) = forward_with_tape(weights, img, imp).unwrap();
+    fn grads(&self, weights: &NetworkWeights, img: ArrayView3<f32>, cpu: &CpuBackend) -> NetworkWeights {
+        let (_, tape) = forward_with_tape(weights, img, cpu).unwrap();
         let mut g = weights.zeros_like();
         let d_blocks: Vec<_> = self.r_blocks.iter().map(|r| Some(r.view())).collect();
         backward(weights, &tape, &d_blocks, Some(self.r_feat.view()), &mut g).unwrap();
@@ -69,8 +70,8 @@ impl Probe {
 fn tape_forward_is_the_network_forward() {
     let w = tiny(2, 3);
     let img = image(13, 11, 1);
-    let (out, _) = forward_with_tape(&w, img.view(), NetworkImpl::FAST).unwrap();
-    let want = FeatureNet::new(w).unwrap().forward(img.view(), NetworkImpl::FAST).unwrap();
+    let (out, _) = forward_with_tape(&w, img.view(), &CpuBackend::default()).unwrap();
+    let want = FeatureNet::new(w).unwrap().forward(img.view(), &CpuBackend::default()).unwrap();
     for (a, b) in out.aggregated.iter().chain(&out.blocks).zip(want.aggregated.iter().chain(&want.blocks)) {
         assert_eq!(a, b);
     }
@@ -85,7 +86,7 @@ fn network_gradients_match_directional_finite_differences() {
         let weights = tiny(b1, blocks);
         let img = image(h, w, 2);
         let probe = Probe::new(&weights.config, h, w);
-        let g = probe.grads(&weights, img.view(), NetworkImpl::FAST);
+        let g = probe.grads(&weights, img.view(), &CpuBackend::default());
         let n_layers = weights.layers().len();
         let mut r = rng(31);
         for li in 0..n_layers {
@@ -117,7 +118,7 @@ fn network_gradients_are_bit_identical_for_any_thread_count() {
     let probe = Probe::new(&weights.config, 24, 20);
     let run = |n: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
-        pool.install(|| probe.grads(&weights, img.view(), NetworkImpl::FAST))
+        pool.install(|| probe.grads(&weights, img.view(), &CpuBackend::default()))
     };
     let base = run(1);
     for n in [2, 3, 8] {

@@ -4,8 +4,9 @@
 
 use std::path::Path;
 
+use densefeat::backend::CpuBackend;
 use densefeat::geometry::InverseDepthBins;
-use densefeat::nn::{FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
+use densefeat::nn::{FeatureNet, NetworkConfig, NetworkWeights};
 use densefeat::train::checkpoint::Checkpoint;
 use densefeat::train::data::DataConfig;
 use densefeat::train::loss::LossConfig;
@@ -76,7 +77,7 @@ fn one_and_two_threads_give_bit_identical_weights() {
     let loaded = NetworkWeights::load(&a.path().join("weights.safetensors")).unwrap();
     assert_eq!(bits(&loaded), bits(&w1));
     let img = ndarray::Array3::<f32>::from_elem((32, 48, 3), 100.0);
-    FeatureNet::new(loaded).unwrap().forward(img.view(), NetworkImpl::FAST).unwrap();
+    FeatureNet::new(loaded).unwrap().forward(img.view(), &CpuBackend::default()).unwrap();
 }
 
 #[test]

@@ -4,12 +4,10 @@
 use std::time::Instant;
 
 use clap::{Args, Subcommand};
-use ndarray::Array3;
-use rayon::prelude::*;
 
 use crate::cli::synth::parse_size;
 use crate::error::{Error, Result};
-use crate::nn::{FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
+use crate::nn::{FeatureNet, NetworkConfig, NetworkWeights};
 
 /// Arguments of `densefeat bench`.
 #[derive(Debug, Clone, Args)]
@@ -58,6 +56,9 @@ pub struct ForwardArgs {
     /// Memory limit.
     #[command(flatten)]
     pub memory: super::validate::MemoryLimit,
+    /// Where the network runs.
+    #[command(flatten)]
+    pub backend: super::backend_flag::BackendFlag,
 }
 
 /// Arguments of `densefeat bench gemm`.
@@ -77,78 +78,20 @@ pub struct GemmArgs {
     pub memory: super::validate::MemoryLimit,
 }
 
-/// Rows of `A` (and `C`) per parallel SGEMM task.
-pub const GEMM_ROW_BLOCK: usize = 64;
 /// Warm-up runs before timing.
 const WARMUP: usize = 2;
 /// Fewest timed forward runs.
 const MIN_RUNS: usize = 20;
 
-pub(crate) fn pool(threads: usize) -> Result<rayon::ThreadPool> {
-    if threads == 0 {
-        return Err(Error::invalid_argument("--threads", "must be at least 1"));
-    }
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| Error::invalid_argument("--threads", e.to_string()))
-}
+pub(crate) use crate::runtime::thread_pool as pool;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) / 2.0
-    }
-}
-
-/// Median GFLOP/s of `C = A B` for `n x n` f32 matrices, split over rayon in blocks of
-/// [`GEMM_ROW_BLOCK`] rows of `A` (each a `matrixmultiply::sgemm` call), in the current pool.
-pub fn gemm_gflops(n: usize, runs: usize) -> f64 {
-    let a: Vec<f32> = (0..n * n).map(|i| ((i * 7 % 13) as f32 - 6.0) / 8.0).collect();
-    let b: Vec<f32> = (0..n * n).map(|i| ((i * 5 % 11) as f32 - 5.0) / 8.0).collect();
-    let mut c = vec![0.0f32; n * n];
-    let mut once = || {
-        let start = Instant::now();
-        c.par_chunks_mut(GEMM_ROW_BLOCK * n).enumerate().for_each(|(blk, c_rows)| {
-            let rows = c_rows.len() / n;
-            let a_rows = &a[blk * GEMM_ROW_BLOCK * n..][..rows * n];
-            // SAFETY: a_rows is rows×n, b is n×n, c_rows is rows×n, all row-major and in bounds;
-            // c_rows is a distinct &mut slice.
-            unsafe {
-                matrixmultiply::sgemm(
-                    rows,
-                    n,
-                    n,
-                    1.0,
-                    a_rows.as_ptr(),
-                    n as isize,
-                    1,
-                    b.as_ptr(),
-                    n as isize,
-                    1,
-                    0.0,
-                    c_rows.as_mut_ptr(),
-                    n as isize,
-                    1,
-                );
-            }
-        });
-        start.elapsed().as_secs_f64()
-    };
-    once();
-    let times: Vec<f64> = (0..runs.max(1)).map(|_| once()).collect();
-    2.0 * (n as f64).powi(3) / median(times) / 1e9
-}
-
-/// A deterministic test pattern `[h, w, 3]` in 0..=255.
-fn pattern(h: usize, w: usize) -> Array3<f32> {
-    Array3::from_shape_fn((h, w, 3), |(y, x, c)| ((x * 7 + y * 13 + c * 61 + (x * y) % 17) % 256) as f32)
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
+    crate::runtime::median(&mut v)
 }
 
 fn run_forward(args: &ForwardArgs) -> Result<()> {
+    let backend = args.backend.resolve()?;
+    let backend = backend.as_ref();
     let (w, h) = parse_size(&args.size)?;
     let gemm = crate::memory::product(&[3, args.gemm_size as u64, args.gemm_size as u64, 4]);
     let net = crate::memory::network_forward_bytes(h, w, NetworkConfig::default().channels, args.b1_stride);
@@ -160,19 +103,19 @@ fn run_forward(args: &ForwardArgs) -> Result<()> {
     let config =
         NetworkConfig { b1_stride: args.b1_stride, input_mean: [128.0; 3], ..NetworkConfig::default() };
     let net = FeatureNet::new(NetworkWeights::xavier_uniform(&config, 0)?)?;
-    let image = pattern(h, w);
+    let image = crate::perf::pattern(h, w);
     let pool = pool(args.threads)?;
     let (ms, peak) = pool.install(|| -> Result<(f64, f64)> {
         for _ in 0..WARMUP {
-            net.forward(image.view(), NetworkImpl::FAST)?;
+            net.forward(image.view(), backend)?;
         }
         let mut times = Vec::with_capacity(args.runs);
         for _ in 0..args.runs {
             let start = Instant::now();
-            std::hint::black_box(net.forward(image.view(), NetworkImpl::FAST)?);
+            std::hint::black_box(net.forward(image.view(), backend)?);
             times.push(start.elapsed().as_secs_f64() * 1e3);
         }
-        Ok((median(times), gemm_gflops(args.gemm_size, 10)))
+        Ok((median(times), crate::perf::gemm_gflops(args.gemm_size, 10)))
     })?;
     let gflop = net.flops(h, w) / 1e9;
     let gflops = gflop / (ms / 1e3);
@@ -188,7 +131,8 @@ fn run_forward(args: &ForwardArgs) -> Result<()> {
         100.0 * gflops / peak
     );
     if args.profile {
-        let (rows, total) = pool.install(|| crate::nn::profile_forward(&net, image.view(), args.runs))?;
+        let (rows, total) =
+            pool.install(|| crate::nn::profile_forward(&net, backend, image.view(), args.runs))?;
         println!("\nprofile (mean per forward pass, {} passes):", args.runs);
         println!("| operation | calls | ms | share | GFLOP/s |");
         println!("|---|---|---|---|---|");
@@ -212,7 +156,7 @@ fn run_gemm(args: &GemmArgs) -> Result<()> {
     }
     let bytes = crate::memory::product(&[3, args.size as u64, args.size as u64, 4]);
     args.memory.check(&format!("a {} GEMM", args.size), bytes, "use a smaller --size")?;
-    let gflops = pool(args.threads)?.install(|| gemm_gflops(args.size, args.runs));
+    let gflops = pool(args.threads)?.install(|| crate::perf::gemm_gflops(args.size, args.runs));
     println!("| n | threads | runs | median GFLOP/s |");
     println!("|---|---|---|---|");
     println!("| {} | {} | {} | {gflops:.1} |", args.size, args.threads, args.runs);

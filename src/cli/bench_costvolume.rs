@@ -3,16 +3,16 @@
 
 use std::time::Instant;
 
+use std::sync::Arc;
+
 use clap::Args;
-use nalgebra::{Translation3, UnitQuaternion};
-use ndarray::Array3;
 
 use super::synth::parse_size;
+use crate::backend::{Backend, CpuBackend};
 use crate::costvolume::{fast_kernel_name, CostVolume, CostVolumeImpl, UNSEEN_COST};
 use crate::error::{Error, Result};
-use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
+
 use crate::io::{write_atomic, write_npy_f32};
-use crate::synth::rng::SplitMix64;
 
 /// Arguments of `densefeat bench costvolume`.
 #[derive(Debug, Clone, Args)]
@@ -44,45 +44,9 @@ pub struct BenchCostvolumeArgs {
     /// Memory limit.
     #[command(flatten)]
     pub memory: super::validate::MemoryLimit,
-}
-
-/// Inputs of [`bench_inputs`].
-#[derive(Clone, Debug)]
-pub struct BenchInputs {
-    /// Reference features `[H, W, C]`.
-    pub reference: Array3<f32>,
-    /// Live features `[H, W, C]`.
-    pub live: Array3<f32>,
-    /// The camera of both frames.
-    pub camera: PinholeCamera,
-    /// The hypotheses.
-    pub bins: InverseDepthBins,
-    /// `T_nr`.
-    pub t_nr: Pose,
-}
-
-/// Inputs of the benchmark: random reference and live features in `[0, 1)`, a camera with
-/// `f = 0.8 W` and the principal point at the centre, hypotheses over `[0.25, 4]` 1/m, and a live
-/// camera 5 cm to the right, 2 cm forward, rotated by about 1° (a typical neighbouring keyframe).
-///
-/// # Errors
-/// [`Error::InvalidArgument`] for an empty size, fewer than 2 bins or no channel.
-pub fn bench_inputs(width: usize, height: usize, channels: usize, bins: usize) -> Result<BenchInputs> {
-    if channels == 0 {
-        return Err(Error::invalid_argument("--channels", "0: must be at least 1"));
-    }
-    let f = 0.8 * width as f64;
-    let cam =
-        PinholeCamera::new(f, f, (width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0, width, height)?;
-    let bins = InverseDepthBins::new(0.25, 4.0, bins)?;
-    let mut rng = SplitMix64::new(7);
-    let mut feats = || Array3::from_shape_simple_fn((height, width, channels), || rng.unit() as f32);
-    let (reference, live) = (feats(), feats());
-    let t_nr = Pose::from_parts(
-        Translation3::new(-0.05, 0.0, -0.02),
-        UnitQuaternion::from_euler_angles(0.01, -0.015, 0.005),
-    );
-    Ok(BenchInputs { reference, live, camera: cam, bins, t_nr })
+    /// Where the volume is built (`--reference` overrides it with the CPU reference).
+    #[command(flatten)]
+    pub backend: super::backend_flag::BackendFlag,
 }
 
 /// Run the benchmark and print the result.
@@ -90,6 +54,8 @@ pub fn bench_inputs(width: usize, height: usize, channels: usize, bins: usize) -
 /// # Errors
 /// [`Error::InvalidArgument`] for bad arguments.
 pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
+    let backend: Arc<dyn Backend> =
+        if args.reference { Arc::new(CpuBackend::reference()) } else { args.backend.resolve()? };
     let (width, height) = parse_size(&args.size)?;
     let bytes = crate::memory::cost_volume_bytes(height, width, args.bins, args.channels);
     let what = format!("the {height}x{width}x{} volume with {} channels", args.bins, args.channels);
@@ -100,36 +66,39 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     if args.threads == 0 {
         return Err(Error::invalid_argument("--threads", "0: must be at least 1"));
     }
-    let BenchInputs { reference, live, camera: cam, bins, t_nr } =
-        bench_inputs(width, height, args.channels, args.bins)?;
-    let imp = if args.reference { CostVolumeImpl::Reference } else { CostVolumeImpl::Fast };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads)
-        .build()
-        .map_err(|e| Error::invalid_argument("--threads", e.to_string()))?;
-    let mut cv = CostVolume::with_impl(reference, cam, bins, imp)?;
+    let crate::perf::BenchInputs { reference, live, camera: cam, bins, t_nr } =
+        crate::perf::bench_inputs(width, height, args.channels, args.bins)?;
+    let pool = crate::runtime::thread_pool(args.threads)?;
+    let mut cv = backend.cost_volume(&backend.upload_owned(reference)?, cam, bins)?;
+    // Uploads are explicit and outside the timed loop (SPEC.md §15.2).
+    let live = backend.upload_owned(live)?;
     let mut times = Vec::with_capacity(args.runs);
     let mut cpu_start = None;
     pool.install(|| -> Result<()> {
         for run in 0..args.runs + 2 {
             if run == 2 {
-                cpu_start = process_cpu_seconds();
+                cpu_start = crate::perf::process_cpu_seconds();
             }
             let start = Instant::now();
-            cv.add_frame(live.view(), &t_nr)?;
+            cv.add_frame(&live, &t_nr)?;
             if run >= 2 {
                 times.push(start.elapsed().as_secs_f64());
             }
         }
         Ok(())
     })?;
-    let cpu = cpu_start.zip(process_cpu_seconds()).map(|(a, b)| (b - a) / args.runs as f64);
+    let cv = cv.finish()?;
+    let cpu = cpu_start.zip(crate::perf::process_cpu_seconds()).map(|(a, b)| (b - a) / args.runs as f64);
     let total: f64 = times.iter().sum::<f64>() / args.runs as f64;
     times.sort_by(f64::total_cmp);
     let median = times[times.len() / 2];
     let hyps = (width * height * args.bins) as f64;
     let seen = cv.counts().iter().filter(|&&n| n > 0).count() as f64 / hyps;
-    let kernel = if args.reference { "reference" } else { fast_kernel_name() };
+    let kernel = match (args.reference, backend.name()) {
+        (true, _) => "reference".to_string(),
+        (false, "cpu") => fast_kernel_name().to_string(),
+        (false, _) => backend.device(),
+    };
     println!(
         "cost volume {width}x{height}, K={}, C={}, {} thread(s), {kernel}: median {:.2} ms per added frame \
          over {} runs (min {:.2}, max {:.2}), {:.1} M hypotheses/s, {:.1}% of cells in view",
@@ -146,7 +115,13 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     if let Some(dir) = &args.dump {
         let mut staging = crate::io::Staging::new();
         let staged = staging.dir(dir)?;
-        dump(&staged, &bench_inputs(width, height, args.channels, args.bins)?, kernel, args.threads, median)?;
+        dump(
+            &staged,
+            &crate::perf::bench_inputs(width, height, args.channels, args.bins)?,
+            &kernel,
+            args.threads,
+            median,
+        )?;
         staging.commit()?;
         println!("  inputs and one frame's volume written to {}", dir.display());
     }
@@ -168,13 +143,13 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
 /// (the reference on `|f_r|`, `-|f_n|`, SPEC.md §9.6) and `meta.json` to `dir` (created).
 fn dump(
     dir: &std::path::Path,
-    inputs: &BenchInputs,
+    inputs: &crate::perf::BenchInputs,
     kernel: &str,
     threads: usize,
     median_s: f64,
 ) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let BenchInputs { reference, live, camera, bins, t_nr } = inputs;
+    let crate::perf::BenchInputs { reference, live, camera, bins, t_nr } = inputs;
     let mut cv = CostVolume::new(reference.clone(), *camera, *bins)?;
     cv.add_frame(live.view(), t_nr)?;
     let mut mag = CostVolume::with_impl(reference.mapv(f32::abs), *camera, *bins, CostVolumeImpl::Reference)?;
@@ -194,17 +169,3 @@ fn dump(
     });
     write_atomic(&dir.join("meta.json"), meta.to_string().as_bytes())
 }
-
-/// User + system CPU time of this process from `/proc/self/stat` (Linux; 100 Hz ticks), or `None`.
-fn process_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the parenthesised command name: state is field 3, utime 14, stime 15.
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    let utime: f64 = fields.get(11)?.parse().ok()?;
-    let stime: f64 = fields.get(12)?.parse().ok()?;
-    Some((utime + stime) / CLOCK_TICKS_PER_SECOND)
-}
-
-/// `sysconf(_SC_CLK_TCK)` on every Linux target we run on.
-const CLOCK_TICKS_PER_SECOND: f64 = 100.0;

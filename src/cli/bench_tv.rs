@@ -108,8 +108,7 @@ pub fn tv_inputs(width: usize, height: usize, bins: usize) -> Result<TvInputs> {
 }
 
 fn median_ms(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2] * 1e3
+    crate::runtime::median(&mut v) * 1e3
 }
 
 /// Runs the benchmark and prints one iteration's parts and a full solve.

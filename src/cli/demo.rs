@@ -51,7 +51,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         args.mapping.depth_range.0,
         args.mapping.depth_range.1
     );
-    let cfg = args.mapping.config(args.keyframe, FeatureKind::Rgb, Regularizer::Tv);
+    let cfg = args.mapping.config(args.keyframe, FeatureKind::Rgb, Regularizer::Tv)?;
     let kinds = [FeatureKind::Rgb, FeatureKind::Learned(None)];
     super::validate::mapping_preflight(&seq, &cfg, &[args.keyframe], &kinds, "demo")?;
     let mut staging = crate::io::Staging::new();

@@ -117,7 +117,7 @@ fn preflight(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<()>
     if args.methods.iter().any(|m| m.learned()) {
         kinds.push(FeatureKind::Learned(args.weights.clone()));
     }
-    let cfg = args.mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv);
+    let cfg = args.mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv)?;
     mapping_preflight(seq, &cfg, keyframes, &kinds, "eval")
 }
 
@@ -182,7 +182,7 @@ pub fn run_eval(
     options: impl FnOnce() -> EvalOptions,
 ) -> Result<EvalTable> {
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    let base = mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv);
+    let base = mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv)?;
     let bar = progress_bar();
     let result = evaluate(
         seq,

@@ -5,11 +5,13 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 
+use super::backend_flag::BackendFlag;
+use crate::backend::Backend;
 use crate::error::Result;
 use crate::image::{load_rgb, read_dimensions, save_rgb_png};
 use crate::io::{write_npy_f32, Staging};
 use crate::nn::viz::pca_rgb;
-use crate::nn::{FeatureNet, NetworkImpl, NetworkWeights};
+use crate::nn::{FeatureNet, NetworkWeights};
 
 use super::validate::{flag, MemoryLimit};
 
@@ -34,16 +36,19 @@ pub struct FeaturesArgs {
     /// Memory limit.
     #[command(flatten)]
     pub memory: MemoryLimit,
+    /// Where the network runs.
+    #[command(flatten)]
+    pub backend: BackendFlag,
 }
 
 /// Computes the features of `image` with the weights at `weights`.
 ///
 /// # Errors
 /// Reading errors naming the file.
-pub fn features_of(image: &Path, weights: &Path) -> Result<ndarray::Array3<f32>> {
+pub fn features_of(image: &Path, weights: &Path, backend: &dyn Backend) -> Result<ndarray::Array3<f32>> {
     let net = FeatureNet::new(NetworkWeights::load(weights)?)?;
     let rgb = load_rgb(image)?;
-    let out = net.forward(rgb.view(), NetworkImpl::FAST)?;
+    let out = net.forward(rgb.view(), backend)?;
     Ok(out.aggregated.into_iter().next().unwrap_or_default())
 }
 
@@ -54,6 +59,7 @@ pub fn features_of(image: &Path, weights: &Path) -> Result<ndarray::Array3<f32>>
 pub fn run(args: FeaturesArgs) -> Result<()> {
     let start = std::time::Instant::now();
     // Up front (SPEC.md §14.1): the image header, the weights, the memory, the output paths.
+    let backend = args.backend.resolve()?;
     let (w, h) = read_dimensions(&args.image)?;
     let config = NetworkWeights::load(&args.weights)?.config;
     let bytes = crate::memory::network_forward_bytes(h, w, config.channels, config.b1_stride);
@@ -64,7 +70,7 @@ pub fn run(args: FeaturesArgs) -> Result<()> {
     let mut staging = Staging::new();
     let out = staging.file(&args.out)?;
     let viz = args.viz.as_ref().map(|v| staging.file(v)).transpose()?;
-    let feats = features_of(&args.image, &args.weights)?;
+    let feats = features_of(&args.image, &args.weights, backend.as_ref())?;
     write_npy_f32(&out, feats.view())?;
     if let Some(viz) = &viz {
         save_rgb_png(viz, &pca_rgb(feats.view())?)?;

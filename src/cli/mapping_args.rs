@@ -6,6 +6,7 @@ use std::time::Duration;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
+use super::backend_flag::BackendFlag;
 use crate::dtam::{DtamParams, MAPPING_DEFAULTS};
 use crate::error::{Error, Result};
 use crate::mapping::keyframe::{
@@ -70,12 +71,23 @@ pub struct MappingArgs {
     /// Refuse to run when the estimated memory exceeds this many MiB.
     #[arg(long, default_value_t = DEFAULT_MAX_MEMORY_MB)]
     pub max_memory_mb: usize,
+    /// Where the ops run.
+    #[command(flatten)]
+    pub backend: BackendFlag,
 }
 
 impl MappingArgs {
     /// A configuration for `keyframe` with these flags.
-    pub fn config(&self, keyframe: usize, features: FeatureKind, regularizer: Regularizer) -> KeyframeConfig {
-        KeyframeConfig {
+    ///
+    /// # Errors
+    /// `--backend` names a backend this build does not have.
+    pub fn config(
+        &self,
+        keyframe: usize,
+        features: FeatureKind,
+        regularizer: Regularizer,
+    ) -> Result<KeyframeConfig> {
+        Ok(KeyframeConfig {
             keyframe,
             past: self.window.0,
             future: self.window.1,
@@ -100,14 +112,9 @@ impl MappingArgs {
             level: self.level,
             min_evidence: self.min_evidence,
             lambda_sweep: Vec::new(),
-        }
+            backend: self.backend.resolve()?,
+        })
     }
-}
-
-fn pair<T: std::str::FromStr>(s: &str) -> std::result::Result<(T, T), String> {
-    let (a, b) = s.split_once(',').ok_or_else(|| format!("{s:?}: expected two values A,B"))?;
-    let p = |v: &str| v.trim().parse::<T>().map_err(|_| format!("{v:?} is not a number"));
-    Ok((p(a)?, p(b)?))
 }
 
 /// Parses `P,F`.
@@ -115,7 +122,7 @@ fn pair<T: std::str::FromStr>(s: &str) -> std::result::Result<(T, T), String> {
 /// # Errors
 /// A message for clap.
 pub fn parse_pair_usize(s: &str) -> std::result::Result<(usize, usize), String> {
-    pair(s)
+    super::validate::pair(s)
 }
 
 /// Parses `A,B` reals.
@@ -123,7 +130,7 @@ pub fn parse_pair_usize(s: &str) -> std::result::Result<(usize, usize), String> 
 /// # Errors
 /// A message for clap.
 pub fn parse_pair_f64(s: &str) -> std::result::Result<(f64, f64), String> {
-    pair(s)
+    super::validate::pair(s)
 }
 
 /// Parses `START:STEP:END` (END inclusive) into keyframe indices.

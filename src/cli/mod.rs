@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 use crate::error::Result;
 
+pub mod backend_flag;
 pub mod bench;
 pub mod bench_costvolume;
 pub mod bench_tv;

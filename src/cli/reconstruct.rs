@@ -42,7 +42,7 @@ pub struct ReconstructArgs {
 /// Bad arguments, reading or writing errors.
 pub fn run(args: ReconstructArgs) -> Result<()> {
     let seq = open(&args.sequence)?;
-    let cfg = args.mapping.config(args.keyframe, args.features.clone(), args.regularizer);
+    let cfg = args.mapping.config(args.keyframe, args.features.clone(), args.regularizer)?;
     mapping_preflight(&seq, &cfg, &[args.keyframe], std::slice::from_ref(&args.features), "reconstruct")?;
     let mut staging = Staging::new();
     let out = staging.dir(&args.out)?;

@@ -5,12 +5,13 @@ use std::time::Instant;
 
 use clap::Args;
 
+use crate::backend::CpuBackend;
 use crate::cli::init_weights::parse_mean;
 use crate::cli::validate::{self, MemoryLimit};
 use crate::error::{Error, Result};
 use crate::geometry::InverseDepthBins;
 use crate::io::write_npy_f32;
-use crate::nn::{FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
+use crate::nn::{FeatureNet, NetworkConfig, NetworkWeights};
 use crate::train::data::{DataConfig, DataSet, PairRule};
 use crate::train::loss::LossConfig;
 use crate::train::optim::OptimConfig;
@@ -123,9 +124,7 @@ pub struct TrainArgs {
 }
 
 fn parse_pair(text: &str, name: &str) -> Result<(f64, f64)> {
-    let bad = || Error::invalid_argument(name, format!("{text:?}: expected two numbers a,b"));
-    let (a, b) = text.split_once(',').ok_or_else(bad)?;
-    Ok((a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?))
+    super::validate::pair(text).map_err(|e| super::validate::flag(name, e))
 }
 
 impl TrainArgs {
@@ -183,12 +182,7 @@ impl TrainArgs {
     }
 }
 
-fn pool(threads: usize) -> Result<rayon::ThreadPool> {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| Error::invalid_argument("--threads", e.to_string()))
-}
+use crate::runtime::thread_pool as pool;
 
 /// Runs `densefeat train`.
 ///
@@ -255,7 +249,7 @@ fn dump(
     write_npy_f32(&dir.join("depth.npy"), depth)?;
     weights.save(&dir.join("weights.safetensors"))?;
     let mut grads = weights.zeros_like();
-    let l = pair_step(weights, pair, loss, sup, NetworkImpl::FAST, Some((&mut grads, 1.0)))?;
+    let l = pair_step(weights, pair, loss, sup, &CpuBackend::default(), Some((&mut grads, 1.0)))?;
     grads.provenance = "gradient of the pair objective".into();
     grads.save(&dir.join("grads.safetensors"))?;
     let cam = |c: &crate::geometry::PinholeCamera| serde_json::json!({"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height});
@@ -306,7 +300,7 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
     let weights = training_init(&config, 0)?;
     let loss = LossConfig { bins: InverseDepthBins::new(0.0, 4.0, args.bins)?, ..LossConfig::default() };
     let sup = Supervision::default();
-    let imp = NetworkImpl::FAST;
+    let cpu = CpuBackend::default();
     let pool = pool(args.threads)?;
     if let Some(dir) = &args.dump {
         let mut staging = crate::io::Staging::new();
@@ -317,22 +311,22 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
     }
     let (ms_step, ms_fwd, stage) = pool.install(|| -> Result<(Vec<f64>, Vec<f64>, Vec<StepTimes>)> {
         let mut g = weights.zeros_like();
-        pair_step(&weights, &pair, &loss, &sup, imp, Some((&mut g, 1.0)))?;
+        pair_step(&weights, &pair, &loss, &sup, &cpu, Some((&mut g, 1.0)))?;
         let mut steps = Vec::new();
         let mut fwds = Vec::new();
         let mut stages = Vec::new();
         let net = FeatureNet::new(weights.clone())?;
         for _ in 0..args.runs.max(1) {
             let t = Instant::now();
-            pair_step(&weights, &pair, &loss, &sup, imp, Some((&mut g, 1.0)))?;
+            pair_step(&weights, &pair, &loss, &sup, &cpu, Some((&mut g, 1.0)))?;
             steps.push(t.elapsed().as_secs_f64() * 1e3);
             let t = Instant::now();
-            net.forward(pair.ref_rgb.view(), imp)?;
-            net.forward(pair.live_rgb.view(), imp)?;
+            net.forward(pair.ref_rgb.view(), &cpu)?;
+            net.forward(pair.live_rgb.view(), &cpu)?;
             fwds.push(t.elapsed().as_secs_f64() * 1e3);
             if args.profile {
                 let mut st = StepTimes::default();
-                pair_step_timed(&weights, &pair, &loss, &sup, imp, Some((&mut g, 1.0)), &mut st)?;
+                pair_step_timed(&weights, &pair, &loss, &sup, &cpu, Some((&mut g, 1.0)), &mut st)?;
                 stages.push(st);
             }
         }

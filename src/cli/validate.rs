@@ -15,6 +15,16 @@ pub const MAX_SIDE: usize = 8192;
 /// fewer than 8x8 cells and no depth metric means anything.
 pub const MIN_FRAME_SIDE: usize = 16;
 
+/// The one `A,B` parser (window, depth range, baseline, ...).
+///
+/// # Errors
+/// A message naming the text, for clap or for [`flag`].
+pub fn pair<T: std::str::FromStr>(s: &str) -> std::result::Result<(T, T), String> {
+    let (a, b) = s.split_once(',').ok_or_else(|| format!("{s:?}: expected two values A,B"))?;
+    let p = |v: &str| v.trim().parse::<T>().map_err(|_| format!("{v:?} is not a number"));
+    Ok((p(a)?, p(b)?))
+}
+
 /// The one "flag X: problem" error: `name` with or without its leading `--`.
 pub fn flag(name: &str, what: impl Into<String>) -> Error {
     let name = if name.starts_with("--") { name.to_string() } else { format!("--{name}") };

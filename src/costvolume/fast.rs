@@ -63,14 +63,7 @@ pub fn fast_kernel_name() -> &'static str {
 }
 
 fn has_avx512() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx512f")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    crate::runtime::has_avx512f()
 }
 
 /// Add one live frame into `sums` / `counts` (`[H, W, K]`). `dispatch`: use AVX-512 when available.

@@ -5,7 +5,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use ndarray::ArrayView3;
+use ndarray::{ArrayView, Dimension};
 
 use crate::error::Result;
 use crate::io::write_atomic_with;
@@ -33,11 +33,12 @@ pub fn npy_f32_header(shape: &[usize]) -> Vec<u8> {
     out
 }
 
-/// Writes a `[H, W, C]` f32 array as `.npy` (C order, `<f4`), atomically.
+/// Writes an f32 array of any dimension (`[H, W]`, `[H, W, C]`, ...) as `.npy` (C order, `<f4`),
+/// atomically.
 ///
 /// # Errors
 /// [`crate::Error::Io`] naming `path` on a write failure.
-pub fn write_npy_f32(path: &Path, array: ArrayView3<f32>) -> Result<()> {
+pub fn write_npy_f32<D: Dimension>(path: &Path, array: ArrayView<f32, D>) -> Result<()> {
     let header = npy_f32_header(array.shape());
     write_atomic_with(path, |w| {
         w.write_all(&header)?;

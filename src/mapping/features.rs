@@ -12,10 +12,12 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array3, ArrayView3};
 use rayon::prelude::*;
 
+use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::geometry::PinholeCamera;
 use crate::image::{sample_bilinear, RgbImage};
-use crate::nn::{downsample2x, FeatureNet, NetworkImpl, NetworkWeights};
+use crate::nn::{downsample2x, FeatureNet, NetworkWeights};
+use std::sync::Arc;
 
 /// The weights shipped in `fixtures/weights/`, compiled into the binary so that the demo and
 /// `--features learned` need no file at run time.
@@ -66,6 +68,7 @@ pub struct FeatureMap {
 #[derive(Debug)]
 pub struct FeatureExtractor {
     kind: FeatureKind,
+    backend: Arc<dyn Backend>,
     net: Option<FeatureNet>,
     level: u32,
     net_level: Option<u32>,
@@ -78,7 +81,7 @@ impl FeatureExtractor {
     ///
     /// # Errors
     /// Weight-file errors naming the file.
-    pub fn new(kind: FeatureKind, level: u32) -> Result<Self> {
+    pub fn new(kind: FeatureKind, level: u32, backend: Arc<dyn Backend>) -> Result<Self> {
         let net = match &kind {
             FeatureKind::Rgb => None,
             FeatureKind::Learned(None) => Some(FeatureNet::new(NetworkWeights::from_safetensors_bytes(
@@ -88,7 +91,7 @@ impl FeatureExtractor {
             FeatureKind::Learned(Some(p)) => Some(FeatureNet::new(NetworkWeights::load(p)?)?),
         };
         let net_level = net.as_ref().map(Self::output_level);
-        Ok(Self { kind, net, level, net_level })
+        Ok(Self { kind, backend, net, level, net_level })
     }
 
     /// The level the network computes its features at (`None` for RGB).
@@ -132,7 +135,7 @@ impl FeatureExtractor {
         k.at_level(self.level)
     }
 
-    /// Features of an RGB image (`[H, W, 3]`, 0-255).
+    /// Features of an RGB image (`[H, W, 3]`, 0-255); the network runs on the extractor's backend.
     ///
     /// # Errors
     /// Shape errors from the kernels (not `[H, W, 3]`).
@@ -140,7 +143,7 @@ impl FeatureExtractor {
         let (h0, w0, _) = rgb.dim();
         let data = match (&self.net, self.net_level) {
             (Some(net), Some(nl)) => {
-                let f = net.forward(rgb.view(), NetworkImpl::FAST)?.features().clone();
+                let f = net.forward(rgb.view(), self.backend.as_ref())?.aggregated.swap_remove(0);
                 match self.level.cmp(&nl) {
                     std::cmp::Ordering::Equal => f,
                     std::cmp::Ordering::Greater => downsample_to(f.view(), self.level - nl)?,

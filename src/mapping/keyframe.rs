@@ -6,14 +6,15 @@
 //! volume's `[H_L, W_L, K]` sums, counts and the costs copy DTAM reads dominate and are estimated
 //! up front ([`memory_estimate`]).
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use ndarray::{Array2, Array3};
 use serde::Serialize;
 
-use crate::costvolume::{confidence, cost_scale, filter_evidence, winner_take_all_costs, CostVolume};
-use crate::dtam::DtamResult;
-use crate::dtam::{self, DtamParams, DtamReport};
+use crate::backend::Backend;
+use crate::costvolume::{confidence, cost_scale, filter_evidence};
+use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
 use crate::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
@@ -76,6 +77,8 @@ pub struct KeyframeConfig {
     pub min_evidence: f64,
     /// Extra `λ` values: DTAM also runs at each on the same volume ([`KeyframeResult::sweep`]).
     pub lambda_sweep: Vec<f64>,
+    /// Where every op runs (network, cost volume, WTA, DTAM; SPEC.md §15).
+    pub backend: Arc<dyn Backend>,
 }
 
 /// Default of [`KeyframeConfig::bins`].
@@ -100,11 +103,12 @@ impl KeyframeConfig {
             far,
             bins: DEFAULT_BINS,
             regularizer: Regularizer::Tv,
-            dtam: dtam::MAPPING_DEFAULTS,
+            dtam: crate::dtam::MAPPING_DEFAULTS,
             max_memory_mb: DEFAULT_MAX_MEMORY_MB,
             level: 0,
             min_evidence: DEFAULT_MIN_EVIDENCE,
             lambda_sweep: Vec::new(),
+            backend: crate::backend::default_backend(),
         }
     }
 
@@ -325,7 +329,8 @@ pub fn reconstruct(
     let live = cfg.live_frames(seq.len())?;
     let level = cfg.level;
     let camera = seq.camera.at_level(level);
-    let extractor = FeatureExtractor::new(cfg.features.clone(), level)?;
+    let backend = cfg.backend.as_ref();
+    let extractor = FeatureExtractor::new(cfg.features.clone(), level, cfg.backend.clone())?;
     let mut timings = StageTimings::default();
     progress(Stage::Keyframe, 0, 1);
     let t = Instant::now();
@@ -355,7 +360,7 @@ pub fn reconstruct(
     let gt_depth = key.depth.as_ref().map(|d| depth_at_level(d, level));
     progress(Stage::Keyframe, 1, 1);
 
-    let mut cv = CostVolume::new(key_features, camera, bins)?;
+    let mut cv = backend.cost_volume(&backend.upload_owned(key_features)?, camera, bins)?;
     for (i, &n) in live.iter().enumerate() {
         let t = Instant::now();
         let frame = seq.load_frame(n)?;
@@ -364,19 +369,20 @@ pub fn reconstruct(
         let f = extractor.extract(&frame.rgb)?.data;
         timings.features += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        cv.add_frame(f.view(), &relative_pose(&key.pose, &frame.pose))?;
+        cv.add_frame(&backend.upload_owned(f)?, &relative_pose(&key.pose, &frame.pose))?;
         timings.cost_volume += t.elapsed().as_secs_f64();
         progress(Stage::CostVolume, i + 1, live.len());
     }
 
     progress(Stage::Wta, 0, 1);
     let t = Instant::now();
+    let cv = cv.finish()?;
     let mut costs: Array3<f32> = cv.costs();
     filter_evidence(&mut costs, cv.counts_view(), cfg.min_evidence);
     let conf = confidence(costs.view(), cv.counts_view(), cv.frames());
     drop(cv);
     let scale = cost_scale(costs.view());
-    let w = winner_take_all_costs(costs.view(), &bins);
+    let w = backend.winner_take_all(costs.view(), &bins)?;
     timings.wta = t.elapsed().as_secs_f64();
     progress(Stage::Wta, 1, 1);
     let wta = DepthEstimate { inverse_depth: w.inverse_depth.clone(), depth: w.depth.clone() };
@@ -393,7 +399,7 @@ pub fn reconstruct(
                 bins.rho_max - bins.rho_min,
             );
             let (res, report) =
-                dtam::solve(costs.view(), &bins, grey.view(), w.inverse_depth.view(), &params)?;
+                backend.dtam_solve(costs.view(), &bins, grey.view(), w.inverse_depth.view(), &params)?;
             Ok((tv_estimate(res, &w.valid), report))
         };
         let (e, report) = run(cfg.dtam.lambda)?;

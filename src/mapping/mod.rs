@@ -1,7 +1,8 @@
 //! Keyframe mapping: the features that fill the cost volume, the keyframe reconstruction (cost
 //! volume of [`crate::costvolume`], regulariser of [`crate::dtam`]), its output files, and the
-//! evaluation table over keyframes and methods (SPEC.md §11).
+//! evaluation table over keyframes and methods (SPEC.md §11); the cost-curve diagnostic (§12.1).
 
+pub mod costcurve;
 pub mod evaluate;
 pub mod features;
 pub mod keyframe;

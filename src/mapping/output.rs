@@ -16,7 +16,7 @@ use serde_json::json;
 
 use crate::error::{Error, Result};
 use crate::image::{is_valid_depth, save_depth_png_mm, save_rgb_png};
-use crate::io::{npy_f32_header, write_atomic_with};
+use crate::io::{write_atomic_with, write_npy_f32};
 use crate::mapping::keyframe::{DepthEstimate, KeyframeResult};
 
 /// Default `--min-confidence` (chosen on validation scenes, SPEC.md §9.12).
@@ -52,14 +52,14 @@ pub fn write_outputs_with(result: &KeyframeResult, dir: &Path, min_confidence: f
     }
     let masked: Vec<DepthEstimate> = full.iter().map(|(_, e)| result.masked(e, min_confidence)).collect();
     let estimates: Vec<(&str, &DepthEstimate)> = full.iter().map(|(n, _)| *n).zip(masked.iter()).collect();
-    write_npy_2d(&push(dir.join("confidence.npy")), result.confidence.view())?;
+    write_npy_f32(&push(dir.join("confidence.npy")), result.confidence.view())?;
     let conf_pic =
         Array3::from_shape_fn((result.confidence.nrows(), result.confidence.ncols(), 3), |(y, x, _)| {
             (result.confidence[[y, x]] * 255.0).round()
         });
     save_rgb_png(&push(dir.join("confidence.png")), &conf_pic)?;
     for (name, e) in &estimates {
-        write_npy_2d(&push(dir.join(format!("depth_{name}.npy"))), e.depth.view())?;
+        write_npy_f32(&push(dir.join(format!("depth_{name}.npy"))), e.depth.view())?;
         write_pfm(&push(dir.join(format!("depth_{name}.pfm"))), e.depth.view())?;
         save_depth_png_mm(&push(dir.join(format!("depth_{name}_mm.png"))), &e.depth)?;
         let pic = colour_depth_with_legend(e.depth.view(), near, far);
@@ -103,21 +103,6 @@ pub fn write_outputs_with(result: &KeyframeResult, dir: &Path, min_confidence: f
         write_atomic_with(&push(dir.join("metrics.json")), |w| w.write_all(text.as_bytes()))?;
     }
     Ok(written)
-}
-
-/// Write `[H, W]` f32 as `.npy` (shape `(H, W)`, `<f4`, C order), atomically.
-///
-/// # Errors
-/// [`Error::Io`] naming `path`.
-pub fn write_npy_2d(path: &Path, a: ArrayView2<f32>) -> Result<()> {
-    let header = npy_f32_header(a.shape());
-    write_atomic_with(path, |w| {
-        w.write_all(&header)?;
-        for v in a.iter() {
-            w.write_all(&v.to_le_bytes())?;
-        }
-        Ok(())
-    })
 }
 
 /// Write `[H, W]` f32 as a grey PFM (`Pf`, scale `-1` = little-endian, rows bottom to top),

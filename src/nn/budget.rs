@@ -13,11 +13,17 @@
 
 use ndarray::{Array1, Array3, Array4};
 
+use crate::backend::{Backend, CpuBackend, Tensor};
 use crate::error::Result;
 use crate::nn::config::NetworkConfig;
 use crate::nn::conv2d::conv2d_reference;
 use crate::nn::deconv2d::deconv2d_reference;
-use crate::nn::network::{Executor, KernelExecutor, NetworkImpl};
+use crate::nn::network::{Executor, NetworkImpl};
+
+/// One CPU-backend op on host arrays, with the kernels `imp`.
+fn host_op(imp: NetworkImpl, op: impl FnOnce(&CpuBackend) -> Result<Tensor>) -> Result<Array3<f32>> {
+    Ok(op(&CpuBackend::with_network(imp))?.into_host().expect("the CPU backend returns host tensors"))
+}
 use crate::nn::weights::LayerParams;
 use crate::nn::Activation;
 use crate::testing::within_budget;
@@ -94,8 +100,8 @@ impl Executor for LayerCheckExecutor {
         stride: usize,
         act: Activation,
     ) -> Result<Array3<f32>> {
-        let got = KernelExecutor(self.imp).conv(x, l, stride, act)?;
-        let g = crate::nn::network::conv_geometry(x, l, stride)?;
+        let got = host_op(self.imp, |b| b.conv3x3(&Tensor::host(x.clone()), l, stride, act))?;
+        let g = crate::nn::network::conv_geometry(x.dim(), l, stride)?;
         let (xf, xa) = f64_and_abs(x);
         let (aw, ab) = abs_params(l);
         let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));
@@ -105,8 +111,8 @@ impl Executor for LayerCheckExecutor {
         Ok(got)
     }
     fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
-        let got = KernelExecutor(self.imp).deconv(x, l)?;
-        let g = crate::nn::network::deconv_geometry(x, l)?;
+        let got = host_op(self.imp, |b| b.deconv5x5s2(&Tensor::host(x.clone()), l))?;
+        let g = crate::nn::network::deconv_geometry(x.dim(), l)?;
         let (xf, xa) = f64_and_abs(x);
         let (aw, ab) = abs_params(l);
         let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));
@@ -116,13 +122,13 @@ impl Executor for LayerCheckExecutor {
         Ok(got)
     }
     fn concat(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
-        KernelExecutor(self.imp).concat(a, b)
+        host_op(self.imp, |cpu| cpu.concat(&Tensor::host(a.clone()), &Tensor::host(b.clone())))
     }
     fn add(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
-        KernelExecutor(self.imp).add(a, b)
+        host_op(self.imp, |cpu| cpu.add(&Tensor::host(a.clone()), &Tensor::host(b.clone())))
     }
     fn crop(&mut self, x: Array3<f32>, h: usize, w: usize) -> Array3<f32> {
-        KernelExecutor(self.imp).crop(x, h, w)
+        host_op(self.imp, |b| b.crop(Tensor::host(x), h, w)).expect("network crops fit their maps")
     }
 }
 

@@ -11,16 +11,19 @@
 //!                                     B_n ─► out_n ────────────► a_n = out_n
 //! ```
 //!
-//! Every op runs through an [`Executor`], so the same code is the fast network, the reference
-//! network and the error-bound propagation of [`crate::nn::budget`].
+//! Every op runs through an [`Executor`], so this one function is the network on any
+//! [`Backend`] ([`BackendExecutor`]), the training forward pass that records the tape
+//! (`crate::train::backprop`), the per-op profiler and the error-bound propagation of
+//! [`crate::nn::budget`].
 
-use ndarray::{s, Array3, ArrayView3, Axis};
+use ndarray::{Array3, ArrayView3, Axis};
 
+use crate::backend::{Backend, Tensor};
 use crate::error::{Error, Result};
 use crate::nn::config::{NetworkConfig, IMAGE_CHANNELS};
 use crate::nn::geometry::{Conv2dGeometry, Deconv2dGeometry, DECONV_KERNEL};
 use crate::nn::weights::{LayerParams, NetworkWeights};
-use crate::nn::{add, concat_channels, conv2d, deconv2d, downsample2x, Activation, Conv2dImpl, Deconv2dImpl};
+use crate::nn::{downsample2x, Activation, Conv2dImpl, Deconv2dImpl};
 
 /// Which kernels the network runs. Every combination is always compiled and tested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -74,6 +77,16 @@ pub trait Executor {
     type Map: Clone;
     /// Wraps a (padded, mean-subtracted, possibly downsampled) image.
     fn image(&mut self, image: &Array3<f32>) -> Result<Self::Map>;
+    /// The input pyramid (SPEC.md §8.2), levels `0..=max_level`. The default computes it on the
+    /// host ([`image_pyramid`]) and wraps each level with [`Executor::image`].
+    fn pyramid(
+        &mut self,
+        config: &NetworkConfig,
+        image: ArrayView3<f32>,
+        max_level: usize,
+    ) -> Result<Vec<Self::Map>> {
+        image_pyramid(config, image, max_level)?.iter().map(|l| self.image(l)).collect()
+    }
     /// 3x3 convolution, padding 1, with the given stride and activation.
     fn conv(
         &mut self,
@@ -92,63 +105,60 @@ pub trait Executor {
     fn crop(&mut self, x: Self::Map, h: usize, w: usize) -> Self::Map;
 }
 
-/// The validated geometry of `layer` (a 3x3 conv, weight `[c_out, c_in, 3, 3]`) applied to `x`.
+/// The validated geometry of `layer` (a 3x3 conv, weight `[c_out, c_in, 3, 3]`) applied to a map
+/// of shape `(h, w, c_in)`.
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] for an empty map or a bad stride.
-pub fn conv_geometry(x: &Array3<f32>, layer: &LayerParams, stride: usize) -> Result<Conv2dGeometry> {
-    let (h, w, c_in) = x.dim();
+pub fn conv_geometry(
+    (h, w, c_in): (usize, usize, usize),
+    layer: &LayerParams,
+    stride: usize,
+) -> Result<Conv2dGeometry> {
     Conv2dGeometry::new(h, w, c_in, layer.weight.shape()[0], stride)
 }
 
-/// The validated geometry of `layer` (a 5x5 transposed conv, weight `[c_in, c_out, 5, 5]`) on `x`.
+/// The validated geometry of `layer` (a 5x5 transposed conv, weight `[c_in, c_out, 5, 5]`) on a
+/// map of shape `(h, w, c_in)`.
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] for an empty map.
-pub fn deconv_geometry(x: &Array3<f32>, layer: &LayerParams) -> Result<Deconv2dGeometry> {
-    let (h, w, c_in) = x.dim();
+pub fn deconv_geometry((h, w, c_in): (usize, usize, usize), layer: &LayerParams) -> Result<Deconv2dGeometry> {
     Deconv2dGeometry::new(h, w, c_in, layer.weight.shape()[1])
 }
 
-/// Runs the network's kernels on f32 maps with the chosen implementations.
+/// Runs the forward pass's ops on a [`Backend`]: the one way the product runs the network.
 #[derive(Clone, Copy, Debug)]
-pub struct KernelExecutor(pub NetworkImpl);
+pub struct BackendExecutor<'a>(pub &'a dyn Backend);
 
-impl Executor for KernelExecutor {
-    type Map = Array3<f32>;
-    fn image(&mut self, image: &Array3<f32>) -> Result<Array3<f32>> {
-        Ok(image.clone())
+impl Executor for BackendExecutor<'_> {
+    type Map = Tensor;
+    fn image(&mut self, image: &Array3<f32>) -> Result<Tensor> {
+        self.0.upload(image.view())
     }
-    fn conv(
+    fn pyramid(
         &mut self,
-        x: &Array3<f32>,
-        l: &LayerParams,
-        stride: usize,
-        act: Activation,
-    ) -> Result<Array3<f32>> {
-        let g = conv_geometry(x, l, stride)?;
-        let imp = match self.0.conv {
-            Conv2dImpl::Direct => Conv2dImpl::fastest_for(&g),
-            other => other,
-        };
-        conv2d(imp, &g, x.view(), l.weight.view(), l.bias.view(), act)
+        config: &NetworkConfig,
+        image: ArrayView3<f32>,
+        max_level: usize,
+    ) -> Result<Vec<Tensor>> {
+        self.0.image_pyramid(config, image, max_level)
     }
-    fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
-        let g = deconv_geometry(x, l)?;
-        deconv2d(self.0.deconv, &g, x.view(), l.weight.view(), l.bias.view())
+    fn conv(&mut self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+        self.0.conv3x3(x, l, stride, act)
     }
-    fn concat(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
-        concat_channels(a.view(), b.view())
+    fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+        self.0.deconv5x5s2(x, l)
     }
-    fn add(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
-        add(a.view(), b.view())
+    fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        self.0.concat(a, b)
     }
-    fn crop(&mut self, x: Array3<f32>, h: usize, w: usize) -> Array3<f32> {
-        if (x.dim().0, x.dim().1) == (h, w) {
-            x
-        } else {
-            x.slice(s![..h, ..w, ..]).to_owned()
-        }
+    fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        self.0.add(a, b)
+    }
+    fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
+        // The network only crops to the sizes of SPEC.md §8.2, inside every map.
+        self.0.crop(x, h, w).expect("network crops fit their maps")
     }
 }
 
@@ -158,16 +168,12 @@ pub fn pad_edge(x: ArrayView3<f32>, hp: usize, wp: usize) -> Array3<f32> {
     Array3::from_shape_fn((hp, wp, c), |(y, i, ch)| x[[y.min(h - 1), i.min(w - 1), ch]])
 }
 
-/// The image pyramid the blocks see: level 0 is the image padded (SPEC.md §8.2) with the mean
-/// subtracted in f32, level `l + 1` is [`downsample2x`] of level `l`, up to `max_level`.
+/// Level 0 of [`image_pyramid`]: the image padded to the network's multiple (SPEC.md §8.2) with the
+/// mean subtracted in f32.
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] if the image is not `[H, W, 3]` with `H, W >= 1`.
-pub fn image_pyramid(
-    config: &NetworkConfig,
-    image: ArrayView3<f32>,
-    max_level: usize,
-) -> Result<Vec<Array3<f32>>> {
+pub fn padded_input(config: &NetworkConfig, image: ArrayView3<f32>) -> Result<Array3<f32>> {
     let (h, w, c) = image.dim();
     if c != IMAGE_CHANNELS || h == 0 || w == 0 {
         return Err(Error::invalid_argument(
@@ -181,7 +187,20 @@ pub fn image_pyramid(
         let mean = config.input_mean[ch];
         plane.mapv_inplace(|v| v - mean);
     }
-    let mut levels = vec![level0];
+    Ok(level0)
+}
+
+/// The image pyramid the blocks see: level 0 is the image padded (SPEC.md §8.2) with the mean
+/// subtracted in f32, level `l + 1` is [`downsample2x`] of level `l`, up to `max_level`.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if the image is not `[H, W, 3]` with `H, W >= 1`.
+pub fn image_pyramid(
+    config: &NetworkConfig,
+    image: ArrayView3<f32>,
+    max_level: usize,
+) -> Result<Vec<Array3<f32>>> {
+    let mut levels = vec![padded_input(config, image)?];
     for l in 0..max_level {
         let next = downsample2x(levels[l].view())?;
         levels.push(next);
@@ -203,15 +222,12 @@ pub fn run_network<E: Executor>(
     let (h, w, _) = image.dim();
     // Block k > 0 needs the image at block k-1's level; the deepest is the next-to-last block's.
     let max_level = if config.blocks > 1 { config.block_level(config.blocks - 2) } else { 0 };
-    let pyramid = image_pyramid(config, image, max_level)?;
+    let pyramid = exec.pyramid(config, image, max_level)?;
     let mut outs: Vec<E::Map> = Vec::with_capacity(config.blocks);
     for (k, block) in weights.blocks.iter().enumerate() {
         let input = match outs.last() {
-            None => exec.image(&pyramid[0])?,
-            Some(prev) => {
-                let img = exec.image(&pyramid[config.block_level(k - 1)])?;
-                exec.concat(prev, &img)?
-            }
+            None => pyramid[0].clone(),
+            Some(prev) => exec.concat(prev, &pyramid[config.block_level(k - 1)])?,
         };
         let x = exec.conv(&input, &block.conv1, config.block_stride(k), Activation::Relu)?;
         let x = exec.conv(&x, &block.conv2, 1, Activation::Relu)?;
@@ -266,13 +282,35 @@ impl FeatureNet {
         &self.weights
     }
 
-    /// Runs the network on an RGB image `[H, W, 3]` (0-255, SPEC.md §2.2). Parallel inside each
-    /// kernel (rayon's current pool); the result is bit-identical for any thread count.
+    /// Runs the network on an RGB image `[H, W, 3]` (0-255, SPEC.md §2.2) on `backend`, returning
+    /// host maps. On the CPU backend each kernel is parallel inside (rayon's current pool) and the
+    /// result is bit-identical for any thread count.
     ///
     /// # Errors
     /// [`Error::InvalidArgument`] if the image is not `[H >= 1, W >= 1, 3]`.
-    pub fn forward(&self, image: ArrayView3<f32>, imp: NetworkImpl) -> Result<ForwardOutput> {
-        run_network(&mut KernelExecutor(imp), &self.weights, image)
+    pub fn forward(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<ForwardOutput> {
+        let out = self.forward_tensors(image, backend)?;
+        let down = |maps: Vec<Tensor>| -> Result<Vec<Array3<f32>>> {
+            maps.into_iter()
+                .map(|t| match t.as_host() {
+                    Some(_) => Ok(t.into_host().expect("host tensor")),
+                    None => backend.download(&t),
+                })
+                .collect()
+        };
+        Ok(ForwardOutput { blocks: down(out.blocks)?, aggregated: down(out.aggregated)? })
+    }
+
+    /// [`FeatureNet::forward`] leaving every map where `backend` computed it.
+    ///
+    /// # Errors
+    /// As [`FeatureNet::forward`]; [`crate::Error::Unsupported`] from the backend.
+    pub fn forward_tensors(
+        &self,
+        image: ArrayView3<f32>,
+        backend: &dyn Backend,
+    ) -> Result<ForwardOutput<Tensor>> {
+        run_network(&mut BackendExecutor(backend), &self.weights, image)
     }
 
     /// Floating-point operations of one forward pass on an `h x w` image (multiply and add each

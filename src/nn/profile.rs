@@ -6,9 +6,10 @@ use std::time::Instant;
 
 use ndarray::{Array3, ArrayView3};
 
-use super::network::{conv_geometry, deconv_geometry, run_network, Executor, KernelExecutor, NetworkImpl};
+use super::network::{conv_geometry, deconv_geometry, run_network, BackendExecutor, Executor};
 use super::weights::LayerParams;
 use super::{Activation, FeatureNet};
+use crate::backend::{Backend, Tensor};
 use crate::error::Result;
 
 /// Accumulated time and FLOPs of one kind of operation.
@@ -24,19 +25,19 @@ pub struct OpTotals {
 
 /// Times every operation of the fast kernels.
 #[derive(Debug)]
-pub struct ProfileExecutor {
-    inner: KernelExecutor,
+pub struct ProfileExecutor<'a> {
+    inner: BackendExecutor<'a>,
     /// Totals per operation kind (e.g. `conv s1 32->32`).
     pub totals: BTreeMap<String, OpTotals>,
 }
 
-impl ProfileExecutor {
-    /// A profiler around `imp`'s kernels.
-    pub fn new(imp: NetworkImpl) -> Self {
-        Self { inner: KernelExecutor(imp), totals: BTreeMap::new() }
+impl<'a> ProfileExecutor<'a> {
+    /// A profiler around `backend`'s ops.
+    pub fn new(backend: &'a dyn Backend) -> Self {
+        Self { inner: BackendExecutor(backend), totals: BTreeMap::new() }
     }
 
-    fn record<T>(&mut self, kind: String, flops: f64, f: impl FnOnce(&mut KernelExecutor) -> T) -> T {
+    fn record<T>(&mut self, kind: String, flops: f64, f: impl FnOnce(&mut BackendExecutor<'a>) -> T) -> T {
         let start = Instant::now();
         let out = f(&mut self.inner);
         let e = self.totals.entry(kind).or_default();
@@ -47,36 +48,38 @@ impl ProfileExecutor {
     }
 }
 
-impl Executor for ProfileExecutor {
-    type Map = Array3<f32>;
-    fn image(&mut self, image: &Array3<f32>) -> Result<Array3<f32>> {
-        self.record("image copy".into(), 0.0, |e| e.image(image))
+impl Executor for ProfileExecutor<'_> {
+    type Map = Tensor;
+    fn image(&mut self, image: &Array3<f32>) -> Result<Tensor> {
+        self.record("image upload".into(), 0.0, |e| e.image(image))
     }
-    fn conv(
+    fn pyramid(
         &mut self,
-        x: &Array3<f32>,
-        l: &LayerParams,
-        stride: usize,
-        act: Activation,
-    ) -> Result<Array3<f32>> {
-        let g = conv_geometry(x, l, stride)?;
+        config: &crate::nn::NetworkConfig,
+        image: ArrayView3<f32>,
+        max_level: usize,
+    ) -> Result<Vec<Tensor>> {
+        self.record("image pyramid".into(), 0.0, |e| e.pyramid(config, image, max_level))
+    }
+    fn conv(&mut self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+        let g = conv_geometry(x.dim(), l, stride)?;
         let kind = format!("conv s{stride} {}->{}", g.c_in(), g.c_out());
         self.record(kind, g.flops(), |e| e.conv(x, l, stride, act))
     }
-    fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
+    fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
         // Each input pixel's 4 outputs sum 9, 6, 6 and 4 taps: 25 products per input pixel and pair
         // of channels.
-        let g = deconv_geometry(x, l)?;
+        let g = deconv_geometry(x.dim(), l)?;
         let flops = 2.0 * 25.0 * (g.c_in() * g.c_out() * g.h() * g.w()) as f64;
         self.record("deconv 5x5 s2".into(), flops, |e| e.deconv(x, l))
     }
-    fn concat(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
+    fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
         self.record("concat".into(), 0.0, |e| e.concat(a, b))
     }
-    fn add(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
+    fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
         self.record("add".into(), 0.0, |e| e.add(a, b))
     }
-    fn crop(&mut self, x: Array3<f32>, h: usize, w: usize) -> Array3<f32> {
+    fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
         self.record("crop".into(), 0.0, |e| e.crop(x, h, w))
     }
 }
@@ -89,10 +92,11 @@ impl Executor for ProfileExecutor {
 /// As [`FeatureNet::forward`].
 pub fn profile_forward(
     net: &FeatureNet,
+    backend: &dyn Backend,
     image: ArrayView3<f32>,
     runs: usize,
 ) -> Result<(Vec<(String, OpTotals)>, f64)> {
-    let mut exec = ProfileExecutor::new(NetworkImpl::FAST);
+    let mut exec = ProfileExecutor::new(backend);
     let runs = runs.max(1);
     let start = Instant::now();
     for _ in 0..runs {

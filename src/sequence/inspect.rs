@@ -131,14 +131,6 @@ fn colour_formats(seq: &Sequence) -> Vec<(String, usize)> {
     out
 }
 
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f64::total_cmp).1
-}
-
 /// `k` indices spread evenly over `0..=last`.
 fn spread(last: usize, k: usize) -> Vec<usize> {
     let k = k.min(last + 1).max(1);
@@ -205,7 +197,7 @@ impl Summary {
         }
         let mut dts: Vec<f64> =
             seq.frames.windows(2).filter_map(|w| Some(w[1].timestamp? - w[0].timestamp?)).collect();
-        let frame_rate = (!dts.is_empty()).then(|| 1.0 / median(&mut dts));
+        let frame_rate = (!dts.is_empty()).then(|| 1.0 / crate::runtime::median(&mut dts));
         Ok(Self {
             format: seq.format,
             root: seq.root.clone(),
@@ -243,7 +235,7 @@ fn depth_stats(seq: &Sequence) -> Result<Option<DepthStats>> {
     }
     let (min, max) = values.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
     let valid_fraction = values.len() as f64 / pixels as f64;
-    Ok(Some(DepthStats { frames, valid_fraction, min, median: median(&mut values), max }))
+    Ok(Some(DepthStats { frames, valid_fraction, min, median: crate::runtime::median(&mut values), max }))
 }
 
 fn motion_stats(seq: &Sequence) -> Option<MotionStats> {
@@ -266,9 +258,9 @@ fn motion_stats(seq: &Sequence) -> Option<MotionStats> {
     let max_from_first = centres.iter().map(|c| (c - centres[0]).norm()).fold(0.0, f64::max);
     let max_translation = t.iter().copied().fold(0.0, f64::max);
     Some(MotionStats {
-        median_translation: median(&mut t),
+        median_translation: crate::runtime::median(&mut t),
         max_translation,
-        median_rotation_deg: median(&mut r),
+        median_rotation_deg: crate::runtime::median(&mut r),
         extent,
         max_from_first,
     })
@@ -306,9 +298,9 @@ fn consistency(seq: &Sequence, offset: usize) -> Result<Option<Consistency>> {
     let mut id: Vec<f64> = pairs.iter().map(|p| p.2.identity_error).collect();
     let mut af: Vec<f64> = pairs.iter().map(|p| p.2.affine_error).collect();
     Ok(Some(Consistency {
-        median_warped: median(&mut w),
-        median_identity: median(&mut id),
-        median_affine: median(&mut af),
+        median_warped: crate::runtime::median(&mut w),
+        median_identity: crate::runtime::median(&mut id),
+        median_affine: crate::runtime::median(&mut af),
         pairs,
     }))
 }

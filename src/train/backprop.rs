@@ -13,12 +13,13 @@
 
 use ndarray::{s, Array3, ArrayView3};
 
+use crate::backend::{CpuBackend, Tensor};
 use crate::error::{Error, Result};
 use crate::nn::conv2d::{conv2d_backward_input, conv2d_backward_weight, relu_backward};
 use crate::nn::deconv2d::{deconv2d_backward_input, deconv2d_backward_weight};
-use crate::nn::network::{conv_geometry, deconv_geometry, image_pyramid, Executor, KernelExecutor};
+use crate::nn::network::{conv_geometry, deconv_geometry, run_network, BackendExecutor, Executor};
 use crate::nn::weights::LayerParams;
-use crate::nn::{Activation, ForwardOutput, NetworkImpl, NetworkWeights};
+use crate::nn::{Activation, ForwardOutput, NetworkWeights};
 
 /// What one block's backward pass needs, at padded size.
 #[derive(Clone, Debug)]
@@ -39,52 +40,82 @@ pub struct Tape {
     aggregated: Vec<Array3<f32>>,
 }
 
-/// The forward pass of [`crate::nn::FeatureNet::forward`] (same kernels, same bits), also
-/// returning the tape.
+/// The executor that records the tape: it runs every op on the CPU backend and keeps (shared
+/// handles to, no copies of) the input of every convolution and every map before its crop.
+struct TapeExecutor<'a> {
+    inner: BackendExecutor<'a>,
+    conv_inputs: Vec<Tensor>,
+    uncropped: Vec<Tensor>,
+}
+
+impl Executor for TapeExecutor<'_> {
+    type Map = Tensor;
+    fn image(&mut self, image: &Array3<f32>) -> Result<Tensor> {
+        self.inner.image(image)
+    }
+    fn pyramid(
+        &mut self,
+        config: &crate::nn::NetworkConfig,
+        image: ArrayView3<f32>,
+        max_level: usize,
+    ) -> Result<Vec<Tensor>> {
+        self.inner.pyramid(config, image, max_level)
+    }
+    fn conv(&mut self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+        self.conv_inputs.push(x.clone());
+        self.inner.conv(x, l, stride, act)
+    }
+    fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+        self.inner.deconv(x, l)
+    }
+    fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        self.inner.concat(a, b)
+    }
+    fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        self.inner.add(a, b)
+    }
+    fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
+        self.uncropped.push(x.clone());
+        self.inner.crop(x, h, w)
+    }
+}
+
+/// A host tensor's array, moved out when this is its last handle.
+fn host(t: Tensor) -> Array3<f32> {
+    t.into_host().expect("the CPU backend returns host tensors")
+}
+
+/// The forward pass ([`run_network`], the one the product runs) on the CPU backend `cpu`, also
+/// returning the tape: the same ops, hence the same bits, as [`crate::nn::FeatureNet::forward`].
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] for a malformed image or weights.
 pub fn forward_with_tape(
     weights: &NetworkWeights,
     image: ArrayView3<f32>,
-    imp: NetworkImpl,
+    cpu: &CpuBackend,
 ) -> Result<(ForwardOutput, Tape)> {
-    weights.validate()?;
-    let config = &weights.config;
-    let (h, w, _) = image.dim();
-    let max_level = if config.blocks > 1 { config.block_level(config.blocks - 2) } else { 0 };
-    let pyramid = image_pyramid(config, image, max_level)?;
-    let mut exec = KernelExecutor(imp);
-    let mut tapes: Vec<BlockTape> = Vec::with_capacity(config.blocks);
-    let mut outs: Vec<Array3<f32>> = Vec::with_capacity(config.blocks);
-    for (k, block) in weights.blocks.iter().enumerate() {
-        let input = match outs.last() {
-            None => pyramid[0].clone(),
-            Some(prev) => exec.concat(prev, &pyramid[config.block_level(k - 1)])?,
-        };
-        let x1 = exec.conv(&input, &block.conv1, config.block_stride(k), Activation::Relu)?;
-        let x2 = exec.conv(&x1, &block.conv2, 1, Activation::Relu)?;
-        outs.push(exec.conv(&x2, &block.conv3, 1, Activation::None)?);
-        tapes.push(BlockTape { input, x1, x2 });
-    }
-    let mut aggregated: Vec<Array3<f32>> = Vec::with_capacity(config.blocks);
-    for k in (0..config.blocks).rev() {
-        let a = match aggregated.last() {
-            None => outs[k].clone(),
-            Some(coarser) => {
-                let up = exec.deconv(coarser, &weights.deconvs[k])?;
-                exec.add(&outs[k], &up)?
-            }
-        };
-        aggregated.push(a);
-    }
-    aggregated.reverse();
-    let shapes = config.output_shapes(h, w);
-    let crop = |maps: &[Array3<f32>]| -> Vec<Array3<f32>> {
-        maps.iter().zip(&shapes).map(|(m, &[hl, wl, _])| m.slice(s![..hl, ..wl, ..]).to_owned()).collect()
+    let mut exec =
+        TapeExecutor { inner: BackendExecutor(cpu), conv_inputs: Vec::new(), uncropped: Vec::new() };
+    let out = run_network(&mut exec, weights, image)?;
+    let n = weights.config.blocks;
+    // run_network runs conv1, conv2, conv3 of each block in order, then crops the n block outputs
+    // and the n aggregated maps.
+    assert_eq!((exec.conv_inputs.len(), exec.uncropped.len()), (3 * n, 2 * n), "tape of {n} blocks");
+    let aggregated = exec.uncropped.split_off(n).into_iter().map(host).collect();
+    let mut inputs = exec.conv_inputs.into_iter();
+    let blocks = (0..n)
+        .map(|_| {
+            let mut next = || host(inputs.next().expect("three convolutions per block"));
+            BlockTape { input: next(), x1: next(), x2: next() }
+        })
+        .collect();
+    drop(exec.uncropped);
+    let out = ForwardOutput {
+        blocks: out.blocks.into_iter().map(host).collect(),
+        aggregated: out.aggregated.into_iter().map(host).collect(),
     };
-    let out = ForwardOutput { blocks: crop(&outs), aggregated: crop(&aggregated) };
-    Ok((out, Tape { blocks: tapes, aggregated }))
+    Ok((out, Tape { blocks, aggregated }))
 }
 
 /// `target += update`, elementwise.
@@ -140,7 +171,7 @@ pub fn backward(
         *d_out_k += &d_a;
         let layer = &weights.deconvs[k];
         let x = &tape.aggregated[k + 1];
-        let g = deconv_geometry(x, layer)?;
+        let g = deconv_geometry(x.dim(), layer)?;
         let (d_w, d_b) = deconv2d_backward_weight(&g, x.view(), d_a.view())?;
         accumulate(&mut grads.deconvs[k], &d_w, &d_b);
         d_a = deconv2d_backward_input(&g, d_a.view(), layer.weight.view())?;
@@ -151,17 +182,17 @@ pub fn backward(
         let t = &tape.blocks[k];
         let block = &weights.blocks[k];
         let gb = &mut grads.blocks[k];
-        let g3 = conv_geometry(&t.x2, &block.conv3, 1)?;
+        let g3 = conv_geometry(t.x2.dim(), &block.conv3, 1)?;
         let (d_w, d_b) = conv2d_backward_weight(&g3, t.x2.view(), d_out[k].view())?;
         accumulate(&mut gb.conv3, &d_w, &d_b);
         let d_x2 = conv2d_backward_input(&g3, d_out[k].view(), block.conv3.weight.view())?;
         let d_x2 = relu_backward(t.x2.view(), d_x2.view())?;
-        let g2 = conv_geometry(&t.x1, &block.conv2, 1)?;
+        let g2 = conv_geometry(t.x1.dim(), &block.conv2, 1)?;
         let (d_w, d_b) = conv2d_backward_weight(&g2, t.x1.view(), d_x2.view())?;
         accumulate(&mut gb.conv2, &d_w, &d_b);
         let d_x1 = conv2d_backward_input(&g2, d_x2.view(), block.conv2.weight.view())?;
         let d_x1 = relu_backward(t.x1.view(), d_x1.view())?;
-        let g1 = conv_geometry(&t.input, &block.conv1, config.block_stride(k))?;
+        let g1 = conv_geometry(t.input.dim(), &block.conv1, config.block_stride(k))?;
         let (d_w, d_b) = conv2d_backward_weight(&g1, t.input.view(), d_x1.view())?;
         accumulate(&mut gb.conv1, &d_w, &d_b);
         if k > 0 {

@@ -6,9 +6,10 @@ use std::time::Instant;
 
 use ndarray::{Array2, Array3, ArrayView2};
 
+use crate::backend::CpuBackend;
 use crate::error::{Error, Result};
 use crate::geometry::{PinholeCamera, Pose, Warp};
-use crate::nn::{ForwardOutput, NetworkImpl, NetworkWeights};
+use crate::nn::{ForwardOutput, NetworkWeights};
 use crate::train::backprop::{backward, forward_with_tape};
 use crate::train::loss::{scale_loss, LossConfig, LossSums};
 
@@ -150,10 +151,10 @@ pub fn pair_step(
     pair: &TrainingPair,
     loss: &LossConfig,
     sup: &Supervision,
-    imp: NetworkImpl,
+    cpu: &CpuBackend,
     grads: Option<(&mut NetworkWeights, f32)>,
 ) -> Result<PairLoss> {
-    pair_step_timed(weights, pair, loss, sup, imp, grads, &mut StepTimes::default())
+    pair_step_timed(weights, pair, loss, sup, cpu, grads, &mut StepTimes::default())
 }
 
 /// [`pair_step`], also recording where the time goes in `times`.
@@ -165,15 +166,15 @@ pub fn pair_step_timed(
     pair: &TrainingPair,
     loss: &LossConfig,
     sup: &Supervision,
-    imp: NetworkImpl,
+    cpu: &CpuBackend,
     grads: Option<(&mut NetworkWeights, f32)>,
     times: &mut StepTimes,
 ) -> Result<PairLoss> {
     pair.validate()?;
     *times = StepTimes::default();
     let t = Instant::now();
-    let (out_r, tape_r) = forward_with_tape(weights, pair.ref_rgb.view(), imp)?;
-    let (out_l, tape_l) = forward_with_tape(weights, pair.live_rgb.view(), imp)?;
+    let (out_r, tape_r) = forward_with_tape(weights, pair.ref_rgb.view(), cpu)?;
+    let (out_l, tape_l) = forward_with_tape(weights, pair.live_rgb.view(), cpu)?;
     times.forward = ms(t);
     let n = weights.config.blocks;
     let mut result = PairLoss { blocks: vec![LossSums::default(); n], aggregated: LossSums::default() };

@@ -4,9 +4,10 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::backend::CpuBackend;
 use crate::error::{Error, Result};
 use crate::io::{write_atomic, Staging};
-use crate::nn::{NetworkConfig, NetworkImpl, NetworkWeights};
+use crate::nn::{NetworkConfig, NetworkWeights};
 use crate::plot::{grid_of_plots_png, Panel, Series};
 use crate::train::checkpoint::Checkpoint;
 use crate::train::data::{DataConfig, DataSet};
@@ -72,12 +73,12 @@ pub fn validate(
     weights: &NetworkWeights,
     pairs: &[(String, TrainingPair)],
     cfg: &TrainConfig,
-    imp: NetworkImpl,
+    cpu: &CpuBackend,
 ) -> Result<(f64, f64, f64)> {
     let mut total = 0.0;
     let mut agg = LossSums::default();
     for (_, p) in pairs {
-        let l = pair_step(weights, p, &cfg.loss, &cfg.supervision, imp, None)?;
+        let l = pair_step(weights, p, &cfg.loss, &cfg.supervision, cpu, None)?;
         total += l.total(&cfg.supervision);
         agg.accumulate(&l.aggregated);
     }
@@ -239,7 +240,7 @@ pub fn train(
         ));
     }
     let paths = RunPaths::new(out);
-    let imp = NetworkImpl::FAST;
+    let cpu = CpuBackend::default();
     let fingerprint = cfg.fingerprint();
     let (mut step, mut weights, mut adam) = match resume {
         Some(p) => {
@@ -304,7 +305,7 @@ pub fn train(
                 &pair,
                 &cfg.loss,
                 &cfg.supervision,
-                imp,
+                &cpu,
                 Some((&mut grads, 1.0 / cfg.batch as f32)),
             )?);
         }
@@ -323,7 +324,7 @@ pub fn train(
         }
         let pairs_per_s = cfg.batch as f64 / t0.elapsed().as_secs_f64();
         let val_now = step % cfg.val_every == 0 || step == cfg.steps;
-        let val_res = if val_now { Some(validate(&weights, &val, cfg, imp)?) } else { None };
+        let val_res = if val_now { Some(validate(&weights, &val, cfg, &cpu)?) } else { None };
         let row = Row {
             step,
             lr,

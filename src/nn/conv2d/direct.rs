@@ -99,16 +99,9 @@ pub fn kernel_name(geom: &Conv2dGeometry) -> &'static str {
     DirectKernel::select(geom).name()
 }
 
-/// Whether the CPU has AVX-512F (always `false` off x86-64).
+/// Whether the CPU has AVX-512F ([`crate::runtime::has_avx512f`]).
 pub(crate) fn avx512f_detected() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx512f")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    crate::runtime::has_avx512f()
 }
 
 /// Output rows per parallel work unit (fixed by the geometry; results do not depend on it).

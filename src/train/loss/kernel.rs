@@ -44,9 +44,7 @@ pub enum LossKernel {
 pub fn uses_avx512(kernel: LossKernel, c: usize) -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        kernel == LossKernel::Auto
-            && c.is_multiple_of(LANES)
-            && std::arch::is_x86_feature_detected!("avx512f")
+        kernel == LossKernel::Auto && c.is_multiple_of(LANES) && crate::runtime::has_avx512f()
     }
     #[cfg(not(target_arch = "x86_64"))]
     {

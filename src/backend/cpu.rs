@@ -1,0 +1,160 @@
+//! The CPU backend: today's kernels, rayon-parallel and deterministic (SPEC.md §7-§10). It is the
+//! reference every other backend is checked against (`tests/parity.rs`).
+
+use ndarray::{s, Array3, ArrayView2, ArrayView3};
+
+use super::{Backend, Tensor, VolumeBuilder};
+use crate::costvolume::{winner_take_all_costs, CostVolume, CostVolumeImpl, WtaDepth};
+use crate::dtam::{DtamParams, DtamReport, DtamResult};
+use crate::error::{Error, Result};
+use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
+use crate::nn::network::{conv_geometry, deconv_geometry};
+use crate::nn::weights::LayerParams;
+use crate::nn::{add, concat_channels, conv2d, deconv2d, downsample2x, Activation, Conv2dImpl, NetworkImpl};
+
+/// Kernel choices of the CPU backend. [`CpuBackend::default`] is the fast one; tests build others
+/// (for example [`NetworkImpl::REFERENCE`]) to compare implementations.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CpuBackend {
+    /// Network kernels. With `conv: Direct` each layer runs [`Conv2dImpl::fastest_for`] its geometry.
+    pub network: NetworkImpl,
+    /// Cost-volume kernel.
+    pub volume: CostVolumeImpl,
+}
+
+impl Default for CpuBackend {
+    fn default() -> Self {
+        Self { network: NetworkImpl::FAST, volume: CostVolumeImpl::Fast }
+    }
+}
+
+impl CpuBackend {
+    /// The fast volume with the given network kernels.
+    pub fn with_network(network: NetworkImpl) -> Self {
+        Self { network, ..Self::default() }
+    }
+
+    /// The f64 reference kernels everywhere (single-threaded and slow: the oracle).
+    pub fn reference() -> Self {
+        Self { network: NetworkImpl::REFERENCE, volume: CostVolumeImpl::Reference }
+    }
+}
+
+/// The host array of a tensor, or [`Error::Unsupported`] naming where it lives.
+pub(crate) fn host<'a>(backend: &str, x: &'a Tensor) -> Result<&'a Array3<f32>> {
+    x.as_host().ok_or_else(|| Error::Unsupported {
+        backend: backend.into(),
+        what: format!("a tensor on `{}`: download it first", x.location()),
+    })
+}
+
+impl Backend for CpuBackend {
+    fn name(&self) -> &'static str {
+        "cpu"
+    }
+
+    fn device(&self) -> String {
+        format!(
+            "CPU, {} rayon threads, {} kernels",
+            rayon::current_num_threads(),
+            crate::costvolume::fast_kernel_name()
+        )
+    }
+
+    fn upload(&self, x: ArrayView3<f32>) -> Result<Tensor> {
+        Ok(Tensor::host(x.to_owned()))
+    }
+
+    fn upload_owned(&self, x: Array3<f32>) -> Result<Tensor> {
+        Ok(Tensor::host(x))
+    }
+
+    fn download(&self, x: &Tensor) -> Result<Array3<f32>> {
+        Ok(host(self.name(), x)?.clone())
+    }
+
+    fn conv3x3(&self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+        let x = host(self.name(), x)?;
+        let g = conv_geometry(x.dim(), l, stride)?;
+        let imp = match self.network.conv {
+            Conv2dImpl::Direct => Conv2dImpl::fastest_for(&g),
+            other => other,
+        };
+        Ok(Tensor::host(conv2d(imp, &g, x.view(), l.weight.view(), l.bias.view(), act)?))
+    }
+
+    fn deconv5x5s2(&self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+        let x = host(self.name(), x)?;
+        let g = deconv_geometry(x.dim(), l)?;
+        Ok(Tensor::host(deconv2d(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view())?))
+    }
+
+    fn downsample2x(&self, x: &Tensor) -> Result<Tensor> {
+        Ok(Tensor::host(downsample2x(host(self.name(), x)?.view())?))
+    }
+
+    fn concat(&self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        Ok(Tensor::host(concat_channels(host(self.name(), a)?.view(), host(self.name(), b)?.view())?))
+    }
+
+    fn add(&self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        Ok(Tensor::host(add(host(self.name(), a)?.view(), host(self.name(), b)?.view())?))
+    }
+
+    fn crop(&self, x: Tensor, h: usize, w: usize) -> Result<Tensor> {
+        let (hx, wx, _) = x.dim();
+        if (hx, wx) == (h, w) {
+            return Ok(x);
+        }
+        if h > hx || w > wx {
+            return Err(Error::invalid_argument("crop", format!("{h}x{w} window of a {hx}x{wx} map")));
+        }
+        Ok(Tensor::host(host(self.name(), &x)?.slice(s![..h, ..w, ..]).to_owned()))
+    }
+
+    fn cost_volume(
+        &self,
+        reference: &Tensor,
+        camera: PinholeCamera,
+        bins: InverseDepthBins,
+    ) -> Result<Box<dyn VolumeBuilder>> {
+        let r = host(self.name(), reference)?.clone();
+        Ok(Box::new(CpuVolume(CostVolume::with_impl(r, camera, bins, self.volume)?)))
+    }
+
+    fn winner_take_all(&self, costs: ArrayView3<f32>, bins: &InverseDepthBins) -> Result<WtaDepth> {
+        Ok(winner_take_all_costs(costs, bins))
+    }
+
+    fn dtam_solve(
+        &self,
+        costs: ArrayView3<f32>,
+        bins: &InverseDepthBins,
+        grey: ArrayView2<f32>,
+        init: ArrayView2<f32>,
+        params: &DtamParams,
+    ) -> Result<(DtamResult, DtamReport)> {
+        crate::dtam::solve(costs, bins, grey, init, params)
+    }
+}
+
+/// [`CostVolume`] as a [`VolumeBuilder`].
+struct CpuVolume(CostVolume);
+
+impl VolumeBuilder for CpuVolume {
+    fn add_frame(&mut self, live: &Tensor, t_nr: &Pose) -> Result<()> {
+        self.0.add_frame(host("cpu", live)?.view(), t_nr)
+    }
+
+    fn frames(&self) -> usize {
+        self.0.frames()
+    }
+
+    fn snapshot(&self) -> Result<CostVolume> {
+        Ok(self.0.clone())
+    }
+
+    fn finish(self: Box<Self>) -> Result<CostVolume> {
+        Ok(self.0)
+    }
+}

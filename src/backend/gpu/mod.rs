@@ -1,0 +1,444 @@
+//! The wgpu backend (cargo feature `gpu`, SPEC.md §15.5): the network ops as WGSL compute kernels
+//! on whatever adapter wgpu finds (Vulkan, Metal, DX12, GL; in CI Mesa's software Vulkan driver,
+//! lavapipe). Tensors live in device storage buffers ([`GpuBuffer`]) between ops; `upload` and
+//! `download` are the only crossings, and an op given a host tensor returns
+//! [`Error::Unsupported`] ("upload it first"). The mapping ops (cost volume, WTA, DTAM) are not
+//! implemented on the GPU yet and return [`Error::Unsupported`].
+
+mod kernels;
+
+use std::any::Any;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
+
+use ndarray::{Array3, ArrayView2, ArrayView3};
+use wgpu::util::DeviceExt;
+
+use super::{Backend, DeviceBuffer, Tensor, VolumeBuilder};
+use crate::costvolume::WtaDepth;
+use crate::dtam::{DtamParams, DtamReport, DtamResult};
+use crate::error::{Error, Result};
+use crate::geometry::{InverseDepthBins, PinholeCamera};
+use crate::nn::geometry::DownsampleGeometry;
+use crate::nn::network::{conv_geometry, deconv_geometry};
+use crate::nn::weights::LayerParams;
+use crate::nn::Activation;
+
+const NAME: &str = "gpu";
+/// Invocations per workgroup (every kernel's `@workgroup_size`).
+const WORKGROUP: u32 = 64;
+/// Workgroups along x before a dispatch wraps to the next y row (under WebGPU's 65 535).
+const MAX_GROUPS_X: u32 = 32_768;
+/// Packed layers kept on the device before the cache starts over.
+const WEIGHT_CACHE_LAYERS: usize = 256;
+
+fn unsupported(what: impl Into<String>) -> Error {
+    Error::Unsupported { backend: NAME.into(), what: what.into() }
+}
+
+/// A device storage buffer holding an `[H, W, C]` f32 map in standard (C) order.
+#[derive(Debug)]
+pub struct GpuBuffer {
+    buffer: wgpu::Buffer,
+    /// f32 elements (the buffer itself is at least 4 bytes: wgpu binds no empty buffers).
+    len: usize,
+}
+
+impl DeviceBuffer for GpuBuffer {
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+}
+
+/// The wgpu backend: one device and queue, compiled pipelines and packed layer weights cached.
+pub struct GpuBackend {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    info: wgpu::AdapterInfo,
+    /// `Features::SHADER_F64` is on (the bit-exact downsampling needs it).
+    f64: bool,
+    max_binding: u64,
+    pipelines: Mutex<HashMap<&'static str, wgpu::ComputePipeline>>,
+    /// Packed `[c_out, ky, kx, c_in] ++ bias` weights by their bits (content-keyed: no stale hits).
+    weights: Mutex<HashMap<Vec<u32>, Arc<wgpu::Buffer>>>,
+}
+
+impl std::fmt::Debug for GpuBackend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuBackend").field("adapter", &self.info.name).field("f64", &self.f64).finish()
+    }
+}
+
+static SHARED: OnceLock<std::result::Result<Arc<GpuBackend>, String>> = OnceLock::new();
+
+impl GpuBackend {
+    /// The process's GPU backend (created on first use, then shared: one device per process).
+    ///
+    /// # Errors
+    /// [`Error::Unsupported`] when wgpu finds no adapter or the device cannot be created.
+    pub fn shared() -> Result<Arc<GpuBackend>> {
+        SHARED.get_or_init(|| Self::new().map(Arc::new)).clone().map_err(unsupported)
+    }
+
+    /// A new device on the first adapter wgpu offers (any backend; `WGPU_BACKEND` narrows it).
+    fn new() -> std::result::Result<Self, String> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        }))
+        .map_err(|e| {
+            format!(
+                "no GPU adapter ({e}); install a Vulkan driver (e.g. Mesa's lavapipe: \
+                 apt-get install mesa-vulkan-drivers libvulkan1) or use --backend cpu"
+            )
+        })?;
+        let info = adapter.get_info();
+        let f64 = adapter.features().contains(wgpu::Features::SHADER_F64);
+        let limits = adapter.limits();
+        let max_binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("densefeat"),
+            required_features: if f64 { wgpu::Features::SHADER_F64 } else { wgpu::Features::empty() },
+            required_limits: limits,
+            ..Default::default()
+        }))
+        .map_err(|e| format!("adapter {} refused a device: {e}", info.name))?;
+        Ok(Self {
+            device,
+            queue,
+            info,
+            f64,
+            max_binding,
+            pipelines: Mutex::new(HashMap::new()),
+            weights: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// The buffer of a tensor of this backend, or [`Error::Unsupported`] naming where it lives.
+    fn buffer<'a>(&self, x: &'a Tensor) -> Result<&'a GpuBuffer> {
+        x.device_buffer(NAME).and_then(|b| b.as_any().downcast_ref::<GpuBuffer>()).ok_or_else(|| {
+            unsupported(format!(
+                "a tensor on `{}`: upload it to the GPU first (Backend::upload)",
+                x.location()
+            ))
+        })
+    }
+
+    fn check_size(&self, elements: usize) -> Result<u64> {
+        let bytes = (elements.max(1) as u64) * 4;
+        if bytes > self.max_binding || elements > u32::MAX as usize {
+            return Err(unsupported(format!(
+                "a map of {elements} f32 exceeds the adapter's largest storage binding ({} bytes)",
+                self.max_binding
+            )));
+        }
+        Ok(bytes)
+    }
+
+    /// An uninitialised output map.
+    fn alloc(&self, dim: (usize, usize, usize)) -> Result<Tensor> {
+        let len = dim.0 * dim.1 * dim.2;
+        let size = self.check_size(len)?;
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Ok(Tensor::device(NAME, dim, Arc::new(GpuBuffer { buffer, len })))
+    }
+
+    fn storage_init(&self, data: &[f32]) -> wgpu::Buffer {
+        let contents: &[u8] = if data.is_empty() { &[0; 4] } else { bytemuck::cast_slice(data) };
+        self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: None,
+            contents,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+        })
+    }
+
+    /// The compiled pipeline `name` (compiled once per backend).
+    fn pipeline(&self, name: &'static str, body: &str) -> wgpu::ComputePipeline {
+        let mut cache = self.pipelines.lock().expect("pipeline cache poisoned");
+        cache
+            .entry(name)
+            .or_insert_with(|| {
+                let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some(name),
+                    source: wgpu::ShaderSource::Wgsl(kernels::source(body).into()),
+                });
+                self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(name),
+                    layout: None,
+                    module: &module,
+                    entry_point: Some("main"),
+                    compilation_options: Default::default(),
+                    cache: None,
+                })
+            })
+            .clone()
+    }
+
+    /// Runs kernel `name` over `params[0]` outputs: binding 0 the parameters, then `inputs`, then
+    /// `out`. Submitted, not waited for (a download waits).
+    fn dispatch(
+        &self,
+        name: &'static str,
+        body: &str,
+        params: &[u32],
+        inputs: &[&wgpu::Buffer],
+        out: &Tensor,
+    ) {
+        let n = params[0];
+        if n == 0 {
+            return;
+        }
+        let out = &self.buffer(out).expect("outputs are allocated here").buffer;
+        let pipeline = self.pipeline(name, body);
+        let params = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: None,
+            contents: bytemuck::cast_slice(params),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let mut entries = vec![wgpu::BindGroupEntry { binding: 0, resource: params.as_entire_binding() }];
+        for (k, b) in inputs.iter().chain(std::iter::once(&out)).enumerate() {
+            entries.push(wgpu::BindGroupEntry { binding: k as u32 + 1, resource: b.as_entire_binding() });
+        }
+        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(name),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        });
+        let groups = n.div_ceil(WORKGROUP);
+        let gx = groups.min(MAX_GROUPS_X);
+        let gy = groups.div_ceil(gx);
+        let mut encoder =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(name),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &group, &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        self.queue.submit([encoder.finish()]);
+    }
+
+    /// A layer's weights repacked to `[c_out, ky, kx, c_in]` with the bias appended, on the device
+    /// (cached by content: the network's layers are uploaded once per process).
+    fn layer_weights(&self, packed: Vec<f32>) -> Arc<wgpu::Buffer> {
+        let key: Vec<u32> = packed.iter().map(|v| v.to_bits()).collect();
+        let mut cache = self.weights.lock().expect("weight cache poisoned");
+        if let Some(b) = cache.get(&key) {
+            return b.clone();
+        }
+        if cache.len() >= WEIGHT_CACHE_LAYERS {
+            cache.clear();
+        }
+        let b = Arc::new(self.storage_init(&packed));
+        cache.insert(key, b.clone());
+        b
+    }
+}
+
+/// `u32` kernel parameters from sizes (callers checked the element count fits).
+fn params<const N: usize>(v: [usize; N]) -> [u32; N] {
+    v.map(|x| u32::try_from(x).expect("sizes were checked against u32"))
+}
+
+impl Backend for GpuBackend {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn device(&self) -> String {
+        format!(
+            "{} ({:?}, {:?}, driver {} {}; f64 {})",
+            self.info.name,
+            self.info.device_type,
+            self.info.backend,
+            self.info.driver,
+            self.info.driver_info,
+            if self.f64 { "yes" } else { "no" }
+        )
+    }
+
+    fn upload(&self, x: ArrayView3<f32>) -> Result<Tensor> {
+        let x = x.as_standard_layout();
+        let data = x.as_slice().expect("standard layout is contiguous");
+        self.check_size(data.len())?;
+        let buffer = self.storage_init(data);
+        Ok(Tensor::device(NAME, x.dim(), Arc::new(GpuBuffer { buffer, len: data.len() })))
+    }
+
+    fn download(&self, x: &Tensor) -> Result<Array3<f32>> {
+        let src = self.buffer(x)?;
+        if src.len == 0 {
+            return Ok(Array3::zeros(x.dim()));
+        }
+        let size = src.len as u64 * 4;
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("download"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("download") });
+        encoder.copy_buffer_to_buffer(&src.buffer, 0, &staging, 0, size);
+        self.queue.submit([encoder.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| unsupported(format!("device poll failed during download: {e}")))?;
+        rx.recv()
+            .map_err(|_| unsupported("download: the map callback never ran"))?
+            .map_err(|e| unsupported(format!("download: mapping failed: {e}")))?;
+        let data: Vec<f32> = {
+            let view = staging
+                .slice(..)
+                .get_mapped_range()
+                .map_err(|e| unsupported(format!("download: mapped range: {e}")))?;
+            bytemuck::cast_slice::<u8, f32>(&view[..]).to_vec()
+        };
+        staging.unmap();
+        Array3::from_shape_vec(x.dim(), data).map_err(|e| unsupported(format!("download: {e}")))
+    }
+
+    fn conv3x3(&self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+        let xb = self.buffer(x)?;
+        let g = conv_geometry(x.dim(), l, stride)?;
+        let (h, w, c_in) = x.dim();
+        let [h_out, w_out, c_out] = g.output_shape();
+        let mut packed = Vec::with_capacity(c_out * 9 * c_in + c_out);
+        for o in 0..c_out {
+            for ky in 0..3 {
+                for kx in 0..3 {
+                    packed.extend((0..c_in).map(|c| l.weight[[o, c, ky, kx]]));
+                }
+            }
+        }
+        let bias_offset = packed.len();
+        packed.extend(l.bias.iter());
+        self.check_size(packed.len())?;
+        let wt = self.layer_weights(packed);
+        let out = self.alloc((h_out, w_out, c_out))?;
+        let relu = usize::from(matches!(act, Activation::Relu));
+        let p = params([h_out * w_out * c_out, h, w, c_in, w_out, c_out, stride, relu, bias_offset]);
+        self.dispatch("conv3x3", kernels::CONV3X3, &p, &[&xb.buffer, &wt], &out);
+        Ok(out)
+    }
+
+    fn deconv5x5s2(&self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+        let xb = self.buffer(x)?;
+        let g = deconv_geometry(x.dim(), l)?;
+        let (h, w, c_in) = x.dim();
+        let [h_out, w_out, c_out] = g.output_shape();
+        let mut packed = Vec::with_capacity(c_out * 25 * c_in + c_out);
+        for o in 0..c_out {
+            for ky in 0..5 {
+                for kx in 0..5 {
+                    packed.extend((0..c_in).map(|c| l.weight[[c, o, ky, kx]]));
+                }
+            }
+        }
+        let bias_offset = packed.len();
+        packed.extend(l.bias.iter());
+        self.check_size(packed.len())?;
+        let wt = self.layer_weights(packed);
+        let out = self.alloc((h_out, w_out, c_out))?;
+        let p = params([h_out * w_out * c_out, h, w, c_in, c_out, bias_offset]);
+        self.dispatch("deconv5x5s2", kernels::DECONV5X5S2, &p, &[&xb.buffer, &wt], &out);
+        Ok(out)
+    }
+
+    fn downsample2x(&self, x: &Tensor) -> Result<Tensor> {
+        let xb = self.buffer(x)?;
+        if !self.f64 {
+            return Err(unsupported(format!(
+                "downsample2x needs shader f64 (SPEC.md §7.4 sums in f64), which adapter {} lacks",
+                self.info.name
+            )));
+        }
+        let (h, w, c) = x.dim();
+        let [h_out, w_out, _] = DownsampleGeometry::new(h, w, c)?.output_shape();
+        let out = self.alloc((h_out, w_out, c))?;
+        let p = params([h_out * w_out * c, h, w, c, w_out]);
+        self.dispatch("downsample2x", kernels::DOWNSAMPLE_F64, &p, &[&xb.buffer], &out);
+        Ok(out)
+    }
+
+    fn concat(&self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        let (ab, bb) = (self.buffer(a)?, self.buffer(b)?);
+        let ((h, w, ca), (hb, wb, cb)) = (a.dim(), b.dim());
+        if (h, w) != (hb, wb) {
+            return Err(Error::invalid_argument(
+                "concat_channels",
+                format!("spatial sizes differ: {:?} and {:?}", a.dim(), b.dim()),
+            ));
+        }
+        let out = self.alloc((h, w, ca + cb))?;
+        let p = params([h * w * (ca + cb), ca, cb]);
+        self.dispatch("concat", kernels::CONCAT, &p, &[&ab.buffer, &bb.buffer], &out);
+        Ok(out)
+    }
+
+    fn add(&self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        let (ab, bb) = (self.buffer(a)?, self.buffer(b)?);
+        if a.dim() != b.dim() {
+            return Err(Error::invalid_argument(
+                "add",
+                format!("shapes differ: {:?} and {:?}", a.dim(), b.dim()),
+            ));
+        }
+        let out = self.alloc(a.dim())?;
+        self.dispatch("add", kernels::ADD, &params([ab.len]), &[&ab.buffer, &bb.buffer], &out);
+        Ok(out)
+    }
+
+    fn crop(&self, x: Tensor, h: usize, w: usize) -> Result<Tensor> {
+        let xb = self.buffer(&x)?;
+        let (hx, wx, c) = x.dim();
+        if (hx, wx) == (h, w) {
+            return Ok(x);
+        }
+        if h > hx || w > wx {
+            return Err(Error::invalid_argument("crop", format!("{h}x{w} window of a {hx}x{wx} map")));
+        }
+        let out = self.alloc((h, w, c))?;
+        self.dispatch("crop", kernels::CROP, &params([h * w * c, wx, w, c]), &[&xb.buffer], &out);
+        Ok(out)
+    }
+
+    fn cost_volume(
+        &self,
+        _reference: &Tensor,
+        _camera: PinholeCamera,
+        _bins: InverseDepthBins,
+    ) -> Result<Box<dyn VolumeBuilder>> {
+        Err(unsupported(
+            "cost_volume: no WGSL cost volume yet (SPEC.md §15.5); use --backend cpu for mapping",
+        ))
+    }
+
+    fn winner_take_all(&self, _costs: ArrayView3<f32>, _bins: &InverseDepthBins) -> Result<WtaDepth> {
+        Err(unsupported("winner_take_all: no WGSL kernel yet (SPEC.md §15.5); use --backend cpu for mapping"))
+    }
+
+    fn dtam_solve(
+        &self,
+        _costs: ArrayView3<f32>,
+        _bins: &InverseDepthBins,
+        _grey: ArrayView2<f32>,
+        _init: ArrayView2<f32>,
+        _params: &DtamParams,
+    ) -> Result<(DtamResult, DtamReport)> {
+        Err(unsupported("dtam_solve: no WGSL kernel yet (SPEC.md §15.5); use --backend cpu for mapping"))
+    }
+}

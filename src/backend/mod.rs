@@ -1,0 +1,219 @@
+//! The one seam between the algorithms and the hardware (SPEC.md §15). Everything the product runs
+//! per pixel is an op of [`Backend`]; the network's forward pass ([`crate::nn::network::run_network`]),
+//! the keyframe mapper ([`crate::mapping`]) and the benches call ops on a backend value and never
+//! choose kernels themselves.
+//!
+//! # The op list
+//! | op | CPU implementation | SPEC |
+//! |---|---|---|
+//! | [`Backend::upload`] / [`Backend::download`] | host arrays | §15.2 |
+//! | [`Backend::conv3x3`]: 3x3 conv, stride 1/2, bias, fused ReLU | [`crate::nn::conv2d()`] | §7.2 |
+//! | [`Backend::deconv5x5s2`]: 5x5 stride-2 transposed conv | [`crate::nn::deconv2d()`] | §7.3 |
+//! | [`Backend::downsample2x`]: 2x tent | [`crate::nn::downsample2x`] | §7.4 |
+//! | [`Backend::concat`], [`Backend::add`], [`Backend::crop`] | [`crate::nn::concat_channels`], [`crate::nn::add`] | §7.4 |
+//! | [`Backend::image_pyramid`] | [`crate::nn::network::image_pyramid`] | §8.2 |
+//! | [`Backend::cost_volume`]: `add_frame` (bilinear epipolar sampling, L1, counts), finalisation | [`crate::costvolume::CostVolume`] | §9 |
+//! | [`Backend::winner_take_all`] with sub-bin refinement | [`crate::costvolume::winner_take_all_costs`] | §9.5 |
+//! | [`Backend::dtam_solve`]: primal-dual steps, a-search, energy, to convergence | [`crate::dtam::solve`] | §10 |
+//!
+//! Tensors ([`Tensor`]) are `[H, W, C]` f32 maps that live where their backend put them: the CPU
+//! backend keeps host arrays, a device backend keeps its own buffers, and crossing is explicit
+//! ([`Backend::upload`], [`Backend::download`]). An op a backend cannot run returns
+//! [`Error::Unsupported`]; nothing falls back to another backend silently.
+//!
+//! # Adding a backend
+//! Implement [`Backend`] (ops on your [`DeviceBuffer`] type), add a name to [`by_name`] and
+//! [`NAMES`], and register it in `tests/parity.rs`'s backend list; CONTRIBUTING.md walks through it.
+
+mod cpu;
+#[cfg(feature = "gpu")]
+mod gpu;
+mod tensor;
+
+use std::fmt::Debug;
+use std::sync::Arc;
+
+use ndarray::{Array3, ArrayView2, ArrayView3};
+
+use crate::costvolume::{CostVolume, WtaDepth};
+use crate::dtam::{DtamParams, DtamReport, DtamResult};
+use crate::error::{Error, Result};
+use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
+use crate::nn::weights::LayerParams;
+use crate::nn::{Activation, NetworkConfig};
+
+pub use cpu::CpuBackend;
+#[cfg(feature = "gpu")]
+pub use gpu::{GpuBackend, GpuBuffer};
+pub use tensor::{DeviceBuffer, Tensor};
+
+/// Every op the product runs, on one kind of hardware. See the module documentation for the list
+/// and the SPEC sections that define each op's maths; backends agree within SPEC.md §15.3's budgets.
+pub trait Backend: Send + Sync + Debug {
+    /// The name `--backend` takes (`cpu`, `gpu`).
+    fn name(&self) -> &'static str;
+    /// What it runs on, for logs and bench output (CPU features, adapter name).
+    fn device(&self) -> String;
+
+    /// Copy a host map `[H, W, C]` to where this backend computes.
+    ///
+    /// # Errors
+    /// Device allocation failures.
+    fn upload(&self, x: ArrayView3<f32>) -> Result<Tensor>;
+    /// [`Backend::upload`] of an owned map (the CPU backend wraps it without a copy).
+    ///
+    /// # Errors
+    /// As [`Backend::upload`].
+    fn upload_owned(&self, x: Array3<f32>) -> Result<Tensor> {
+        self.upload(x.view())
+    }
+    /// Copy a map back to the host.
+    ///
+    /// # Errors
+    /// [`Error::Unsupported`] for another backend's tensor; device read-back failures.
+    fn download(&self, x: &Tensor) -> Result<Array3<f32>>;
+
+    /// 3x3 convolution, padding 1, stride 1 or 2, bias, optional fused ReLU (SPEC.md §7.2); the
+    /// layer's weight is `[c_out, c_in, 3, 3]` (PyTorch layout).
+    ///
+    /// # Errors
+    /// Shape errors; [`Error::Unsupported`].
+    fn conv3x3(&self, x: &Tensor, layer: &LayerParams, stride: usize, act: Activation) -> Result<Tensor>;
+    /// 5x5 stride-2 transposed convolution (padding 2, output padding 1; SPEC.md §7.3); weight
+    /// `[c_in, c_out, 5, 5]`.
+    ///
+    /// # Errors
+    /// Shape errors; [`Error::Unsupported`].
+    fn deconv5x5s2(&self, x: &Tensor, layer: &LayerParams) -> Result<Tensor>;
+    /// The 2x tent downsampling of SPEC.md §7.4.
+    ///
+    /// # Errors
+    /// Shape errors; [`Error::Unsupported`].
+    fn downsample2x(&self, x: &Tensor) -> Result<Tensor>;
+    /// Channel concatenation, `a`'s channels first.
+    ///
+    /// # Errors
+    /// Mismatched `H, W`; [`Error::Unsupported`].
+    fn concat(&self, a: &Tensor, b: &Tensor) -> Result<Tensor>;
+    /// Elementwise sum.
+    ///
+    /// # Errors
+    /// Mismatched shapes; [`Error::Unsupported`].
+    fn add(&self, a: &Tensor, b: &Tensor) -> Result<Tensor>;
+    /// The top-left `h x w` window (no copy when it already fits).
+    ///
+    /// # Errors
+    /// A window larger than the map; [`Error::Unsupported`].
+    fn crop(&self, x: Tensor, h: usize, w: usize) -> Result<Tensor>;
+
+    /// The network's input pyramid (SPEC.md §8.2): the image padded to the network's multiple, its
+    /// mean subtracted, then `max_level` tent downsamplings. The default runs the padding on the
+    /// host and the downsamplings through [`Backend::downsample2x`].
+    ///
+    /// # Errors
+    /// A malformed image; op errors.
+    fn image_pyramid(
+        &self,
+        config: &NetworkConfig,
+        image: ArrayView3<f32>,
+        max_level: usize,
+    ) -> Result<Vec<Tensor>> {
+        let level0 = crate::nn::network::padded_input(config, image)?;
+        let mut levels = vec![self.upload(level0.view())?];
+        for l in 0..max_level {
+            let next = self.downsample2x(&levels[l])?;
+            levels.push(next);
+        }
+        Ok(levels)
+    }
+
+    /// An empty cost volume for `reference` features seen by `camera`, hypotheses `bins` (SPEC.md §9).
+    ///
+    /// # Errors
+    /// Shape errors; [`Error::Unsupported`].
+    fn cost_volume(
+        &self,
+        reference: &Tensor,
+        camera: PinholeCamera,
+        bins: InverseDepthBins,
+    ) -> Result<Box<dyn VolumeBuilder>>;
+    /// Winner-take-all inverse depth with sub-bin parabola refinement on a finalised cost array
+    /// (`[H, W, K]`, unseen cells `>=` [`crate::costvolume::UNSEEN_COST`]; SPEC.md §9.5).
+    ///
+    /// # Errors
+    /// [`Error::Unsupported`].
+    fn winner_take_all(&self, costs: ArrayView3<f32>, bins: &InverseDepthBins) -> Result<WtaDepth>;
+    /// DTAM's Huber-TV solve to convergence (SPEC.md §10): every iteration is a primal-dual step,
+    /// the exhaustive a-search and the energy.
+    ///
+    /// # Errors
+    /// Bad parameters or shapes; [`Error::Unsupported`].
+    fn dtam_solve(
+        &self,
+        costs: ArrayView3<f32>,
+        bins: &InverseDepthBins,
+        grey: ArrayView2<f32>,
+        init: ArrayView2<f32>,
+        params: &DtamParams,
+    ) -> Result<(DtamResult, DtamReport)>;
+}
+
+/// A cost volume being accumulated by a backend, one live frame at a time.
+pub trait VolumeBuilder: Send {
+    /// Add one live frame's features (same shape as the reference) with `T_nr`.
+    ///
+    /// # Errors
+    /// Shape errors, the frame limit; [`Error::Unsupported`].
+    fn add_frame(&mut self, live: &Tensor, t_nr: &Pose) -> Result<()>;
+    /// Frames added so far.
+    fn frames(&self) -> usize;
+    /// A host copy of the volume so far (for diagnostics that look at it while it fills).
+    ///
+    /// # Errors
+    /// Device read-back failures.
+    fn snapshot(&self) -> Result<CostVolume>;
+    /// The finished volume on the host (sums, counts; SPEC.md §9.3).
+    ///
+    /// # Errors
+    /// Device read-back failures.
+    fn finish(self: Box<Self>) -> Result<CostVolume>;
+}
+
+/// The names `--backend` accepts, in the order `densefeat --help` lists them.
+pub const NAMES: &[&str] = &["cpu", "gpu"];
+
+/// The backend called `name`: `cpu` (always there) or `gpu` (the wgpu backend, SPEC.md §15.5).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] (flag `--backend`) for an unknown name; [`Error::Unsupported`] for
+/// `gpu` in a build without the cargo feature `gpu`, or when wgpu finds no adapter.
+pub fn by_name(name: &str) -> Result<Arc<dyn Backend>> {
+    match name {
+        "cpu" => Ok(Arc::new(CpuBackend::default())),
+        "gpu" => gpu_backend(),
+        other => Err(Error::invalid_argument(
+            "--backend",
+            format!("{other:?}: expected one of {}", NAMES.join(", ")),
+        )),
+    }
+}
+
+#[cfg(feature = "gpu")]
+fn gpu_backend() -> Result<Arc<dyn Backend>> {
+    Ok(GpuBackend::shared()?)
+}
+
+#[cfg(not(feature = "gpu"))]
+fn gpu_backend() -> Result<Arc<dyn Backend>> {
+    Err(Error::Unsupported {
+        backend: "gpu".into(),
+        what: "this build has no GPU backend (built without the cargo feature `gpu`: \
+               cargo build --features gpu); use --backend cpu"
+            .into(),
+    })
+}
+
+/// The default backend: the CPU with its fastest kernels.
+pub fn default_backend() -> Arc<dyn Backend> {
+    Arc::new(CpuBackend::default())
+}

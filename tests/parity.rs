@@ -1,0 +1,488 @@
+//! The parity suite (issue 11, SPEC.md §15.3): every op of the [`Backend`] op list, on every
+//! backend this build has, against the CPU reference backend (`CpuBackend::reference()`: f64
+//! kernels), with the budget SPEC.md states for that op; then end to end on the shipped fixture.
+//!
+//! A backend that is not available here (for example `gpu` in a build without it) is reported as
+//! `SKIPPED (<name>: <reason>)` on stderr; with `DENSEFEAT_REQUIRE_GPU=1` (CI) in a build with the
+//! `gpu` feature, a missing GPU adapter fails instead. An op a device backend does not implement
+//! (`Error::Unsupported`) is reported as `SKIPPED (<name>: <op>: <reason>)`, never passed silently.
+//! A failure prints the first mismatching indices, values and the budget
+//! (`densefeat::testing::within_budget`).
+
+use std::sync::Arc;
+
+use ndarray::{Array1, Array3, Array4};
+
+use densefeat::backend::{self, Backend, CpuBackend, Tensor};
+use densefeat::costvolume::UNSEEN_COST;
+use densefeat::error::Error;
+use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose};
+use densefeat::mapping::keyframe::{reconstruct, KeyframeConfig, Regularizer};
+use densefeat::mapping::FeatureKind;
+use densefeat::nn::weights::LayerParams;
+use densefeat::nn::{Activation, NetworkConfig};
+use densefeat::sequence::open;
+use densefeat::testing::within_budget;
+
+const FIXTURE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");
+const EPS: f32 = f32::EPSILON;
+
+/// splitmix64: deterministic test inputs without a dependency.
+struct TestRng(u64);
+
+impl TestRng {
+    fn seed_from_u64(s: u64) -> Self {
+        Self(s)
+    }
+    fn next(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn random_range<T: From<f32> + Into<f64> + Copy + FromF64>(&mut self, r: std::ops::Range<T>) -> T {
+        let (a, b) = (r.start.into(), r.end.into());
+        T::from_f64(a + (b - a) * self.next())
+    }
+}
+
+trait FromF64 {
+    fn from_f64(v: f64) -> Self;
+}
+impl FromF64 for f32 {
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+}
+impl FromF64 for f64 {
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+}
+
+/// Every backend under test: each name of `backend::NAMES` this build and machine have.
+fn backends() -> Vec<Arc<dyn Backend>> {
+    let mut out = Vec::new();
+    for name in backend::NAMES {
+        match backend::by_name(name) {
+            Ok(b) => {
+                eprintln!("backend {name}: {}", b.device());
+                out.push(b);
+            }
+            Err(e) => {
+                if *name == "gpu"
+                    && cfg!(feature = "gpu")
+                    && std::env::var_os("DENSEFEAT_REQUIRE_GPU").is_some()
+                {
+                    panic!("DENSEFEAT_REQUIRE_GPU is set but the gpu backend is unavailable: {e}");
+                }
+                eprintln!("SKIPPED ({name}: {e})");
+            }
+        }
+    }
+    assert!(!out.is_empty(), "the CPU backend is always available");
+    out
+}
+
+/// `Ok(v)` as `Some(v)`; an [`Error::Unsupported`] from a non-CPU backend as `None` with a loud
+/// `SKIPPED` line; anything else panics.
+fn supported<T>(b: &dyn Backend, op: &str, r: densefeat::error::Result<T>) -> Option<T> {
+    match r {
+        Ok(v) => Some(v),
+        Err(Error::Unsupported { what, .. }) if b.name() != "cpu" => {
+            eprintln!("SKIPPED ({}: {op}: {what})", b.name());
+            None
+        }
+        Err(e) => panic!("{} {op}: {e}", b.name()),
+    }
+}
+
+/// Prints the largest `|got - want|` and its share of the elementwise budget `rel · M`.
+fn report_budget(label: &str, got: &Array3<f32>, want: &Array3<f32>, mag: &Array3<f32>, rel: f32) {
+    let (mut worst, mut share) = (0.0f32, 0.0f32);
+    for ((g, w), m) in got.iter().zip(want).zip(mag) {
+        let d = (g - w).abs();
+        worst = worst.max(d);
+        if *m > 0.0 {
+            share = share.max(d / (rel * m));
+        }
+    }
+    eprintln!("{label}: max |diff| {worst:e}, at most {:.2} % of its elementwise budget", 100.0 * share);
+}
+
+fn reference() -> CpuBackend {
+    CpuBackend::reference()
+}
+
+fn random_map(rng: &mut TestRng, (h, w, c): (usize, usize, usize)) -> Array3<f32> {
+    Array3::from_shape_fn((h, w, c), |_| rng.random_range(-1.0f32..1.0))
+}
+
+fn random_layer(rng: &mut TestRng, shape: [usize; 4], bias: usize) -> LayerParams {
+    LayerParams {
+        weight: Array4::from_shape_fn(shape, |_| rng.random_range(-0.3f32..0.3)),
+        bias: Array1::from_shape_fn(bias, |_| rng.random_range(-0.1f32..0.1)),
+    }
+}
+
+fn abs_layer(l: &LayerParams) -> LayerParams {
+    LayerParams { weight: l.weight.mapv(f32::abs), bias: l.bias.mapv(f32::abs) }
+}
+
+fn host(b: &dyn Backend, t: &Tensor) -> Array3<f32> {
+    b.download(t).unwrap()
+}
+
+fn bits(a: &Array3<f32>) -> Vec<u32> {
+    a.iter().map(|v| v.to_bits()).collect()
+}
+
+/// Run `op` on `backend` with host inputs uploaded, and download the result.
+fn run(
+    backend: &dyn Backend,
+    inputs: &[&Array3<f32>],
+    op: impl Fn(&dyn Backend, &[Tensor]) -> Tensor,
+) -> Array3<f32> {
+    let t: Vec<Tensor> = inputs.iter().map(|x| backend.upload(x.view()).unwrap()).collect();
+    host(backend, &op(backend, &t))
+}
+
+#[test]
+fn conv3x3_matches_reference_within_the_7_5_budget() {
+    let mut rng = TestRng::seed_from_u64(11);
+    for b in backends() {
+        for &(h, w, c_in, c_out, stride, act) in &[
+            (9, 13, 3, 32, 1, Activation::Relu),
+            (10, 7, 35, 32, 2, Activation::Relu),
+            (6, 6, 32, 32, 1, Activation::None),
+            (5, 11, 8, 5, 2, Activation::None),
+        ] {
+            let x = random_map(&mut rng, (h, w, c_in));
+            let l = random_layer(&mut rng, [c_out, c_in, 3, 3], c_out);
+            let got = run(b.as_ref(), &[&x], |be, t| be.conv3x3(&t[0], &l, stride, act).unwrap());
+            let want = run(&reference(), &[&x], |be, t| be.conv3x3(&t[0], &l, stride, act).unwrap());
+            let mag = run(&reference(), &[&x.mapv(f32::abs)], |be, t| {
+                be.conv3x3(&t[0], &abs_layer(&l), stride, Activation::None).unwrap()
+            });
+            let k = 9 * c_in + 1;
+            let label = format!("{} conv3x3 {h}x{w}x{c_in} -> {c_out} s{stride}", b.name());
+            report_budget(&label, &got, &want, &mag, 2.0 * k as f32 * EPS);
+            if let Err(e) = within_budget(got.view(), want.view(), mag.view(), 2.0 * k as f32 * EPS) {
+                panic!("{} conv3x3 {h}x{w}x{c_in} -> {c_out} s{stride}: {e}", b.name());
+            }
+        }
+    }
+}
+
+#[test]
+fn deconv5x5s2_matches_reference_within_the_7_5_budget() {
+    let mut rng = TestRng::seed_from_u64(12);
+    for b in backends() {
+        for &(h, w, c_in, c_out) in &[(4, 5, 32, 32), (7, 3, 5, 9), (1, 1, 32, 32)] {
+            let x = random_map(&mut rng, (h, w, c_in));
+            let l = random_layer(&mut rng, [c_in, c_out, 5, 5], c_out);
+            let got = run(b.as_ref(), &[&x], |be, t| be.deconv5x5s2(&t[0], &l).unwrap());
+            let want = run(&reference(), &[&x], |be, t| be.deconv5x5s2(&t[0], &l).unwrap());
+            let mag = run(&reference(), &[&x.mapv(f32::abs)], |be, t| {
+                be.deconv5x5s2(&t[0], &abs_layer(&l)).unwrap()
+            });
+            // At most 9 taps per output pixel and input channel, plus the bias.
+            let k = 9 * c_in + 1;
+            let label = format!("{} deconv5x5s2 {h}x{w}x{c_in} -> {c_out}", b.name());
+            report_budget(&label, &got, &want, &mag, 2.0 * k as f32 * EPS);
+            if let Err(e) = within_budget(got.view(), want.view(), mag.view(), 2.0 * k as f32 * EPS) {
+                panic!("{} deconv5x5s2 {h}x{w}x{c_in} -> {c_out}: {e}", b.name());
+            }
+        }
+    }
+}
+
+#[test]
+fn exact_ops_are_bit_identical_to_reference() {
+    let mut rng = TestRng::seed_from_u64(13);
+    let a = random_map(&mut rng, (7, 9, 32));
+    let c = random_map(&mut rng, (7, 9, 32));
+    let img = random_map(&mut rng, (7, 9, 3)).mapv(|v| 128.0 + 127.0 * v);
+    for b in backends() {
+        let name = b.name();
+        let cases: [(&str, Array3<f32>, Array3<f32>); 4] = [
+            (
+                "downsample2x",
+                run(b.as_ref(), &[&img], |be, t| be.downsample2x(&t[0]).unwrap()),
+                run(&reference(), &[&img], |be, t| be.downsample2x(&t[0]).unwrap()),
+            ),
+            (
+                "concat",
+                run(b.as_ref(), &[&a, &img], |be, t| be.concat(&t[0], &t[1]).unwrap()),
+                run(&reference(), &[&a, &img], |be, t| be.concat(&t[0], &t[1]).unwrap()),
+            ),
+            (
+                "add",
+                run(b.as_ref(), &[&a, &c], |be, t| be.add(&t[0], &t[1]).unwrap()),
+                run(&reference(), &[&a, &c], |be, t| be.add(&t[0], &t[1]).unwrap()),
+            ),
+            (
+                "crop",
+                run(b.as_ref(), &[&a], |be, t| be.crop(t[0].clone(), 5, 4).unwrap()),
+                run(&reference(), &[&a], |be, t| be.crop(t[0].clone(), 5, 4).unwrap()),
+            ),
+        ];
+        for (op, got, want) in cases {
+            assert_eq!(got.dim(), want.dim(), "{name} {op}: shape");
+            assert_eq!(bits(&got), bits(&want), "{name} {op}: not bit-identical to the reference");
+        }
+        let config = NetworkConfig::default();
+        let got = b.image_pyramid(&config, img.view(), 2).unwrap();
+        let want = reference().image_pyramid(&config, img.view(), 2).unwrap();
+        for (l, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(bits(&host(b.as_ref(), g)), bits(&host(&reference(), w)), "{name} pyramid level {l}");
+        }
+        assert!(b.crop(b.upload(a.view()).unwrap(), 8, 4).is_err(), "{name}: crop larger than the map");
+    }
+}
+
+/// A small random scene for the volume: reference and live features, camera, bins, poses.
+struct VolumeCase {
+    reference: Array3<f32>,
+    live: Vec<(Array3<f32>, Pose)>,
+    camera: PinholeCamera,
+    bins: InverseDepthBins,
+}
+
+fn volume_case(seed: u64, c: usize) -> VolumeCase {
+    let mut rng = TestRng::seed_from_u64(seed);
+    let (h, w) = (11, 14);
+    let camera = PinholeCamera::new(12.0, 12.0, 6.5, 5.0, w, h).unwrap();
+    let bins = InverseDepthBins::new(0.1, 2.0, 9).unwrap();
+    let live = (0..3)
+        .map(|_| {
+            let t = nalgebra::Vector3::new(
+                rng.random_range(-0.3..0.3),
+                rng.random_range(-0.3..0.3),
+                rng.random_range(-0.3..0.3),
+            );
+            let r = nalgebra::UnitQuaternion::from_euler_angles(
+                rng.random_range(-0.05..0.05),
+                rng.random_range(-0.05..0.05),
+                rng.random_range(-0.05..0.05),
+            );
+            (random_map(&mut rng, (h, w, c)), Pose::from_parts(nalgebra::Translation3::from(t), r))
+        })
+        .collect();
+    VolumeCase { reference: random_map(&mut rng, (h, w, c)), live, camera, bins }
+}
+
+fn try_build(
+    b: &dyn Backend,
+    case: &VolumeCase,
+    abs: bool,
+) -> densefeat::error::Result<densefeat::costvolume::CostVolume> {
+    let f = |x: &Array3<f32>, sign: f32| if abs { x.mapv(|v| sign * v.abs()) } else { x.clone() };
+    let r = b.upload_owned(f(&case.reference, 1.0))?;
+    let mut v = b.cost_volume(&r, case.camera, case.bins)?;
+    for (x, pose) in &case.live {
+        v.add_frame(&b.upload_owned(f(x, -1.0))?, pose)?;
+    }
+    assert_eq!(v.frames(), case.live.len());
+    v.finish()
+}
+
+fn build(b: &dyn Backend, case: &VolumeCase, abs: bool) -> densefeat::costvolume::CostVolume {
+    try_build(b, case, abs).unwrap()
+}
+
+#[test]
+fn cost_volume_counts_exact_costs_within_the_9_6_budget_and_wta_exact() {
+    for b in backends() {
+        for (seed, c) in [(21, 3), (22, 32), (23, 5)] {
+            let case = volume_case(seed, c);
+            let want = build(&reference(), &case, false);
+            // WTA on one cost array is exact on every backend (argmin and parabola in f64).
+            let wts = want.costs();
+            if let Some(wg) =
+                supported(b.as_ref(), "winner_take_all", b.winner_take_all(wts.view(), &case.bins))
+            {
+                let wr = reference().winner_take_all(wts.view(), &case.bins).unwrap();
+                assert_eq!(wg.valid, wr.valid, "{} WTA validity", b.name());
+                let ib = |a: &ndarray::Array2<f32>| a.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(ib(&wg.inverse_depth), ib(&wr.inverse_depth), "{} WTA inverse depth", b.name());
+            }
+            let Some(got) = supported(b.as_ref(), "cost_volume", try_build(b.as_ref(), &case, false)) else {
+                continue;
+            };
+            let mag = build(&reference(), &case, true);
+            assert_eq!(got.counts(), want.counts(), "{} counts (C = {c})", b.name());
+            let n = case.live.len();
+            let rel = 2.0 * (c + n + 8) as f32 * EPS / 2.0; // (C + N + 8) ε (SPEC.md §9.6)
+            let (g, w, m) = (got.costs(), want.costs(), mag.costs());
+            let unseen = |x: &f32| if *x == UNSEEN_COST { 0.0 } else { *x };
+            if let Err(e) = within_budget(
+                g.mapv(|v| unseen(&v)).view(),
+                w.mapv(|v| unseen(&v)).view(),
+                m.mapv(|v| unseen(&v)).view(),
+                rel,
+            ) {
+                panic!("{} cost volume (C = {c}): {e}", b.name());
+            }
+        }
+    }
+}
+
+#[test]
+fn dtam_solve_is_exact_on_one_cost_array() {
+    let case = volume_case(31, 3);
+    let costs = build(&reference(), &case, false).costs();
+    let (h, w, _) = costs.dim();
+    let grey = Array3::from_shape_fn((h, w, 1), |(y, x, _)| ((y * 13 + x * 7) % 255) as f32)
+        .index_axis_move(ndarray::Axis(2), 0);
+    let init = reference().winner_take_all(costs.view(), &case.bins).unwrap().inverse_depth;
+    let params = densefeat::dtam::DtamParams { iterations: 20, max_iterations: 40, ..Default::default() };
+    let (want, _) =
+        reference().dtam_solve(costs.view(), &case.bins, grey.view(), init.view(), &params).unwrap();
+    for b in backends() {
+        let Some((got, report)) = supported(
+            b.as_ref(),
+            "dtam_solve",
+            b.dtam_solve(costs.view(), &case.bins, grey.view(), init.view(), &params),
+        ) else {
+            continue;
+        };
+        assert!(report.iterations >= 20);
+        let ib = |a: &ndarray::Array2<f32>| a.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(ib(&got.inverse_depth), ib(&want.inverse_depth), "{} DTAM d", b.name());
+    }
+}
+
+/// Every device op twice on the same inputs: the same bits (fixed summation order, no atomics).
+#[test]
+fn every_network_op_is_deterministic_run_after_run() {
+    let mut rng = TestRng::seed_from_u64(14);
+    let x = random_map(&mut rng, (9, 11, 35));
+    let y = random_map(&mut rng, (9, 11, 35));
+    let conv = random_layer(&mut rng, [32, 35, 3, 3], 32);
+    let deconv = random_layer(&mut rng, [35, 16, 5, 5], 16);
+    for b in backends() {
+        type Op<'a> = Box<dyn Fn(&dyn Backend, &[Tensor]) -> Tensor + 'a>;
+        let ops: Vec<(&str, Op)> = vec![
+            (
+                "conv3x3 s1",
+                Box::new(|be: &dyn Backend, t: &[Tensor]| {
+                    be.conv3x3(&t[0], &conv, 1, Activation::Relu).unwrap()
+                }),
+            ),
+            (
+                "conv3x3 s2",
+                Box::new(|be: &dyn Backend, t: &[Tensor]| {
+                    be.conv3x3(&t[0], &conv, 2, Activation::None).unwrap()
+                }),
+            ),
+            (
+                "deconv5x5s2",
+                Box::new(|be: &dyn Backend, t: &[Tensor]| be.deconv5x5s2(&t[0], &deconv).unwrap()),
+            ),
+            ("downsample2x", Box::new(|be: &dyn Backend, t: &[Tensor]| be.downsample2x(&t[0]).unwrap())),
+            ("concat", Box::new(|be: &dyn Backend, t: &[Tensor]| be.concat(&t[0], &t[1]).unwrap())),
+            ("add", Box::new(|be: &dyn Backend, t: &[Tensor]| be.add(&t[0], &t[1]).unwrap())),
+            ("crop", Box::new(|be: &dyn Backend, t: &[Tensor]| be.crop(t[0].clone(), 4, 7).unwrap())),
+        ];
+        for (op, f) in &ops {
+            let first = run(b.as_ref(), &[&x, &y], f);
+            let second = run(b.as_ref(), &[&x, &y], f);
+            assert_eq!(bits(&first), bits(&second), "{} {op}: two runs differ", b.name());
+        }
+    }
+}
+
+/// End to end on the fixture: the network's features within the §8.7 network budget, then a
+/// whole keyframe (RGB, level 1) against the reference volume: counts-driven validity equal and the
+/// DTAM depth map within SPEC.md §15.3's end-to-end budget.
+#[test]
+fn end_to_end_on_the_fixture() {
+    let seq = open(std::path::Path::new(FIXTURE)).unwrap();
+    let frame = seq.load_frame(10).unwrap();
+    let weights = densefeat::nn::NetworkWeights::from_safetensors_bytes(
+        densefeat::mapping::features::SHIPPED_WEIGHTS,
+        std::path::Path::new("shipped"),
+    )
+    .unwrap();
+    let net = densefeat::nn::FeatureNet::new(weights).unwrap();
+    let rel = densefeat::nn::budget::relative_budget(net.config());
+    // A 64x48 crop keeps the f64 reference network fast.
+    let img = frame.rgb.slice(ndarray::s![..48, ..64, ..]).to_owned();
+    let want = net.forward(img.view(), &reference()).unwrap();
+    let scale = want.features().iter().fold(0.0f64, |m, v| m.max(f64::from(v.abs())));
+    for b in backends() {
+        let got = net.forward(img.view(), b.as_ref()).unwrap();
+        let worst = got
+            .features()
+            .iter()
+            .zip(want.features())
+            .fold(0.0f64, |m, (g, w)| m.max(f64::from((g - w).abs())));
+        eprintln!("{} features: max |diff| {worst:e}, budget {:e}", b.name(), rel * scale);
+        assert!(worst <= rel * scale, "{} features: max |diff| {worst:e} > {:e}", b.name(), rel * scale);
+    }
+
+    let mut cfg = KeyframeConfig::new(10, 0.4, 10.0);
+    (cfg.past, cfg.future, cfg.bins, cfg.level) = (3, 3, 32, 1);
+    cfg.features = FeatureKind::Rgb;
+    cfg.regularizer = Regularizer::Tv;
+    cfg.backend = Arc::new(reference());
+    let want = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    let step = want.bins.step() as f32;
+    for b in backends() {
+        cfg.backend = b.clone();
+        let Some(got) = supported(b.as_ref(), "reconstruct", reconstruct(&seq, &cfg, |_, _, _| {})) else {
+            continue;
+        };
+        assert_eq!(got.valid, want.valid, "{} validity", b.name());
+        let (g, w) = (&got.tv.as_ref().unwrap().inverse_depth, &want.tv.as_ref().unwrap().inverse_depth);
+        let far = g.iter().zip(w).filter(|(a, b)| (*a - *b).abs() > step).count();
+        let frac = far as f64 / g.len() as f64;
+        eprintln!(
+            "{}: DTAM pixels more than one bin from the reference: {far} of {} ({:.3} %)",
+            b.name(),
+            g.len(),
+            100.0 * frac
+        );
+        assert!(
+            frac <= 0.01,
+            "{} DTAM depth: {:.3} % of pixels more than one bin off (budget 1 %)",
+            b.name(),
+            100.0 * frac
+        );
+        let (mg, mw) = (
+            got.metrics(got.tv.as_ref().unwrap()).unwrap(),
+            want.metrics(want.tv.as_ref().unwrap()).unwrap(),
+        );
+        assert!(
+            (mg.delta_1_25 - mw.delta_1_25).abs() <= 0.01,
+            "{} δ<1.25 {} vs {}",
+            b.name(),
+            mg.delta_1_25,
+            mw.delta_1_25
+        );
+    }
+}
+
+/// `--backend` is resolved before any work: an unknown or unavailable backend is refused with a
+/// message naming the flag, and nothing is written.
+#[test]
+fn unavailable_backends_are_refused_up_front() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, want) in [("gpu", "--backend cpu"), ("tpu", "--backend")] {
+        if backend::by_name(name).is_ok() {
+            continue; // gpu in a build and on a machine that has it
+        }
+        let out = dir.path().join(name);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_densefeat"))
+            .args(["reconstruct", "--sequence", FIXTURE, "--keyframe", "5", "--backend", name, "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{name}: accepted");
+        assert!(err.contains(want), "{name}: {err}");
+        assert!(!out.exists(), "{name}: wrote {}", out.display());
+    }
+}

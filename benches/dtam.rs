@@ -1,12 +1,17 @@
 //! The DTAM Huber-TV solver at the mapping size: 320x240, K = 64, on 1 and 2 threads, on the
 //! synthetic volume of `densefeat bench tv` (`cli::bench_tv::tv_inputs`). `cargo bench --bench dtam`.
-//! One iteration at θ_start (the widest pruned a-search) and its parts, then a full default solve.
+//! One iteration at θ_start (the widest pruned a-search) and its parts (the primal-dual step, the
+//! a-search alone, the fused a-search with energy and gap, the reference energy), then a full
+//! default solve.
 
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use densefeat::cli::bench_tv::{tv_inputs, TvInputs};
-use densefeat::dtam::{edge_weights, exhaustive_search, solve, total_energy, CostRange, DtamParams, HuberTv};
+use densefeat::dtam::{
+    edge_weights, exhaustive_search, search_with_energy, solve, total_energy, CostRange, Dispatch,
+    DtamParams, HuberTv,
+};
 
 fn dtam(c: &mut Criterion) {
     let TvInputs { costs, bins, grey, init } = tv_inputs(320, 240, 64).expect("valid bench shape");
@@ -17,6 +22,7 @@ fn dtam(c: &mut Criterion) {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("thread pool");
         let mut tv = HuberTv::new(init.clone(), g.clone(), p.epsilon);
         let a = init.clone();
+        let mut fused_a = init.clone();
         let th = p.theta_start;
         c.bench_function(&format!("cpu_dtam_step_320x240_k64_t{threads}"), |b| {
             b.iter(|| pool.install(|| tv.step(a.view(), th)))
@@ -24,6 +30,22 @@ fn dtam(c: &mut Criterion) {
         c.bench_function(&format!("cpu_dtam_search_320x240_k64_t{threads}"), |b| {
             b.iter(|| {
                 pool.install(|| exhaustive_search(costs.view(), &range, &bins, tv.primal(), th, p.lambda))
+            })
+        });
+        c.bench_function(&format!("cpu_dtam_search_energy_320x240_k64_t{threads}"), |b| {
+            b.iter(|| {
+                pool.install(|| {
+                    search_with_energy(
+                        costs.view(),
+                        &range,
+                        &bins,
+                        &tv,
+                        th,
+                        p.lambda,
+                        &mut fused_a,
+                        Dispatch::Auto,
+                    )
+                })
             })
         });
         c.bench_function(&format!("cpu_dtam_energy_320x240_k64_t{threads}"), |b| {

@@ -1,10 +1,15 @@
 //! DTAM Huber-TV invariants (SPEC.md §10): pruned search = full search, the primal-dual gap shrinks
 //! and the dual stays feasible, the a-search finds the discrete minimiser, constant inputs are fixed
-//! points, thread-count determinism, and planes rendered by the synthetic renderer are recovered.
+//! points, thread-count determinism, the fused solver equals the unfused reference bit for bit, and
+//! planes rendered by the synthetic renderer are recovered.
 
 use densefeat::costvolume::{CostVolume, UNSEEN_COST};
 use densefeat::dtam::search::exhaustive_search_full;
-use densefeat::dtam::{edge_weights, exhaustive_search, solve, CostRange, DtamParams, HuberTv};
+use densefeat::dtam::{
+    edge_weights, exhaustive_search, exhaustive_search_reference, exhaustive_search_with, rms_gap,
+    search_with_energy, solve, solve_reference, solve_with, total_energy, CostRange, Dispatch, DtamParams,
+    HuberTv,
+};
 use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
 use densefeat::image::to_gray;
 use densefeat::synth::{Quad, Scene, Shape, Surface, Texture};
@@ -35,9 +40,61 @@ proptest! {
         let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
         let mut r = stream(seed.wrapping_add(1));
         let d = Array2::from_shape_fn((h, w), |_| (r() * 2.4 - 0.2) as f32);
-        let pruned = exhaustive_search(costs.view(), &CostRange::new(costs.view()), &bins, d.view(), theta, lambda);
+        let range = CostRange::new(costs.view());
+        let pruned = exhaustive_search(costs.view(), &range, &bins, d.view(), theta, lambda);
         let full = exhaustive_search_full(costs.view(), &bins, d.view(), theta, lambda);
         prop_assert_eq!(pruned.mapv(f32::to_bits), full.mapv(f32::to_bits));
+        let portable = exhaustive_search_with(costs.view(), &range, &bins, d.view(), theta, lambda, Dispatch::Portable);
+        prop_assert_eq!(portable.mapv(f32::to_bits), full.mapv(f32::to_bits));
+        let scalar = exhaustive_search_reference(costs.view(), &range, &bins, d.view(), theta, lambda);
+        prop_assert_eq!(scalar.mapv(f32::to_bits), full.mapv(f32::to_bits));
+    }
+
+    #[test]
+    fn search_ties_resolve_as_the_definition(h in 1usize..5, w in 1usize..20, k in 2usize..40, seed: u64,
+                                             levels in 1u32..4, ulps: bool,
+                                             theta in prop_oneof![Just(1e-6), Just(0.01), Just(10.0)]) {
+        // Integer costs (or 10 plus a few ulps) and `d` on hypotheses or midway between them: many
+        // exactly equal, or nearly equal, energies.
+        let mut r = stream(seed);
+        let costs = Array3::from_shape_fn((h, w, k), |_| {
+            let n = (r() * f64::from(levels)).floor() as u32;
+            let v = if ulps { f32::from_bits(10f32.to_bits() + n) } else { n as f32 };
+            if r() < 0.1 { UNSEEN_COST } else { v }
+        });
+        let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
+        let d = Array2::from_shape_fn((h, w), |_| {
+            let b = (r() * (k - 1) as f64 * 2.0).floor() / 2.0;
+            (bins.rho_min + b * bins.step()) as f32
+        });
+        let range = CostRange::new(costs.view());
+        let full = exhaustive_search_full(costs.view(), &bins, d.view(), theta, 1.0);
+        for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+            let got = exhaustive_search_with(costs.view(), &range, &bins, d.view(), theta, 1.0, dispatch);
+            prop_assert_eq!(got.mapv(f32::to_bits), full.mapv(f32::to_bits), "{:?}", dispatch);
+        }
+    }
+
+    #[test]
+    fn fused_solve_equals_the_reference_bit_for_bit(h in 1usize..14, w in 1usize..14, k in 2usize..40,
+                                                    seed: u64, unseen in prop_oneof![Just(0.0), Just(0.3), Just(1.0)],
+                                                    odd in prop_oneof![Just(0.0), Just(0.05)],
+                                                    theta_start in 1e-4..2.0f64, lambda in 0.1..1000.0f64,
+                                                    steps in 1usize..4) {
+        let costs = odd_volume(h, w, k, seed, unseen, odd);
+        let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
+        let mut r = stream(seed.wrapping_add(2));
+        let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
+        let init = Array2::from_shape_fn((h, w), |_| (r() * 2.4 - 0.2) as f32);
+        let params = DtamParams {
+            lambda, theta_start, theta_end: theta_start * 1e-4, iterations: 12, max_iterations: 20,
+            steps_per_search: steps, ..DtamParams::default()
+        };
+        let reference = fingerprint(solve_reference(costs.view(), &bins, grey.view(), init.view(), &params).unwrap());
+        for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+            let got = solve_with(costs.view(), &bins, grey.view(), init.view(), &params, dispatch).unwrap();
+            prop_assert_eq!(&fingerprint(got), &reference, "{:?}", dispatch);
+        }
     }
 
     #[test]
@@ -56,6 +113,122 @@ proptest! {
         let b = bins.bin_of(a as f64);
         let bracket = e((b.floor() as usize).min(k - 1)).min(e((b.ceil() as usize).min(k - 1)));
         prop_assert_eq!(bracket, best, "a = {} (bin {})", a, b);
+    }
+}
+
+/// [`random_volume`] with a fraction `odd` of cells replaced by NaN, -0.0, -∞ or +∞ (unseen).
+fn odd_volume(h: usize, w: usize, k: usize, seed: u64, unseen: f64, odd: f64) -> Array3<f32> {
+    let mut costs = random_volume(h, w, k, seed, unseen);
+    let mut r = stream(seed ^ 0xABCD);
+    for c in costs.iter_mut() {
+        if r() < odd {
+            *c = [f32::NAN, -0.0, f32::NEG_INFINITY, f32::INFINITY][(r() * 4.0) as usize % 4];
+        }
+    }
+    costs
+}
+
+/// The bits of a solve's result and report (all but the wall time).
+type Fingerprint = (Vec<u32>, Vec<u32>, Vec<u64>, Vec<u64>, usize, bool);
+
+fn fingerprint((res, rep): (densefeat::dtam::DtamResult, densefeat::dtam::DtamReport)) -> Fingerprint {
+    (
+        res.inverse_depth.iter().map(|v| v.to_bits()).collect(),
+        res.auxiliary.iter().map(|v| v.to_bits()).collect(),
+        rep.energy.iter().map(|v| v.to_bits()).collect(),
+        rep.gap.iter().map(|v| v.to_bits()).collect(),
+        rep.iterations,
+        rep.converged,
+    )
+}
+
+#[test]
+fn fused_solve_equals_the_reference_on_every_thread_count() {
+    // A bench-like volume (smooth valleys, an unseen band) and a random one with odd values, with
+    // the normalised mapping schedule's wide first searches and the raw defaults.
+    let (h, w, k) = (37, 53, 48);
+    let bench = densefeat::cli::bench_tv::tv_inputs(w, h, k).unwrap();
+    let odd = odd_volume(h, w, k, 21, 0.2, 0.02);
+    let mut r = stream(22);
+    let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
+    let init = Array2::from_shape_fn((h, w), |_| (0.1 + 2.3 * r()) as f32);
+    let raw = DtamParams { iterations: 30, max_iterations: 60, ..DtamParams::default() };
+    let range = bench.bins.rho_max - bench.bins.rho_min;
+    let mapping = DtamParams { iterations: 30, max_iterations: 60, ..densefeat::dtam::MAPPING_DEFAULTS }
+        .normalised(10.0, w, range);
+    let cases = [
+        (&bench.costs, &bench.bins, &bench.grey, &bench.init, raw),
+        (&bench.costs, &bench.bins, &bench.grey, &bench.init, mapping),
+        (&odd, &bench.bins, &grey, &init, raw),
+        (&odd, &bench.bins, &grey, &init, mapping),
+    ];
+    for (i, (costs, bins, grey, init, params)) in cases.into_iter().enumerate() {
+        let reference = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| {
+            fingerprint(solve_reference(costs.view(), bins, grey.view(), init.view(), &params).unwrap())
+        });
+        for n in [1, 2, 3, 8] {
+            for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+                let got = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| {
+                    solve_with(costs.view(), bins, grey.view(), init.view(), &params, dispatch).unwrap()
+                });
+                assert!(fingerprint(got) == reference, "case {i}, {n} threads, {dispatch:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn fused_pass_equals_the_reference_functions() {
+    let (h, w, k) = (19, 23, 32);
+    let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
+    for (seed, unseen, odd) in [(31, 0.0, 0.0), (32, 0.3, 0.0), (33, 0.1, 0.05), (34, 1.0, 0.0)] {
+        let costs = odd_volume(h, w, k, seed, unseen, odd);
+        let range = CostRange::new(costs.view());
+        let mut r = stream(seed + 100);
+        let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
+        let init = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
+        let mut tv = HuberTv::new(init.clone(), edge_weights(grey.view(), 10.0, 1.0), 1e-3);
+        let mut a = init.clone();
+        for (n, theta) in [0.5, 0.05, 1e-3, 1e-5].into_iter().enumerate() {
+            tv.step(a.view(), theta);
+            let lambda = 30.0 * (n + 1) as f64;
+            let reference =
+                exhaustive_search_reference(costs.view(), &range, &bins, tv.primal(), theta, lambda);
+            let e = total_energy(&tv, costs.view(), &bins, reference.view(), theta, lambda);
+            let g = rms_gap(tv.primal(), reference.view());
+            for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+                let m = search_with_energy(costs.view(), &range, &bins, &tv, theta, lambda, &mut a, dispatch);
+                assert_eq!(a.mapv(f32::to_bits), reference.mapv(f32::to_bits), "seed {seed}, θ {theta}");
+                assert_eq!(m.energy.to_bits(), e.to_bits(), "seed {seed}, θ {theta}: {} vs {e}", m.energy);
+                assert_eq!(m.gap.to_bits(), g.to_bits(), "seed {seed}, θ {theta}");
+            }
+        }
+    }
+}
+
+#[test]
+fn step_equals_the_reference_step() {
+    for (h, w) in [(1, 1), (1, 7), (6, 1), (2, 2), (17, 29)] {
+        let mut r = stream((h * 100 + w) as u64);
+        let init = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
+        let a = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
+        let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
+        let g = edge_weights(grey.view(), 10.0, 1.0);
+        let mut reference = HuberTv::new(init.clone(), g.clone(), 1e-3);
+        let mut auto = reference.clone();
+        let mut portable = reference.clone();
+        for n in 0..50 {
+            let theta = 0.5 * 0.8f64.powi(n);
+            reference.step_reference(a.view(), theta);
+            auto.step_with(a.view(), theta, Dispatch::Auto);
+            portable.step_with(a.view(), theta, Dispatch::Portable);
+            let bits = |tv: &HuberTv| tv.primal().mapv(f32::to_bits);
+            assert_eq!(bits(&auto), bits(&reference), "{h}x{w}, step {n}");
+            assert_eq!(bits(&portable), bits(&reference), "{h}x{w}, step {n}");
+            let gap = |tv: &HuberTv| tv.gap(a.view(), theta);
+            assert_eq!(gap(&auto), gap(&reference), "{h}x{w}, step {n}: dual differs");
+            assert_eq!(gap(&portable), gap(&reference), "{h}x{w}, step {n}: dual differs");
+        }
     }
 }
 

@@ -1,5 +1,7 @@
 //! `densefeat bench tv`: time the DTAM Huber-TV solver (SPEC.md §10, §12.2) on a synthetic cost
-//! volume: one iteration (median, with its parts) and a full solve with default [`DtamParams`].
+//! volume: one iteration (median, with its parts: the primal-dual step and the fused a-search with
+//! the energy and gap, plus the a-search alone for scale), the same iteration in the unfused
+//! reference formulation, and a full solve with default [`DtamParams`].
 
 use std::time::Instant;
 
@@ -7,7 +9,10 @@ use clap::Args;
 use ndarray::{Array2, Array3};
 
 use super::synth::parse_size;
-use crate::dtam::{exhaustive_search, solve, total_energy, CostRange, DtamParams, HuberTv};
+use crate::dtam::{
+    exhaustive_search, exhaustive_search_reference, rms_gap, search_with_energy, solve, total_energy,
+    CostRange, Dispatch, DtamParams, HuberTv,
+};
 use crate::error::{Error, Result};
 use crate::geometry::InverseDepthBins;
 use crate::synth::rng::SplitMix64;
@@ -127,54 +132,88 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
     let TvInputs { costs, bins, grey, init } = tv_inputs(width, height, args.bins)?;
     let params = DtamParams::default();
     let lambda = params.lambda;
-    let (mut step, mut search, mut energy, mut iter) = (vec![], vec![], vec![], vec![]);
-    let mut solves = vec![];
+    let (mut step, mut fused, mut search, mut iter) = (vec![], vec![], vec![], vec![]);
+    let (mut ref_step, mut ref_search, mut ref_energy, mut ref_iter) = (vec![], vec![], vec![], vec![]);
+    let (mut solves, mut solve_iterations) = (vec![], 0);
     pool.install(|| -> Result<()> {
         let g = crate::dtam::edge_weights(grey.view(), params.alpha, params.beta);
         let range = CostRange::new(costs.view());
         // Iterations at θ_start: the widest pruned search, the slowest iteration of a solve.
         let theta = params.theta_start;
-        let mut tv = HuberTv::new(init.clone(), g, params.epsilon);
+        let mut tv = HuberTv::new(init.clone(), g.clone(), params.epsilon);
         let mut a = init.clone();
         for run in 0..args.runs + 2 {
             let t0 = Instant::now();
             tv.step(a.view(), theta);
             let t1 = Instant::now();
-            a = exhaustive_search(costs.view(), &range, &bins, tv.primal(), theta, lambda);
+            let m =
+                search_with_energy(costs.view(), &range, &bins, &tv, theta, lambda, &mut a, Dispatch::Auto);
             let t2 = Instant::now();
-            std::hint::black_box(total_energy(&tv, costs.view(), &bins, a.view(), theta, lambda));
+            std::hint::black_box(m);
+            std::hint::black_box(exhaustive_search(costs.view(), &range, &bins, tv.primal(), theta, lambda));
             let t3 = Instant::now();
             if run >= 2 {
                 step.push((t1 - t0).as_secs_f64());
-                search.push((t2 - t1).as_secs_f64());
-                energy.push((t3 - t2).as_secs_f64());
-                iter.push((t3 - t0).as_secs_f64());
+                fused.push((t2 - t1).as_secs_f64());
+                search.push((t3 - t2).as_secs_f64());
+                iter.push((t2 - t0).as_secs_f64());
+            }
+        }
+        // The same iterations in the unfused reference formulation (`dtam::solve_reference`).
+        let mut tv = HuberTv::new(init.clone(), g, params.epsilon);
+        let mut a = init.clone();
+        for run in 0..args.runs + 2 {
+            let t0 = Instant::now();
+            tv.step_reference(a.view(), theta);
+            let t1 = Instant::now();
+            a = exhaustive_search_reference(costs.view(), &range, &bins, tv.primal(), theta, lambda);
+            let t2 = Instant::now();
+            std::hint::black_box(total_energy(&tv, costs.view(), &bins, a.view(), theta, lambda));
+            std::hint::black_box(rms_gap(tv.primal(), a.view()));
+            let t3 = Instant::now();
+            if run >= 2 {
+                ref_step.push((t1 - t0).as_secs_f64());
+                ref_search.push((t2 - t1).as_secs_f64());
+                ref_energy.push((t3 - t2).as_secs_f64());
+                ref_iter.push((t3 - t0).as_secs_f64());
             }
         }
         for _ in 0..3 {
             let t = Instant::now();
-            std::hint::black_box(solve(costs.view(), &bins, grey.view(), init.view(), &params)?);
+            let (_, report) =
+                std::hint::black_box(solve(costs.view(), &bins, grey.view(), init.view(), &params)?);
             solves.push(t.elapsed().as_secs_f64());
+            solve_iterations = report.iterations;
         }
         Ok(())
     })?;
     let solve_ms = median_ms(solves);
     println!(
         "dtam {width}x{height}, K={}, {} thread(s): one iteration (θ = θ_start) median {:.2} ms \
-         = primal-dual step {:.2} + a-search {:.2} + energy {:.2} ms ({} runs)",
+         = primal-dual step {:.2} + a-search with energy and gap {:.2} ms (a-search alone {:.2} ms; \
+         {} runs)",
         args.bins,
         args.threads,
         median_ms(iter),
         median_ms(step),
+        median_ms(fused),
         median_ms(search),
-        median_ms(energy),
         args.runs
     );
     println!(
-        "  full solve, default parameters ({} iterations): median {solve_ms:.1} ms over 3 solves \
-         ({:.2} ms per iteration)",
+        "  unfused reference iteration (solve_reference): median {:.2} ms = primal-dual step {:.2} \
+         + a-search {:.2} + energy and gap {:.2} ms",
+        median_ms(ref_iter),
+        median_ms(ref_step),
+        median_ms(ref_search),
+        median_ms(ref_energy),
+    );
+    println!(
+        "  full solve, default parameters ({} iterations scheduled, {solve_iterations} run): median \
+         {solve_ms:.1} ms over 3 solves ({:.2} ms per scheduled iteration, {:.2} per iteration run)",
         params.iterations,
-        solve_ms / params.iterations as f64
+        solve_ms / params.iterations as f64,
+        solve_ms / solve_iterations.max(1) as f64
     );
     Ok(())
 }

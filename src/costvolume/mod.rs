@@ -59,6 +59,7 @@ use crate::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
 
 pub use curve::{confidence, cost_scale, filter_evidence, winner_take_all_costs};
 pub use fast::fast_kernel_name;
+pub(crate) use wta::MAX_OFFSET as MAX_PARABOLA_OFFSET;
 pub use wta::{parabola_offset, WtaDepth};
 
 /// What [`CostVolume::costs`] stores for a cell no frame saw (count 0). Finite, so the array is

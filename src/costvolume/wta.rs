@@ -19,7 +19,7 @@ pub struct WtaDepth {
 }
 
 /// Largest sub-bin offset of the parabola refinement.
-const MAX_OFFSET: f64 = 0.5;
+pub(crate) const MAX_OFFSET: f64 = 0.5;
 
 pub(super) fn winner_take_all(cv: &CostVolume) -> WtaDepth {
     let (h, w, k_count) = cv.dim();
@@ -86,6 +86,7 @@ pub(super) fn refined_minimum(
 
 /// Vertex of the parabola through `(-1, cm), (0, c0), (1, cp)`:
 /// `δ = (cm - cp) / (2 (cm - 2 c0 + cp))`, clamped to `±0.5`; 0 when the curvature is not positive.
+#[inline(always)]
 pub fn parabola_offset(cm: f64, c0: f64, cp: f64) -> f64 {
     let curvature = cm - 2.0 * c0 + cp;
     if curvature > 0.0 {

@@ -24,11 +24,13 @@
 use ndarray::{Array2, ArrayView2, Zip};
 use rayon::prelude::*;
 
+use super::Dispatch;
+
 /// Primal and dual step size `σ = τ = 1/√8`.
 pub const STEP: f64 = 0.353_553_390_593_273_8;
 
 /// The Huber norm of a 2-vector: `|z|²/(2ε)` if `|z| <= ε`, else `|z| - ε/2`.
-#[inline]
+#[inline(always)]
 pub fn huber(zx: f64, zy: f64, eps: f64) -> f64 {
     let n = (zx * zx + zy * zy).sqrt();
     if n <= eps {
@@ -66,6 +68,40 @@ fn grad_adjoint(px: &ArrayView2<f32>, py: &ArrayView2<f32>, y: usize, x: usize) 
         div -= py[[y - 1, x]] as f64;
     }
     -div
+}
+
+/// `Σ_x ‖g ∇d‖_ε` over one row: the row term of [`HuberTv::regulariser_energy`], with the same
+/// per-pixel expression and the same `f64` summation (`Iterator::sum`, `x` ascending); the terms
+/// are computed first, by a loop that vectorises. `below` is the next row of `d` (`None` on the
+/// last row).
+#[inline(always)]
+pub(crate) fn regulariser_row(d: &[f32], below: Option<&[f32]>, g: &[f32], eps: f64) -> f64 {
+    let mut terms = vec![0.0; d.len()];
+    match below {
+        Some(b) => huber_terms::<true>(&mut terms, d, b, g, eps),
+        None => huber_terms::<false>(&mut terms, d, d, g, eps),
+    }
+    terms.iter().copied().sum::<f64>()
+}
+
+/// `‖g ∇d‖_ε` per pixel of a row; `BELOW`: whether `below` is the next row (else `∂y d = 0`).
+#[inline(always)]
+fn huber_terms<const BELOW: bool>(terms: &mut [f64], d: &[f32], below: &[f32], g: &[f32], eps: f64) {
+    let w = terms.len();
+    if w == 0 {
+        return;
+    }
+    let (d, below, g) = (&d[..w], &below[..w], &g[..w]);
+    let term = |x: usize, gx: f64| {
+        let c = d[x] as f64;
+        let gy = if BELOW { below[x] as f64 - c } else { 0.0 };
+        let gw = g[x] as f64;
+        huber(gw * gx, gw * gy, eps)
+    };
+    for x in 0..w - 1 {
+        terms[x] = term(x, d[x + 1] as f64 - d[x] as f64);
+    }
+    terms[w - 1] = term(w - 1, 0.0);
 }
 
 /// Result of [`HuberTv::gap`].
@@ -111,11 +147,73 @@ impl HuberTv {
         self.d.view()
     }
 
-    /// One primal-dual step towards `argmin_d P(d)` for the given `a` and `θ`.
+    /// One primal-dual step towards `argmin_d P(d)` for the given `a` and `θ`, with the AVX-512
+    /// build of the row kernels where the CPU has it ([`Dispatch::Auto`]).
     ///
     /// # Panics
     /// If `a` differs in shape from `d`.
     pub fn step(&mut self, a: ArrayView2<f32>, theta: f64) {
+        self.step_with(a, theta, Dispatch::Auto);
+    }
+
+    /// [`HuberTv::step`] with an explicit choice of kernel build; every build gives the same bits
+    /// as [`HuberTv::step_reference`].
+    ///
+    /// Two row-parallel passes over contiguous rows: the dual update of every row (reading `d̄`
+    /// rows `y, y+1`), then the primal update fused with the extrapolation `d̄ = 2d' - d` (reading
+    /// `q` and `g` rows `y-1, y`, forming `g q` in `f32` on the fly). The per-pixel arithmetic is
+    /// exactly the reference's, term by term and in the same order.
+    ///
+    /// # Panics
+    /// If `a` differs in shape from `d`.
+    pub fn step_with(&mut self, a: ArrayView2<f32>, theta: f64, dispatch: Dispatch) {
+        assert_eq!(a.dim(), self.d.dim(), "a must match d");
+        let (h, w) = self.d.dim();
+        if h == 0 || w == 0 {
+            return;
+        }
+        let a = a.as_standard_layout();
+        let a = a.as_slice().expect("standard layout is contiguous");
+        let avx512 = dispatch.use_avx512();
+        let k = Coefficients::new(self.eps, theta);
+        let (d_bar, g) = (self.d_bar.as_slice().expect("contiguous"), self.g.as_slice().expect("contiguous"));
+        let qx = self.qx.as_slice_mut().expect("owned arrays are contiguous");
+        let qy = self.qy.as_slice_mut().expect("owned arrays are contiguous");
+        qx.par_chunks_mut(w).zip(qy.par_chunks_mut(w)).enumerate().for_each(|(y, (rx, ry))| {
+            let below = (y + 1 < h).then(|| &d_bar[(y + 1) * w..][..w]);
+            let rows = DualRows { qx: rx, qy: ry, d_bar: &d_bar[y * w..][..w], below, g: &g[y * w..][..w] };
+            kernels::dual_row(rows, &k, avx512);
+        });
+        let (qx, qy) = (self.qx.as_slice().expect("contiguous"), self.qy.as_slice().expect("contiguous"));
+        let d = self.d.as_slice_mut().expect("owned arrays are contiguous");
+        let d_bar = self.d_bar.as_slice_mut().expect("owned arrays are contiguous");
+        d.par_chunks_mut(w).zip(d_bar.par_chunks_mut(w)).enumerate().for_each(|(y, (rd, rb))| {
+            fn row(v: &[f32], y: usize, w: usize) -> &[f32] {
+                &v[y * w..][..w]
+            }
+            let row = |v, y| row(v, y, w);
+            let above = (y > 0).then(|| (row(qy, y - 1), row(g, y - 1)));
+            let rows = PrimalRows {
+                d: rd,
+                d_bar: rb,
+                qx: row(qx, y),
+                qy: row(qy, y),
+                g: row(g, y),
+                above,
+                has_below: y + 1 < h,
+                a: row(a, y),
+            };
+            kernels::primal_row(rows, &k, avx512);
+        });
+    }
+
+    /// The original, unfused step (ndarray indexing, `g q` and the old `d` as temporary arrays):
+    /// the definition [`HuberTv::step`] is tested against bit for bit
+    /// (`fused_solve_equals_the_reference_bit_for_bit` in tests/dtam.rs).
+    ///
+    /// # Panics
+    /// If `a` differs in shape from `d`.
+    pub fn step_reference(&mut self, a: ArrayView2<f32>, theta: f64) {
         assert_eq!(a.dim(), self.d.dim(), "a must match d");
         let (s, eps) = (STEP, self.eps);
         let (d_bar, g) = (self.d_bar.view(), self.g.view());
@@ -147,6 +245,16 @@ impl HuberTv {
             }
         });
         Zip::from(&mut self.d_bar).and(&self.d).and(&old).for_each(|b, &d, &o| *b = 2.0 * d - o);
+    }
+
+    /// The edge weights `g`.
+    pub fn weights(&self) -> ArrayView2<'_, f32> {
+        self.g.view()
+    }
+
+    /// The Huber threshold `ε`.
+    pub fn epsilon(&self) -> f64 {
+        self.eps
     }
 
     /// Largest `|q(u)|` (at most 1: the dual stays in its constraint set).
@@ -194,5 +302,202 @@ impl HuberTv {
             primal: self.regulariser_energy() + coupling,
             dual: lin - theta / 2.0 * kt2 - self.eps / 2.0 * q2,
         }
+    }
+}
+
+/// Per-step constants of the row kernels, each the reference's subexpression evaluated once.
+struct Coefficients {
+    /// `1 + σ ε`.
+    dual_den: f64,
+    /// `θ`.
+    theta: f64,
+    /// `1 + τ / θ`.
+    primal_den: f64,
+}
+
+impl Coefficients {
+    fn new(eps: f64, theta: f64) -> Self {
+        Self { dual_den: 1.0 + STEP * eps, theta, primal_den: 1.0 + STEP / theta }
+    }
+}
+
+/// One row of the dual update: `q` (updated in place), `d̄` of this row and of the next (`None` on
+/// the last row) and `g` of this row.
+struct DualRows<'a> {
+    qx: &'a mut [f32],
+    qy: &'a mut [f32],
+    d_bar: &'a [f32],
+    below: Option<&'a [f32]>,
+    g: &'a [f32],
+}
+
+/// One row of the primal update: `d` (updated in place) and `d̄` (written), `q` and `g` of this row
+/// and of the previous one (`None` on the first row), whether a next row exists, and `a`.
+struct PrimalRows<'a> {
+    d: &'a mut [f32],
+    d_bar: &'a mut [f32],
+    qx: &'a [f32],
+    qy: &'a [f32],
+    g: &'a [f32],
+    above: Option<(&'a [f32], &'a [f32])>,
+    has_below: bool,
+    a: &'a [f32],
+}
+
+/// The row kernels of [`HuberTv::step_with`]: generic bodies (`#[inline(always)]`) instantiated once
+/// for the baseline target and once inside an `avx512f` function, so the compiler may vectorise
+/// the latter 8 lanes wide. Each pixel's result is a fixed sequence of IEEE operations (no
+/// reductions across pixels, no fused multiply-adds), hence the same bits in both builds.
+mod kernels {
+    use super::{Coefficients, DualRows, PrimalRows, STEP};
+
+    pub(super) fn dual_row(rows: DualRows, k: &Coefficients, avx512: bool) {
+        #[cfg(target_arch = "x86_64")]
+        if avx512 {
+            // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`Dispatch::use_avx512`).
+            unsafe { dual_row_avx512(rows, k) };
+            return;
+        }
+        let _ = avx512;
+        dual_row_any(rows, k);
+    }
+
+    pub(super) fn primal_row(rows: PrimalRows, k: &Coefficients, avx512: bool) {
+        #[cfg(target_arch = "x86_64")]
+        if avx512 {
+            // SAFETY: as in `dual_row`.
+            unsafe { primal_row_avx512(rows, k) };
+            return;
+        }
+        let _ = avx512;
+        primal_row_any(rows, k);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn dual_row_avx512(rows: DualRows, k: &Coefficients) {
+        dual_row_any(rows, k);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn primal_row_avx512(rows: PrimalRows, k: &Coefficients) {
+        primal_row_any(rows, k);
+    }
+
+    /// `q ← Π((q + σ g ∇d̄) / (1 + σ ε))` at one pixel: the reference's expression.
+    #[inline(always)]
+    fn dual_px(qx: &mut f32, qy: &mut f32, gx: f64, gy: f64, gw: f64, k: &Coefficients) {
+        let nx = (*qx as f64 + STEP * gw * gx) / k.dual_den;
+        let ny = (*qy as f64 + STEP * gw * gy) / k.dual_den;
+        let scale = (nx * nx + ny * ny).sqrt().max(1.0);
+        *qx = (nx / scale) as f32;
+        *qy = (ny / scale) as f32;
+    }
+
+    #[inline(always)]
+    fn dual_row_any(rows: DualRows, k: &Coefficients) {
+        match rows.below {
+            Some(b) => dual_body::<true>(rows.qx, rows.qy, rows.d_bar, b, rows.g, k),
+            None => dual_body::<false>(rows.qx, rows.qy, rows.d_bar, rows.d_bar, rows.g, k),
+        }
+    }
+
+    /// `BELOW`: whether `below` is the next row (else the vertical difference is zero).
+    #[inline(always)]
+    fn dual_body<const BELOW: bool>(
+        qx: &mut [f32],
+        qy: &mut [f32],
+        d_bar: &[f32],
+        below: &[f32],
+        g: &[f32],
+        k: &Coefficients,
+    ) {
+        let w = qx.len();
+        let (qy, d_bar, below, g) = (&mut qy[..w], &d_bar[..w], &below[..w], &g[..w]);
+        let vertical = |x: usize, c: f64| if BELOW { below[x] as f64 - c } else { 0.0 };
+        for x in 0..w - 1 {
+            let c = d_bar[x] as f64;
+            dual_px(&mut qx[x], &mut qy[x], d_bar[x + 1] as f64 - c, vertical(x, c), g[x] as f64, k);
+        }
+        let x = w - 1;
+        let c = d_bar[x] as f64;
+        dual_px(&mut qx[x], &mut qy[x], 0.0, vertical(x, c), g[x] as f64, k);
+    }
+
+    /// `∇ᵀ(g q)` at one pixel from the terms that exist there (`RIGHT`: `x + 1 < w`, `LEFT`:
+    /// `x > 0`, `DOWN`: `y + 1 < h`, `UP`: `y > 0`), added in the reference's order.
+    #[inline(always)]
+    fn adjoint<const RIGHT: bool, const LEFT: bool, const DOWN: bool, const UP: bool>(
+        px: f32,
+        px_left: f32,
+        py: f32,
+        py_up: f32,
+    ) -> f64 {
+        let mut div = 0.0;
+        if RIGHT {
+            div += px as f64;
+        }
+        if LEFT {
+            div -= px_left as f64;
+        }
+        if DOWN {
+            div += py as f64;
+        }
+        if UP {
+            div -= py_up as f64;
+        }
+        -div
+    }
+
+    /// `d' ← (d - τ kt + τ a / θ) / (1 + τ / θ)`, `d̄ ← 2 d' - d` at one pixel.
+    #[inline(always)]
+    fn primal_px(d: &mut f32, d_bar: &mut f32, kt: f64, a: f32, k: &Coefficients) {
+        let old = *d;
+        let new = ((old as f64 - STEP * kt + STEP * a as f64 / k.theta) / k.primal_den) as f32;
+        *d = new;
+        *d_bar = 2.0 * new - old;
+    }
+
+    #[inline(always)]
+    fn primal_row_any(rows: PrimalRows, k: &Coefficients) {
+        let (qy_up, g_up) = rows.above.unwrap_or((rows.qy, rows.g));
+        let r = (rows.d, rows.d_bar, rows.qx, rows.qy, rows.g, qy_up, g_up, rows.a);
+        match (rows.has_below, rows.above.is_some()) {
+            (true, true) => primal_body::<true, true>(r, k),
+            (true, false) => primal_body::<true, false>(r, k),
+            (false, true) => primal_body::<false, true>(r, k),
+            (false, false) => primal_body::<false, false>(r, k),
+        }
+    }
+
+    type PrimalSlices<'a> =
+        (&'a mut [f32], &'a mut [f32], &'a [f32], &'a [f32], &'a [f32], &'a [f32], &'a [f32], &'a [f32]);
+
+    /// One row of the primal update; `DOWN` / `UP`: whether the next / previous row exists.
+    #[inline(always)]
+    fn primal_body<const DOWN: bool, const UP: bool>(r: PrimalSlices, k: &Coefficients) {
+        let (d, d_bar, qx, qy, g, qy_up, g_up, a) = r;
+        let w = d.len();
+        let (d_bar, qx, qy, g, qy_up, g_up, a) =
+            (&mut d_bar[..w], &qx[..w], &qy[..w], &g[..w], &qy_up[..w], &g_up[..w], &a[..w]);
+        // `g q` in f32, as the reference's `&q * &g`.
+        let px = |x: usize| qx[x] * g[x];
+        let py = |x: usize| qy[x] * g[x];
+        let py_up = |x: usize| qy_up[x] * g_up[x];
+        if w == 1 {
+            let kt = adjoint::<false, false, DOWN, UP>(0.0, 0.0, py(0), py_up(0));
+            primal_px(&mut d[0], &mut d_bar[0], kt, a[0], k);
+            return;
+        }
+        let kt = adjoint::<true, false, DOWN, UP>(px(0), 0.0, py(0), py_up(0));
+        primal_px(&mut d[0], &mut d_bar[0], kt, a[0], k);
+        for x in 1..w - 1 {
+            let kt = adjoint::<true, true, DOWN, UP>(px(x), px(x - 1), py(x), py_up(x));
+            primal_px(&mut d[x], &mut d_bar[x], kt, a[x], k);
+        }
+        let x = w - 1;
+        let kt = adjoint::<false, true, DOWN, UP>(0.0, px(x - 1), py(x), py_up(x));
+        primal_px(&mut d[x], &mut d_bar[x], kt, a[x], k);
     }
 }

@@ -17,8 +17,19 @@
 //! with a sub-bin parabola refinement ([`search`]); then `θ` decreases geometrically from
 //! `θ_start` to `θ_end`. The iteration that reaches `θ_end` is the last (DTAM's stopping rule).
 //! SPEC.md §10 gives every formula and default.
+//!
+//! **Implementation.** An iteration is three row-parallel passes: the dual and the primal halves of
+//! the primal-dual step ([`HuberTv::step`]), then one pass over the cost volume that runs the
+//! a-search 8 pixels at a time and measures the energy and the `d - a` gap on the way
+//! ([`search_with_energy`]). The row kernels have a portable and an AVX-512 build, chosen at run
+//! time ([`Dispatch`]). The unfused formulation ([`solve_reference`]: [`HuberTv::step_reference`],
+//! [`exhaustive_search_reference`], [`total_energy`], [`rms_gap`]) is kept as the definition;
+//! [`solve`] returns its bits for any thread count and either build (tests/dtam.rs).
 
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 mod edge;
+mod fused;
 pub mod huber_tv;
 pub mod search;
 
@@ -31,8 +42,39 @@ use crate::error::{Error, Result};
 use crate::geometry::InverseDepthBins;
 
 pub use edge::edge_weights;
+pub use fused::{search_with_energy, IterationMeasures};
 pub use huber_tv::{HuberTv, HuberTvReport};
-pub use search::{exhaustive_search, CostRange};
+pub use search::{exhaustive_search, exhaustive_search_reference, exhaustive_search_with, CostRange};
+
+/// Which build of the solver's row kernels to run. Both give the same bits; `Portable` exists to
+/// test that.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Dispatch {
+    /// The AVX-512 build where the CPU reports AVX-512F (run-time detection), else the portable one.
+    #[default]
+    Auto,
+    /// The baseline-target build only.
+    Portable,
+}
+
+impl Dispatch {
+    /// Whether this choice runs the AVX-512 build on this CPU.
+    pub fn use_avx512(self) -> bool {
+        match self {
+            Dispatch::Portable => false,
+            Dispatch::Auto => {
+                #[cfg(target_arch = "x86_64")]
+                {
+                    std::arch::is_x86_feature_detected!("avx512f")
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                {
+                    false
+                }
+            }
+        }
+    }
+}
 
 /// Parameters of [`solve`]. Every field has a CLI flag (`densefeat reconstruct --help`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -224,6 +266,89 @@ pub fn solve(
     init: ArrayView2<f32>,
     params: &DtamParams,
 ) -> Result<(DtamResult, DtamReport)> {
+    solve_with(costs, bins, grey, init, params, Dispatch::Auto)
+}
+
+/// [`solve`] with an explicit choice of kernel build (the same bits for every build).
+///
+/// # Errors
+/// As [`solve`].
+pub fn solve_with(
+    costs: ArrayView3<f32>,
+    bins: &InverseDepthBins,
+    grey: ArrayView2<f32>,
+    init: ArrayView2<f32>,
+    params: &DtamParams,
+    dispatch: Dispatch,
+) -> Result<(DtamResult, DtamReport)> {
+    check_inputs(costs, bins, grey, init, params)?;
+    let start = Instant::now();
+    let costs = costs.as_standard_layout();
+    let costs = costs.view();
+    let g = edge_weights(grey, params.alpha, params.beta);
+    let range = CostRange::new(costs);
+    let mut tv = HuberTv::new(init.to_owned(), g, params.epsilon);
+    let mut a = init.to_owned();
+    let mut history = History::new(params);
+    for n in 0..params.max_iterations {
+        let theta = params.theta(n);
+        for _ in 0..params.steps_per_search {
+            tv.step_with(a.view(), theta, dispatch);
+        }
+        let m = search_with_energy(costs, &range, bins, &tv, theta, params.lambda, &mut a, dispatch);
+        if history.push(n, m.energy, m.gap, params, bins) {
+            break;
+        }
+    }
+    let report = history.report(start);
+    Ok((DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report))
+}
+
+/// The unfused formulation of [`solve`], kept as its definition: per iteration
+/// [`HuberTv::step_reference`], [`exhaustive_search_reference`], [`total_energy`] and [`rms_gap`],
+/// each a separate pass. [`solve`] returns the same bits
+/// (`fused_solve_equals_the_reference_bit_for_bit` in tests/dtam.rs); this one is several times
+/// slower.
+///
+/// # Errors
+/// As [`solve`].
+pub fn solve_reference(
+    costs: ArrayView3<f32>,
+    bins: &InverseDepthBins,
+    grey: ArrayView2<f32>,
+    init: ArrayView2<f32>,
+    params: &DtamParams,
+) -> Result<(DtamResult, DtamReport)> {
+    check_inputs(costs, bins, grey, init, params)?;
+    let start = Instant::now();
+    let g = edge_weights(grey, params.alpha, params.beta);
+    let range = CostRange::new(costs);
+    let mut tv = HuberTv::new(init.to_owned(), g, params.epsilon);
+    let mut a = init.to_owned();
+    let mut history = History::new(params);
+    for n in 0..params.max_iterations {
+        let theta = params.theta(n);
+        for _ in 0..params.steps_per_search {
+            tv.step_reference(a.view(), theta);
+        }
+        a = exhaustive_search_reference(costs, &range, bins, tv.primal(), theta, params.lambda);
+        let e = total_energy(&tv, costs, bins, a.view(), theta, params.lambda);
+        let g = rms_gap(tv.primal(), a.view());
+        if history.push(n, e, g, params, bins) {
+            break;
+        }
+    }
+    let report = history.report(start);
+    Ok((DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report))
+}
+
+fn check_inputs(
+    costs: ArrayView3<f32>,
+    bins: &InverseDepthBins,
+    grey: ArrayView2<f32>,
+    init: ArrayView2<f32>,
+    params: &DtamParams,
+) -> Result<()> {
     params.validate()?;
     let (h, w, k) = costs.dim();
     if k != bins.count || grey.dim() != (h, w) || init.dim() != (h, w) {
@@ -238,43 +363,49 @@ pub fn solve(
             ),
         ));
     }
-    let start = Instant::now();
-    let g = edge_weights(grey, params.alpha, params.beta);
-    let range = CostRange::new(costs);
-    let mut tv = HuberTv::new(init.to_owned(), g, params.epsilon);
-    let mut a = init.to_owned();
-    let mut energy: Vec<f64> = Vec::with_capacity(params.iterations);
-    let mut gap: Vec<f64> = Vec::with_capacity(params.iterations);
-    let mut converged = false;
-    for n in 0..params.max_iterations {
-        let theta = params.theta(n);
-        for _ in 0..params.steps_per_search {
-            tv.step(a.view(), theta);
-        }
-        a = exhaustive_search(costs, &range, bins, tv.primal(), theta, params.lambda);
-        let e = total_energy(&tv, costs, bins, a.view(), theta, params.lambda);
-        let g = rms_gap(tv.primal(), a.view());
-        let settled =
-            energy.last().is_some_and(|&p| (e - p).abs() <= params.tolerance * e.abs().max(p.abs()));
-        let done = n + 1 >= params.iterations && settled && g <= GAP_TOLERANCE_BINS * bins.step();
-        energy.push(e);
-        gap.push(g);
-        if done {
-            converged = true;
-            break;
-        }
-    }
-    let report = DtamReport {
-        iterations: energy.len(),
-        energy,
-        gap,
-        converged,
-        seconds: start.elapsed().as_secs_f64(),
-    };
-    Ok((DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report))
+    Ok(())
 }
 
-/// `sqrt(mean (d - a)²)`, summed per row in f64, rows in order.
+/// The energies and gaps so far, and the stopping rule (SPEC.md §10).
+struct History {
+    energy: Vec<f64>,
+    gap: Vec<f64>,
+    converged: bool,
+}
+
+impl History {
+    fn new(params: &DtamParams) -> Self {
+        Self {
+            energy: Vec::with_capacity(params.iterations),
+            gap: Vec::with_capacity(params.iterations),
+            converged: false,
+        }
+    }
+
+    /// Record iteration `n`; `true` when the convergence test stops the solve there.
+    fn push(&mut self, n: usize, e: f64, g: f64, params: &DtamParams, bins: &InverseDepthBins) -> bool {
+        let settled =
+            self.energy.last().is_some_and(|&p| (e - p).abs() <= params.tolerance * e.abs().max(p.abs()));
+        let done = n + 1 >= params.iterations && settled && g <= GAP_TOLERANCE_BINS * bins.step();
+        self.energy.push(e);
+        self.gap.push(g);
+        self.converged = done;
+        done
+    }
+
+    fn report(self, start: Instant) -> DtamReport {
+        DtamReport {
+            iterations: self.energy.len(),
+            energy: self.energy,
+            gap: self.gap,
+            converged: self.converged,
+            seconds: start.elapsed().as_secs_f64(),
+        }
+    }
+}
+
+/// `sqrt(mean (d - a)²)`, summed per row in f64, rows in order. The definition of the report's gap;
+/// [`solve`] gets the same bits from [`search_with_energy`].
 pub fn rms_gap(d: ArrayView2<f32>, a: ArrayView2<f32>) -> f64 {
     use rayon::prelude::*;
     let (h, w) = d.dim();
@@ -286,7 +417,8 @@ pub fn rms_gap(d: ArrayView2<f32>, a: ArrayView2<f32>) -> f64 {
 }
 
 /// `E_θ(d, a)`, with `C(u, a)` linearly interpolated between hypotheses (unseen: 0). Summed per row
-/// in f64, rows in order: the same bits for any thread count.
+/// in f64, rows in order: the same bits for any thread count. The definition of the report's
+/// energy; [`solve`] gets the same bits from [`search_with_energy`], fused with the a-search.
 pub fn total_energy(
     tv: &HuberTv,
     costs: ArrayView3<f32>,

@@ -12,10 +12,27 @@
 //! `(d - ρ_k)² > r² = 2θ (C_max - C_min)/λ + (d - ρ_{k_n})²` has `E(k) > E(k_n)`. So only
 //! `|ρ_k - d| <= r` is searched — the same hypotheses in the same order as a full search, hence the
 //! same argmin bit for bit (`pruned_search_equals_full_search`). As `θ` falls, `r` shrinks.
+//!
+//! **Implementation.** [`exhaustive_search`] (and the fused pass, `dtam::search_with_energy`)
+//! search a row in groups of 8 consecutive pixels (`LANES`), one per SIMD lane. The pruned ranges
+//! of the next 16 pixels are computed ahead (a loop across pixels that vectorises) and the cache
+//! lines of the cost curves they will read are prefetched: the curves lie `K` floats apart and which
+//! of their lines a search reads depends on `d`, so the hardware prefetcher cannot follow. Each lane
+//! then runs the scalar definition's scan over its own range (the first seen hypothesis, then any
+//! with a strictly lower energy), the lanes stepping together for the longest range (a lane past
+//! its end idles, masked) with the costs gathered from the 8 curves; then the parabola refinement,
+//! lane-wise. Every value is the scalar definition's sequence of IEEE operations (no fused
+//! multiply-adds, no reordered reductions; `ρ_k` by [`InverseDepthBins::rho`]'s own formula or a
+//! table of its values), so the result is the definition's bit for bit, ties, infinities and NaNs
+//! included. Two builds: portable (lane arrays, `search_lanes`) and AVX-512 (`dtam::avx512`,
+//! intrinsics, run-time dispatch by [`Dispatch`]); tests/dtam.rs checks both against the scalar
+//! definition ([`exhaustive_search_full`]) and the original one-pixel-at-a-time implementation
+//! ([`exhaustive_search_reference`]).
 
 use ndarray::{Array2, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
+use super::Dispatch;
 use crate::costvolume::{parabola_offset, UNSEEN_COST};
 use crate::geometry::InverseDepthBins;
 
@@ -30,28 +47,41 @@ pub struct CostRange {
 }
 
 impl CostRange {
-    /// Scan the volume once.
+    /// Scan the volume once (row-parallel; each pixel's fold is the sequential one over `k`).
     pub fn new(costs: ArrayView3<f32>) -> Self {
-        let (h, w, _) = costs.dim();
-        let range = Array2::from_shape_fn((h, w), |(y, x)| {
-            costs
-                .slice(ndarray::s![y, x, ..])
+        let (h, w, k) = costs.dim();
+        let fold = |curve: &[f32]| {
+            curve
                 .iter()
                 .filter(|&&c| c < UNSEEN)
                 .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &c| (lo.min(c), hi.max(c)))
-        });
-        Self { range }
+        };
+        if h * w * k == 0 {
+            let empty = (f32::INFINITY, f32::NEG_INFINITY);
+            return Self { range: Array2::from_elem((h, w), empty) };
+        }
+        let costs = costs.as_standard_layout();
+        let flat = costs.as_slice().expect("standard layout is contiguous");
+        let range: Vec<(f32, f32)> =
+            flat.par_chunks(w * k).flat_map_iter(|row| row.chunks(k).map(fold)).collect();
+        Self { range: Array2::from_shape_vec((h, w), range).expect("one range per pixel") }
+    }
+
+    /// `(C_min, C_max)` per pixel, row-major.
+    pub(crate) fn as_slice(&self) -> &[(f32, f32)] {
+        self.range.as_slice().expect("owned arrays are contiguous")
     }
 }
 
 /// Energy of hypothesis `k` for a pixel.
-#[inline]
-fn energy(d: f64, rho: f64, cost: f32, theta: f64, lambda: f64) -> f64 {
+#[inline(always)]
+pub(crate) fn energy(d: f64, rho: f64, cost: f32, theta: f64, lambda: f64) -> f64 {
     let diff = d - rho;
     diff * diff / (2.0 * theta) + cost as f64 / lambda
 }
 
-/// Search one pixel over hypotheses `lo..=hi`; `None` if none of them was seen.
+/// Search one pixel over hypotheses `lo..=hi`; `None` if none of them was seen. The scalar
+/// definition: the first strict minimum of [`energy`] over the seen hypotheses.
 fn search_range(
     curve: &[f32],
     bins: &InverseDepthBins,
@@ -84,6 +114,7 @@ fn search_range(
 }
 
 /// One pixel: pruned search, falling back to the full search when the pruning bound does not apply.
+/// The scalar definition of [`search_pixel_fast`].
 fn search_pixel(
     curve: &[f32],
     range: (f32, f32),
@@ -110,7 +141,8 @@ fn search_pixel(
     search_range(curve, bins, d, theta, lambda, 0, n - 1).unwrap_or(d)
 }
 
-/// The auxiliary map `a` for the current `d` (`[H, W]`), row-parallel.
+/// The auxiliary map `a` for the current `d` (`[H, W]`), row-parallel, with the AVX-512 build of the
+/// row loop where the CPU has it.
 ///
 /// # Panics
 /// If `d` does not match the volume's `[H, W]` (callers validate shapes).
@@ -122,11 +154,375 @@ pub fn exhaustive_search(
     theta: f64,
     lambda: f64,
 ) -> Array2<f32> {
+    exhaustive_search_with(costs, range, bins, d, theta, lambda, Dispatch::Auto)
+}
+
+/// [`exhaustive_search`] with an explicit choice of kernel build (the same bits for every build).
+///
+/// # Panics
+/// If `d` does not match the volume's `[H, W]`.
+pub fn exhaustive_search_with(
+    costs: ArrayView3<f32>,
+    range: &CostRange,
+    bins: &InverseDepthBins,
+    d: ArrayView2<f32>,
+    theta: f64,
+    lambda: f64,
+    dispatch: Dispatch,
+) -> Array2<f32> {
+    let (h, w, k) = costs.dim();
+    assert_eq!(d.dim(), (h, w), "d must match the cost volume");
+    assert_eq!(range.range.dim(), (h, w), "the cost range must match the cost volume");
+    let mut a = Array2::<f32>::zeros((h, w));
+    if h * w == 0 {
+        return a;
+    }
+    let costs = costs.as_standard_layout();
+    let costs = costs.as_slice().expect("standard layout is contiguous");
+    let d = d.as_standard_layout();
+    let d = d.as_slice().expect("standard layout is contiguous");
+    let p = SearchParams::new(bins, theta, lambda);
+    let avx512 = dispatch.use_avx512();
+    let ranges = range.as_slice();
+    let out = a.as_slice_mut().expect("owned arrays are contiguous");
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let rows = SearchRow {
+            costs: &costs[y * w * k..][..w * k],
+            range: &ranges[y * w..][..w],
+            d: &d[y * w..][..w],
+        };
+        search_row(&rows, &p, row, avx512);
+    });
+    a
+}
+
+/// Constants of one search (`θ`, `λ` fixed), each the scalar definition's subexpression evaluated
+/// once, and the hypotheses as a table.
+pub(crate) struct SearchParams<'a> {
+    /// The bins, for the scalar fallback.
+    pub bins: &'a InverseDepthBins,
+    /// `ρ_k = bins.rho(k)` for every `k`.
+    rho: Vec<f64>,
+    /// `K`.
+    pub k: usize,
+    /// `ρ_min`.
+    pub rho_min: f64,
+    /// `ρ_max`.
+    pub rho_max: f64,
+    /// `Δρ = bins.step()`.
+    pub step: f64,
+    /// `θ`.
+    pub theta: f64,
+    /// `2θ`.
+    pub two_theta: f64,
+    /// `λ`.
+    pub lambda: f64,
+}
+
+impl<'a> SearchParams<'a> {
+    pub fn new(bins: &'a InverseDepthBins, theta: f64, lambda: f64) -> Self {
+        Self {
+            bins,
+            rho: bins.values(),
+            k: bins.count,
+            rho_min: bins.rho_min,
+            rho_max: bins.rho_max,
+            step: bins.step(),
+            theta,
+            two_theta: 2.0 * theta,
+            lambda,
+        }
+    }
+}
+
+/// One row's inputs: its `W·K` costs, `W` cost ranges and `W` values of `d`.
+pub(crate) struct SearchRow<'a> {
+    pub costs: &'a [f32],
+    pub range: &'a [(f32, f32)],
+    pub d: &'a [f32],
+}
+
+fn search_row(rows: &SearchRow, p: &SearchParams, out: &mut [f32], avx512: bool) {
+    #[cfg(target_arch = "x86_64")]
+    if avx512 {
+        // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`Dispatch::use_avx512`).
+        unsafe { search_row_avx512(rows, p, out) };
+        return;
+    }
+    let _ = avx512;
+    for_each_group::<false>(rows, p, &mut Output(out));
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn search_row_avx512(rows: &SearchRow, p: &SearchParams, out: &mut [f32]) {
+    for_each_group::<true>(rows, p, &mut Output(out));
+}
+
+/// Pixels searched together, one per lane (one AVX-512 register of `f64`).
+pub(crate) const LANES: usize = 8;
+
+/// Pixels per block of the row pipeline: a block's pixels are planned (and their cost-curve cache
+/// lines prefetched) while the previous block is searched.
+const BLOCK: usize = 2 * LANES;
+
+/// What [`for_each_group`] does with each group's results. A trait rather than a closure: a
+/// closure is a function of its own, compiled for the baseline target unless inlined, while an
+/// `#[inline(always)]` trait method is inlined into the AVX-512 build of the row loop.
+pub(crate) trait GroupSink {
+    /// Pixels `x0..x0 + n` (`n <= LANES`) of the row have `a[..n]` (in `f64`, before rounding to
+    /// `f32`); the other lanes hold junk.
+    fn group(&mut self, x0: usize, n: usize, a: &[f64; LANES]);
+}
+
+/// Writes `a` as `f32`.
+struct Output<'a>(&'a mut [f32]);
+
+impl GroupSink for Output<'_> {
+    #[inline(always)]
+    fn group(&mut self, x0: usize, n: usize, a: &[f64; LANES]) {
+        for (out, &a) in self.0[x0..x0 + n].iter_mut().zip(a) {
+            *out = a as f32;
+        }
+    }
+}
+
+/// Run the a-search on every pixel of a row, in groups of [`LANES`] consecutive pixels, `x`
+/// ascending, handing each group's results to `sink`. `AVX512`: use the AVX-512 lane search (only
+/// inside a function built with AVX-512F).
+///
+/// Software-pipelined: the search bounds of the next [`BLOCK`] pixels are computed (a loop across
+/// pixels that vectorises), and the cache lines their searches will read requested, before the
+/// current block is searched. The curves are `K` floats apart and each search reads a few lines at
+/// a position that depends on `d`, which the hardware prefetcher cannot follow.
+#[inline(always)]
+pub(crate) fn for_each_group<const AVX512: bool>(
+    rows: &SearchRow,
+    p: &SearchParams,
+    sink: &mut impl GroupSink,
+) {
+    let w = rows.d.len();
+    let mut plans = [Plans::default(); 2];
+    plan_block(&mut plans[0], rows, p, 0);
+    for (b, start) in (0..w).step_by(BLOCK).enumerate() {
+        if start + BLOCK < w {
+            plan_block(&mut plans[(b + 1) % 2], rows, p, start + BLOCK);
+        }
+        for g in (0..BLOCK).step_by(LANES) {
+            let x0 = start + g;
+            if x0 >= w {
+                break;
+            }
+            let a = search_group::<AVX512>(rows, p, &plans[b % 2], g, x0);
+            sink.group(x0, LANES.min(w - x0), &a);
+        }
+    }
+}
+
+/// The parts of [`BLOCK`] pixels' searches that do not read their cost curves (exactly
+/// [`search_pixel`]'s values): whether anything was seen, the hypothesis nearest `d` and the pruned
+/// range `lo..=hi` (already widened to include `nearest`).
+#[derive(Clone, Copy, Debug, Default)]
+struct Plans {
+    flat: [bool; BLOCK],
+    nearest: [u32; BLOCK],
+    lo: [u32; BLOCK],
+    hi: [u32; BLOCK],
+}
+
+/// Plan pixels `start..start + BLOCK` (clipped to the row) and prefetch their curves' lines.
+#[inline(always)]
+fn plan_block(plans: &mut Plans, rows: &SearchRow, p: &SearchParams, start: usize) {
+    let end = (start + BLOCK).min(rows.d.len());
+    let (range, d) = (&rows.range[start..end], &rows.d[start..end]);
+    if end - start == BLOCK {
+        // A fixed trip count: vectorised across pixels.
+        for i in 0..BLOCK {
+            (plans.flat[i], plans.nearest[i], plans.lo[i], plans.hi[i]) = plan(range[i], p, d[i] as f64);
+        }
+    } else {
+        for i in 0..end - start {
+            (plans.flat[i], plans.nearest[i], plans.lo[i], plans.hi[i]) = plan(range[i], p, d[i] as f64);
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    for (i, x) in (start..end).enumerate() {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        // The first, middle and last cache lines of the range with the parabola's neighbours: all of
+        // it when it spans at most 3 lines (it spans 1 or 2 once θ has shrunk), the start of each
+        // stretch the hardware prefetcher can then follow otherwise. Branch-free; harmless on flat
+        // pixels.
+        let curve = &rows.costs[x * p.k..][..p.k];
+        let lo = (plans.lo[i] as usize).saturating_sub(1);
+        let hi = (plans.hi[i] as usize + 1).min(p.k - 1);
+        for c in [lo, (lo + hi) / 2, hi] {
+            // SAFETY: a prefetch is a hint; it never faults, and `c < K` keeps it in the curve.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(curve[c..].as_ptr().cast()) };
+        }
+    }
+}
+
+/// One pixel's plan: [`search_pixel`]'s `c_min > c_max`, `nearest`, `lo.min(nearest)` and
+/// `hi.max(nearest)`, with `ρ_nearest` evaluated by [`InverseDepthBins::rho`]'s formula (no table
+/// lookup, so the loop over pixels vectorises). The indices are at most `K - 1`, so `u32` holds them
+/// exactly (and `NaN` still maps to 0).
+#[inline(always)]
+fn plan(range: (f32, f32), p: &SearchParams, d: f64) -> (bool, u32, u32, u32) {
+    let (c_min, c_max) = range;
+    let last = (p.k - 1) as f64;
+    let nearest = ((d - p.rho_min) / p.step).round().clamp(0.0, last) as u32;
+    let rho_nearest =
+        if nearest as usize + 1 == p.k { p.rho_max } else { p.rho_min + f64::from(nearest) * p.step };
+    let dn = d - rho_nearest;
+    let r = (p.two_theta * (c_max - c_min) as f64 / p.lambda + dn * dn).sqrt();
+    let lo = ((d - r - p.rho_min) / p.step).floor().clamp(0.0, last) as u32;
+    let hi = ((d + r - p.rho_min) / p.step).ceil().clamp(0.0, last) as u32;
+    (c_min > c_max, nearest, lo.min(nearest), hi.max(nearest))
+}
+
+/// [`LANES`] consecutive pixels of a row, one per lane, ready to search: the offset of each curve
+/// in the row's costs, `d`, whether the lane is flat (nothing seen, or past the row's end) and its
+/// range `lo..=hi`: the planned pruned range, or the full curve where the hypothesis nearest `d` is
+/// unseen (`full`), as in [`search_pixel`]. `span`: the longest live range.
+pub(crate) struct Lanes {
+    pub off: [usize; LANES],
+    pub d: [f64; LANES],
+    pub flat: [bool; LANES],
+    pub full: [bool; LANES],
+    pub lo: [usize; LANES],
+    pub hi: [usize; LANES],
+    pub span: usize,
+}
+
+impl Lanes {
+    #[inline(always)]
+    fn new(rows: &SearchRow, p: &SearchParams, plans: &Plans, i0: usize, x0: usize) -> Self {
+        let (k, w) = (p.k, rows.d.len());
+        let costs = &rows.costs[..w * k];
+        let mut l = Lanes {
+            off: [0; LANES],
+            d: [0.0; LANES],
+            flat: [true; LANES],
+            full: [false; LANES],
+            lo: [0; LANES],
+            hi: [0; LANES],
+            span: 0,
+        };
+        for j in 0..LANES.min(w - x0) {
+            let (x, i) = (x0 + j, i0 + j);
+            l.off[j] = x * k;
+            l.d[j] = rows.d[x] as f64;
+            l.flat[j] = plans.flat[i];
+            // The pruning applies only where the hypothesis nearest `d` was seen.
+            // (`!(c < UNSEEN)`: NaN counts as unseen here, as in `search_pixel`.)
+            let c = costs[x * k + plans.nearest[i] as usize];
+            l.full[j] = c >= UNSEEN || c.is_nan();
+            l.lo[j] = if l.full[j] { 0 } else { plans.lo[i] as usize };
+            l.hi[j] = if l.full[j] { k - 1 } else { plans.hi[i] as usize };
+            if !l.flat[j] {
+                l.span = l.span.max(l.hi[j] - l.lo[j] + 1);
+            }
+        }
+        l
+    }
+}
+
+/// [`search_pixel`] for the [`LANES`] pixels `x0..` of a row (planned in `plans` from index `i0`),
+/// one per lane, by [`search_lanes`] or its AVX-512 build (`AVX512`); lanes past the row's end
+/// hold junk.
+#[inline(always)]
+fn search_group<const AVX512: bool>(
+    rows: &SearchRow,
+    p: &SearchParams,
+    plans: &Plans,
+    i0: usize,
+    x0: usize,
+) -> [f64; LANES] {
+    let (k, w) = (p.k, rows.d.len());
+    let costs = &rows.costs[..w * k];
+    let lanes = Lanes::new(rows, p, plans, i0, x0);
+    #[cfg(target_arch = "x86_64")]
+    let (mut a, found) = if AVX512 {
+        // SAFETY: `AVX512` is only set inside functions built with AVX-512F, which run only where the
+        // CPU reported it (`Dispatch::use_avx512`); every curve offset plus hypothesis is in `costs`.
+        unsafe { super::avx512::search_lanes(costs, p, &lanes) }
+    } else {
+        search_lanes(costs, p, &lanes)
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let (mut a, found) = search_lanes(costs, p, &lanes);
+    for j in 0..LANES.min(w - x0) {
+        if !lanes.flat[j] && !lanes.full[j] && !found[j] {
+            // A pruned range with nothing seen in it cannot happen (it holds the seen nearest
+            // hypothesis); should it, the scalar definition falls back to the full search.
+            let x = x0 + j;
+            a[j] = search_pixel(&costs[x * k..][..k], rows.range[x], p.bins, lanes.d[j], p.theta, p.lambda);
+        }
+    }
+    a
+}
+
+/// The portable lane search: `a` per lane and whether its scan found a seen hypothesis (where not,
+/// `a = d`). Each lane runs the scalar definition's scan over its own `lo..=hi`, skipping unseen
+/// cells: the first seen hypothesis is taken, then any with a strictly lower energy, so ties,
+/// infinities and NaNs resolve exactly as in [`search_range`]. The lanes step through their ranges
+/// together for `span` steps (a lane past its `hi` idles). Then the parabola refinement, lane-wise.
+/// [`crate::dtam::avx512`]'s build performs the same operations on whole registers.
+#[inline(always)]
+pub(crate) fn search_lanes(costs: &[f32], p: &SearchParams, l: &Lanes) -> ([f64; LANES], [bool; LANES]) {
+    let k = p.k;
+    let cell = |i: usize| costs[i.min(costs.len() - 1)]; // in bounds by construction
+    let rho = |i: usize| p.rho[i.min(k - 1)];
+    let (mut best, mut arg, mut found) = ([f64::INFINITY; LANES], [0usize; LANES], [false; LANES]);
+    for t in 0..l.span {
+        for j in 0..LANES {
+            let kk = l.lo[j] + t;
+            let active = !l.flat[j] && kk <= l.hi[j];
+            let kk = if active { kk } else { l.lo[j] };
+            let c = cell(l.off[j] + kk);
+            let e = energy(l.d[j], rho(kk), c, p.theta, p.lambda);
+            // `!(c >= UNSEEN)`: the scan skips only cells at or above UNSEEN (a NaN is scanned).
+            let scanned = c < UNSEEN || c.is_nan();
+            let take = active && scanned && (!found[j] || e < best[j]);
+            best[j] = if take { e } else { best[j] };
+            arg[j] = if take { kk } else { arg[j] };
+            found[j] |= take;
+        }
+    }
+    let mut a = [0.0; LANES];
+    for j in 0..LANES {
+        let kk = arg[j];
+        let inner = kk > 0 && kk + 1 < k;
+        let (km, kp) = if inner { (kk - 1, kk + 1) } else { (kk, kk) };
+        let (cm, cp) = (cell(l.off[j] + km), cell(l.off[j] + kp));
+        let em = energy(l.d[j], rho(km), cm, p.theta, p.lambda);
+        let ep = energy(l.d[j], rho(kp), cp, p.theta, p.lambda);
+        let delta = if inner && cm < UNSEEN && cp < UNSEEN { parabola_offset(em, best[j], ep) } else { 0.0 };
+        let refined = if delta == 0.0 { rho(kk) } else { p.rho_min + (kk as f64 + delta) * p.step };
+        a[j] = if l.flat[j] || !found[j] { l.d[j] } else { refined };
+    }
+    (a, found)
+}
+
+/// The original scalar implementation of [`exhaustive_search`] (ndarray indexing, one pixel at a
+/// time through `search_pixel`): the reference the vectorised search is tested against
+/// (`pruned_search_equals_full_search`, and through `dtam::solve_reference`).
+///
+/// # Panics
+/// If `d` does not match the volume's `[H, W]`.
+pub fn exhaustive_search_reference(
+    costs: ArrayView3<f32>,
+    range: &CostRange,
+    bins: &InverseDepthBins,
+    d: ArrayView2<f32>,
+    theta: f64,
+    lambda: f64,
+) -> Array2<f32> {
     let (h, w, _) = costs.dim();
     assert_eq!(d.dim(), (h, w), "d must match the cost volume");
     let mut a = Array2::<f32>::zeros((h, w));
     let slice = a.as_slice_mut().expect("owned arrays are contiguous");
-    slice.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+    slice.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
         for (x, out) in row.iter_mut().enumerate() {
             let curve = costs.slice(ndarray::s![y, x, ..]);
             let curve =

@@ -1,0 +1,218 @@
+//! The second half of a DTAM iteration in one pass over the cost volume: the a-search
+//! ([`super::search`]) of each group of 8 pixels, immediately followed by their coupling and data
+//! terms of `E_θ(d, a)` while their cost curves are still in cache (computed lane-wise, in the
+//! AVX-512 build with the cells gathered), then per row the rms-gap and regulariser terms (rows of
+//! `d`, `a` and `g` still in cache).
+//!
+//! Every term is the reference's per-pixel expression ([`super::total_energy`],
+//! [`super::rms_gap`], [`HuberTv::regulariser_energy`]) and is summed in the reference's order:
+//! per row in `f64`, `x` ascending, then over rows in order. Hence the energy and the gap are the
+//! references' bits, for any thread count and either build (`fused_pass_equals_the_reference_functions`
+//! in tests/dtam.rs). This replaces three passes of the unfused iteration, the second of which
+//! re-read one cost-curve cache line per pixel from memory.
+
+use ndarray::{Array2, ArrayView3};
+use rayon::prelude::*;
+
+use super::huber_tv::regulariser_row;
+use super::search::{for_each_group, GroupSink, SearchParams, SearchRow, LANES, UNSEEN};
+use super::{Dispatch, HuberTv};
+use crate::dtam::search::{exhaustive_search_reference, CostRange};
+use crate::geometry::InverseDepthBins;
+
+/// What [`search_with_energy`] measures after writing `a`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IterationMeasures {
+    /// `E_θ(d, a)`: the bits of [`super::total_energy`].
+    pub energy: f64,
+    /// Root mean square of `d - a`: the bits of [`super::rms_gap`].
+    pub gap: f64,
+}
+
+/// Per-row sums.
+struct RowSums {
+    regulariser: f64,
+    coupling: f64,
+    data: f64,
+    gap: f64,
+}
+
+/// One row's inputs.
+struct Row<'a> {
+    costs: &'a [f32],
+    range: &'a [(f32, f32)],
+    d: &'a [f32],
+    below: Option<&'a [f32]>,
+    g: &'a [f32],
+    eps: f64,
+}
+
+/// For the current `d = tv.primal()`: write the a-search's result into `a` (the bits of
+/// [`super::exhaustive_search`]) and return `E_θ(d, a)` and the rms gap, with the AVX-512 build of
+/// the row loop where `dispatch` allows it.
+///
+/// # Panics
+/// If `a`, `d` or `range` do not match the volume's `[H, W]`, or `costs` has fewer hypotheses than
+/// `bins` (callers validate shapes).
+#[allow(clippy::too_many_arguments)]
+pub fn search_with_energy(
+    costs: ArrayView3<f32>,
+    range: &CostRange,
+    bins: &InverseDepthBins,
+    tv: &HuberTv,
+    theta: f64,
+    lambda: f64,
+    a: &mut Array2<f32>,
+    dispatch: Dispatch,
+) -> IterationMeasures {
+    let (h, w, k) = costs.dim();
+    assert_eq!(tv.primal().dim(), (h, w), "d must match the cost volume");
+    assert_eq!(a.dim(), (h, w), "a must match the cost volume");
+    assert_eq!(k, bins.count, "one cost per hypothesis");
+    if h * w == 0 {
+        *a = exhaustive_search_reference(costs, range, bins, tv.primal(), theta, lambda);
+        return IterationMeasures {
+            energy: super::total_energy(tv, costs, bins, a.view(), theta, lambda),
+            gap: super::rms_gap(tv.primal(), a.view()),
+        };
+    }
+    let costs = costs.as_standard_layout();
+    let costs = costs.as_slice().expect("standard layout is contiguous");
+    let d = tv.primal().to_slice().expect("owned arrays are contiguous");
+    let g = tv.weights().to_slice().expect("owned arrays are contiguous");
+    let ranges = range.as_slice();
+    assert_eq!(ranges.len(), h * w, "the cost range must match the cost volume");
+    let p = SearchParams::new(bins, theta, lambda);
+    let avx512 = dispatch.use_avx512();
+    let eps = tv.epsilon();
+    let out = a.as_slice_mut().expect("owned arrays are contiguous");
+    let rows: Vec<RowSums> = out
+        .par_chunks_mut(w)
+        .enumerate()
+        .map(|(y, a_row)| {
+            let row = Row {
+                costs: &costs[y * w * k..][..w * k],
+                range: &ranges[y * w..][..w],
+                d: &d[y * w..][..w],
+                below: (y + 1 < h).then(|| &d[(y + 1) * w..][..w]),
+                g: &g[y * w..][..w],
+                eps,
+            };
+            fused_row(&row, &p, a_row, avx512)
+        })
+        .collect();
+    // The reference's sums over rows: `Iterator::sum` for the regulariser and the gap, `+=` from
+    // 0.0 for the coupling and data terms, then `regulariser + coupling + data`.
+    let regulariser: f64 = rows.iter().map(|r| r.regulariser).collect::<Vec<f64>>().iter().sum();
+    let (mut coupling, mut data) = (0.0, 0.0);
+    for r in &rows {
+        coupling += r.coupling;
+        data += r.data;
+    }
+    let gaps: Vec<f64> = rows.iter().map(|r| r.gap).collect();
+    IterationMeasures {
+        energy: regulariser + coupling + data,
+        gap: (gaps.iter().sum::<f64>() / (h * w).max(1) as f64).sqrt(),
+    }
+}
+
+fn fused_row(row: &Row, p: &SearchParams, a: &mut [f32], avx512: bool) -> RowSums {
+    #[cfg(target_arch = "x86_64")]
+    if avx512 {
+        // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`Dispatch::use_avx512`).
+        return unsafe { fused_row_avx512(row, p, a) };
+    }
+    let _ = avx512;
+    fused_row_any::<false>(row, p, a)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn fused_row_avx512(row: &Row, p: &SearchParams, a: &mut [f32]) -> RowSums {
+    fused_row_any::<true>(row, p, a)
+}
+
+#[inline(always)]
+fn fused_row_any<const AVX512: bool>(row: &Row, p: &SearchParams, a: &mut [f32]) -> RowSums {
+    let w = a.len();
+    let d = &row.d[..w];
+    let search = SearchRow { costs: row.costs, range: row.range, d };
+    let mut sink = Terms::<AVX512> { a, d, costs: &row.costs[..w * p.k], p, coupling: 0.0, data: 0.0 };
+    for_each_group::<AVX512>(&search, p, &mut sink);
+    let Terms { a, coupling, data, .. } = sink;
+    // `rms_gap`'s row sum.
+    let gap = d.iter().zip(a.iter()).map(|(&d, &a)| (f64::from(d) - f64::from(a)).powi(2)).sum();
+    RowSums { regulariser: regulariser_row(d, row.below, row.g, row.eps), coupling, data, gap }
+}
+
+/// Writes `a` and adds `total_energy`'s per-pixel coupling and data terms while the group's curves
+/// are in cache: the terms are computed lane-wise ([`terms_lanes`] or its AVX-512 build), then
+/// added one pixel at a time, `x` ascending.
+struct Terms<'a, const AVX512: bool> {
+    a: &'a mut [f32],
+    d: &'a [f32],
+    costs: &'a [f32],
+    p: &'a SearchParams<'a>,
+    coupling: f64,
+    data: f64,
+}
+
+impl<const AVX512: bool> GroupSink for Terms<'_, AVX512> {
+    #[inline(always)]
+    fn group(&mut self, x0: usize, n: usize, a: &[f64; LANES]) {
+        let (k, w) = (self.p.k, self.d.len());
+        // Lanes past the row's end repeat its last pixel (computed, never added).
+        let x = |j: usize| (x0 + j).min(w - 1);
+        let off: [usize; LANES] = std::array::from_fn(|j| x(j) * k);
+        let d: [f64; LANES] = std::array::from_fn(|j| self.d[x(j)] as f64);
+        #[cfg(target_arch = "x86_64")]
+        let (a32, coupling, data, seen) = if AVX512 {
+            // SAFETY: `AVX512` is only set inside functions built with AVX-512F, run only where the
+            // CPU reported it; every offset plus hypothesis lies in `costs`.
+            unsafe { super::avx512::terms_lanes(self.costs, self.p, &off, &d, a) }
+        } else {
+            terms_lanes(self.costs, self.p, &off, &d, a)
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let (a32, coupling, data, seen) = terms_lanes(self.costs, self.p, &off, &d, a);
+        for j in 0..n {
+            self.a[x0 + j] = a32[j];
+            self.coupling += coupling[j];
+            if seen[j] {
+                self.data += data[j];
+            }
+        }
+    }
+}
+
+/// Per lane: `a as f32`, then `total_energy`'s coupling term `(d - a)² / (2θ)` and data term
+/// (`C` interpolated linearly at `a`'s bin, over `λ`), and whether the data term counts (both
+/// interpolated cells seen). The reference's expressions, term by term.
+#[inline(always)]
+fn terms_lanes(
+    costs: &[f32],
+    p: &SearchParams,
+    off: &[usize; LANES],
+    d: &[f64; LANES],
+    a: &[f64; LANES],
+) -> ([f32; LANES], [f64; LANES], [f64; LANES], [bool; LANES]) {
+    let k = p.k;
+    let last = (k - 1) as f64;
+    let cell = |i: usize| costs[i.min(costs.len() - 1)]; // in bounds by construction
+    let (mut a32, mut coupling, mut data, mut seen) =
+        ([0.0f32; LANES], [0.0; LANES], [0.0; LANES], [false; LANES]);
+    for j in 0..LANES {
+        let a = a[j] as f32;
+        a32[j] = a;
+        let diff = d[j] - a as f64;
+        coupling[j] = diff * diff / (2.0 * p.theta);
+        let b = ((a as f64 - p.rho_min) / p.step).clamp(0.0, last);
+        let k0 = (b.floor() as usize).min(k.saturating_sub(2));
+        let t = b - k0 as f64;
+        let c0 = cell(off[j] + k0);
+        let c1 = cell(off[j] + (k0 + 1).min(k - 1));
+        seen[j] = c0 < UNSEEN && c1 < UNSEEN;
+        data[j] = ((1.0 - t) * c0 as f64 + t * c1 as f64) / p.lambda;
+    }
+    (a32, coupling, data, seen)
+}

@@ -186,7 +186,7 @@ fn row<const CH: usize>(
             let o = offset[k];
             let wk = [w00[k], w10[k], w01[k], w11[k]];
             let l1 = if CH == 3 {
-                l1_rgb(&feats.live, o, dx, dy, r, wk)
+                l1_rgb(feats.live, o, dx, dy, r, wk)
             } else {
                 l1_distance(
                     r,

@@ -69,14 +69,18 @@ pub fn winner_take_all_costs(costs: ArrayView3<f32>, bins: &InverseDepthBins) ->
 }
 
 /// Minimum and median of a pixel's seen costs; `None` with fewer than 2 seen cells.
-fn min_median(curve: &[f32], scratch: &mut Vec<f32>) -> Option<(f32, f32)> {
+fn min_median(curve: ndarray::ArrayView1<f32>, scratch: &mut Vec<f32>) -> Option<(f32, f32)> {
     scratch.clear();
     scratch.extend(curve.iter().copied().filter(|&c| c < UNSEEN_COST));
     if scratch.len() < 2 {
         return None;
     }
-    scratch.sort_by(f32::total_cmp);
-    Some((scratch[0], scratch[(scratch.len() - 1) / 2]))
+    // The minimum and the order statistic `(n-1)/2` under `total_cmp` (values that compare equal
+    // under it have equal bits, so this is the value a full sort would put there), in O(n).
+    let lo = scratch.iter().copied().min_by(f32::total_cmp).expect("at least two cells");
+    let mid = (scratch.len() - 1) / 2;
+    let (_, &mut med, _) = scratch.select_nth_unstable_by(mid, f32::total_cmp);
+    Some((lo, med))
 }
 
 /// The volume's cost scale `s`: the median over pixels (with at least two seen cells) of the
@@ -91,9 +95,7 @@ pub fn cost_scale(costs: ArrayView3<f32>) -> f64 {
             let mut scratch = Vec::new();
             (0..w)
                 .filter_map(|x| {
-                    let curve = costs.slice(ndarray::s![y, x, ..]);
-                    let curve = curve.to_vec();
-                    min_median(&curve, &mut scratch).map(|(lo, med)| med - lo)
+                    min_median(costs.slice(ndarray::s![y, x, ..]), &mut scratch).map(|(lo, med)| med - lo)
                 })
                 .collect::<Vec<_>>()
         })
@@ -125,8 +127,8 @@ pub fn confidence(costs: ArrayView3<f32>, counts: ArrayView3<u16>, frames: usize
     slice.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
         let mut scratch = Vec::new();
         for x in 0..w {
-            let curve = costs.slice(ndarray::s![y, x, ..]).to_vec();
-            let Some((lo, med)) = min_median(&curve, &mut scratch) else { continue };
+            let curve = costs.slice(ndarray::s![y, x, ..]);
+            let Some((lo, med)) = min_median(curve, &mut scratch) else { continue };
             let sharp = if med > 0.0 { 1.0 - f64::from(lo) / f64::from(med) } else { 0.0 };
             let k = curve.iter().position(|&c| c == lo).expect("the minimum is a seen cell");
             let evidence = f64::from(counts[[y, x, k]]) / frames.max(1) as f64;

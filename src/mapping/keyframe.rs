@@ -10,6 +10,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use ndarray::{Array2, Array3};
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::backend::Backend;
@@ -361,10 +362,22 @@ pub fn reconstruct(
     progress(Stage::Keyframe, 1, 1);
 
     let mut cv = backend.cost_volume(&backend.upload_owned(key_features)?, camera, bins)?;
+    // Frames are decoded a few at a time in parallel (decoding is exact, so this changes no bits)
+    // and added in window order.
+    let batch = rayon::current_num_threads().clamp(1, 8);
+    let mut loaded = std::collections::VecDeque::new();
     for (i, &n) in live.iter().enumerate() {
-        let t = Instant::now();
-        let frame = seq.load_frame(n)?;
-        timings.load += t.elapsed().as_secs_f64();
+        if loaded.is_empty() {
+            let t = Instant::now();
+            let next = &live[i..live.len().min(i + batch)];
+            let frames: Vec<Result<_>> = next.par_iter().map(|&m| seq.load_frame(m)).collect();
+            for f in frames {
+                loaded.push_back(f?);
+            }
+            timings.load += t.elapsed().as_secs_f64();
+        }
+        let frame = loaded.pop_front().expect("a batch was just loaded");
+        debug_assert_eq!(frame.index, n);
         let t = Instant::now();
         let f = extractor.extract(&frame.rgb)?.data;
         timings.features += t.elapsed().as_secs_f64();

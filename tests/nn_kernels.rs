@@ -5,7 +5,9 @@
 use densefeat::nn::conv2d::{
     conv2d_direct, conv2d_direct_with, conv2d_im2col, direct, im2col, scratch_len, DirectKernel, PackedConv2d,
 };
-use densefeat::nn::deconv2d::{deconv2d_fast, scratch_len as deconv_scratch_len, PackedDeconv2d};
+use densefeat::nn::deconv2d::{
+    deconv2d_direct, deconv2d_fast, scratch_len as deconv_scratch_len, PackedDeconv2d,
+};
 use densefeat::nn::geometry::DownsampleGeometry;
 use densefeat::nn::{
     add, concat_channels, conv2d, deconv2d, downsample2x, Activation, Conv2dGeometry, Conv2dImpl,
@@ -184,6 +186,24 @@ proptest! {
         within_budget(fast.view(), oracle.view(), magnitude.view(), budget(case.g.k()))?;
     }
 
+    /// The direct kernel (where this CPU runs it; `ParityGemm` elsewhere), and its fused U-Net sum:
+    /// `skip + deconv` equals the separate `add` of the unfused output bit for bit.
+    #[test]
+    fn deconv_direct_matches_reference(case in deconv_cases()) {
+        let fast = case.run(Deconv2dImpl::Direct);
+        let oracle = case.run(Deconv2dImpl::Reference);
+        let magnitude = case.abs().run(Deconv2dImpl::Reference);
+        within_budget(fast.view(), oracle.view(), magnitude.view(), budget(case.g.k()))?;
+        if densefeat::nn::deconv2d::direct::supported(&case.g) {
+            let packed = PackedDeconv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
+            let skip: Vec<f32> = (0..fast.len()).map(|i| ((i * 7919) % 113) as f32 * 0.37 - 20.0).collect();
+            let mut fused = vec![0.0f32; fast.len()];
+            deconv2d_direct(&packed, case.x.as_slice().unwrap(), Some(&skip), &mut fused).unwrap();
+            let want: Vec<u32> = fast.as_slice().unwrap().iter().zip(&skip).map(|(a, s)| (s + a).to_bits()).collect();
+            prop_assert_eq!(fused.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want);
+        }
+    }
+
     #[test]
     fn im2col_gather_is_bit_exact(case in conv_cases(), start in 0.0..1.0f64, rows in 1usize..4) {
         let g = case.g;
@@ -318,6 +338,11 @@ fn im2col_output_independent_of_scratch_lanes() {
 #[test]
 fn deconv_output_independent_of_thread_count() {
     let case = DeconvCase::new(19, 23, 35, 32, 11);
+    let direct = |n| thread_pool(n).install(|| case.run(Deconv2dImpl::Direct));
+    let one = direct(1);
+    for n in [2, 3, 8] {
+        assert_eq!(bits(&direct(n)), bits(&one), "direct, threads = {n}");
+    }
     let run = |n| thread_pool(n).install(|| case.run(Deconv2dImpl::ParityGemm));
     let one = run(1);
     for n in [2, 3, 8] {

@@ -8,9 +8,13 @@ use crate::costvolume::{winner_take_all_costs, CostVolume, CostVolumeImpl, WtaDe
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
+use crate::nn::deconv2d::{deconv2d_direct, direct::supported as direct_deconv_supported, PackedDeconv2d};
 use crate::nn::network::{conv_geometry, deconv_geometry};
 use crate::nn::weights::LayerParams;
-use crate::nn::{add, concat_channels, conv2d, deconv2d, downsample2x, Activation, Conv2dImpl, NetworkImpl};
+use crate::nn::{
+    add, concat_channels, conv2d, deconv2d, downsample2x, expect_shape, Activation, Conv2dImpl, Deconv2dImpl,
+    NetworkImpl,
+};
 
 /// Kernel choices of the CPU backend. [`CpuBackend::default`] is the fast one; tests build others
 /// (for example [`NetworkImpl::REFERENCE`]) to compare implementations.
@@ -87,6 +91,24 @@ impl Backend for CpuBackend {
         let x = host(self.name(), x)?;
         let g = deconv_geometry(x.dim(), l)?;
         Ok(Tensor::host(deconv2d(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view())?))
+    }
+
+    fn deconv5x5s2_add(&self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+        let (x, skip) = (host(self.name(), x)?, host(self.name(), skip)?);
+        let g = deconv_geometry(x.dim(), l)?;
+        if self.network.deconv != Deconv2dImpl::Direct || !direct_deconv_supported(&g) {
+            let up = deconv2d(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view())?;
+            return Ok(Tensor::host(add(skip.view(), up.view())?));
+        }
+        expect_shape("U-Net skip map", skip.shape(), &g.output_shape())?;
+        let packed = PackedDeconv2d::new(&g, l.weight.view(), l.bias.view())?;
+        let (x, skip) = (x.as_standard_layout(), skip.as_standard_layout());
+        let mut out = Array3::zeros(g.output_shape());
+        let (Some(xs), Some(ss), Some(o)) = (x.as_slice(), skip.as_slice(), out.as_slice_mut()) else {
+            unreachable!("standard-layout arrays are contiguous")
+        };
+        deconv2d_direct(&packed, xs, Some(ss), o)?;
+        Ok(Tensor::host(out))
     }
 
     fn downsample2x(&self, x: &Tensor) -> Result<Tensor> {

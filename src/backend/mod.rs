@@ -85,6 +85,15 @@ pub trait Backend: Send + Sync + Debug {
     /// # Errors
     /// Shape errors; [`Error::Unsupported`].
     fn deconv5x5s2(&self, x: &Tensor, layer: &LayerParams) -> Result<Tensor>;
+    /// The decoder's U-Net step `skip + deconv5x5s2(x)` (SPEC.md §8.3). The default runs the two
+    /// ops; a backend may fuse them, with the same bits (the sum is one f32 addition per value).
+    ///
+    /// # Errors
+    /// Shape errors; [`Error::Unsupported`].
+    fn deconv5x5s2_add(&self, x: &Tensor, layer: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+        let up = self.deconv5x5s2(x, layer)?;
+        self.add(skip, &up)
+    }
     /// The 2x tent downsampling of SPEC.md §7.4.
     ///
     /// # Errors

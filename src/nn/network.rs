@@ -38,7 +38,7 @@ impl NetworkImpl {
     /// The fast kernels (the default). In a network, `conv: Direct` runs every layer with
     /// [`Conv2dImpl::fastest_for`] its geometry: Direct's AVX-512 kernel where it applies
     /// (`c_out = 32` on an AVX-512F CPU), `Im2colGemm` otherwise (SPEC.md §7.7, §8.1).
-    pub const FAST: NetworkImpl = NetworkImpl { conv: Conv2dImpl::Direct, deconv: Deconv2dImpl::ParityGemm };
+    pub const FAST: NetworkImpl = NetworkImpl { conv: Conv2dImpl::Direct, deconv: Deconv2dImpl::Direct };
     /// The f64 reference kernels (the oracle; single-threaded and slow).
     pub const REFERENCE: NetworkImpl =
         NetworkImpl { conv: Conv2dImpl::Reference, deconv: Deconv2dImpl::Reference };
@@ -101,6 +101,12 @@ pub trait Executor {
     fn concat(&mut self, a: &Self::Map, b: &Self::Map) -> Result<Self::Map>;
     /// Elementwise sum.
     fn add(&mut self, a: &Self::Map, b: &Self::Map) -> Result<Self::Map>;
+    /// The decoder step `skip + deconv(x)`; the default runs [`Executor::deconv`] then
+    /// [`Executor::add`] (the training tape records them so), executors may fuse it.
+    fn deconv_add(&mut self, x: &Self::Map, layer: &LayerParams, skip: &Self::Map) -> Result<Self::Map> {
+        let up = self.deconv(x, layer)?;
+        self.add(skip, &up)
+    }
     /// The top-left `h x w` window (takes the map, so nothing is copied when it already fits).
     fn crop(&mut self, x: Self::Map, h: usize, w: usize) -> Self::Map;
 }
@@ -155,6 +161,9 @@ impl Executor for BackendExecutor<'_> {
     }
     fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
         self.0.add(a, b)
+    }
+    fn deconv_add(&mut self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+        self.0.deconv5x5s2_add(x, l, skip)
     }
     fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
         // The network only crops to the sizes of SPEC.md §8.2, inside every map.
@@ -238,10 +247,7 @@ pub fn run_network<E: Executor>(
     for k in (0..config.blocks).rev() {
         let a = match aggregated.last() {
             None => outs[k].clone(),
-            Some(coarser) => {
-                let up = exec.deconv(coarser, &weights.deconvs[k])?;
-                exec.add(&outs[k], &up)?
-            }
+            Some(coarser) => exec.deconv_add(coarser, &weights.deconvs[k], &outs[k])?,
         };
         aggregated.push(a);
     }

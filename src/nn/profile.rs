@@ -73,6 +73,11 @@ impl Executor for ProfileExecutor<'_> {
         let flops = 2.0 * 25.0 * (g.c_in() * g.c_out() * g.h() * g.w()) as f64;
         self.record("deconv 5x5 s2".into(), flops, |e| e.deconv(x, l))
     }
+    fn deconv_add(&mut self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+        let g = deconv_geometry(x.dim(), l)?;
+        let flops = 2.0 * 25.0 * (g.c_in() * g.c_out() * g.h() * g.w()) as f64;
+        self.record("deconv 5x5 s2 + add".into(), flops, |e| e.deconv_add(x, l, skip))
+    }
     fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
         self.record("concat".into(), 0.0, |e| e.concat(a, b))
     }

@@ -3,8 +3,8 @@
 //! (layout and loop order in [`super::direct`]). x86-64 only; callers check AVX-512F at run time.
 
 use std::arch::x86_64::{
-    __m512, _mm512_fmadd_ps, _mm512_loadu_ps, _mm512_max_ps, _mm512_set1_ps, _mm512_setzero_ps,
-    _mm512_storeu_ps,
+    __m512, _mm512_add_ps, _mm512_fmadd_ps, _mm512_loadu_ps, _mm512_max_ps, _mm512_set1_ps,
+    _mm512_setzero_ps, _mm512_storeu_ps,
 };
 
 use super::direct::{interior_columns, tap_range, AVX512_C_OUT, STRIP};
@@ -16,24 +16,48 @@ use crate::nn::Activation;
 const LANES: usize = 16;
 
 /// Where a strip's taps live: input and weights of its first valid tap, and the loop extents.
-struct Taps {
+/// Shared with the transposed convolution's direct kernel (`nn::deconv2d::direct`), whose output
+/// parities are small ordinary convolutions.
+pub(crate) struct Taps {
     /// `in[s y + ky_lo - 1, s x0 + kx_lo - 1, 0]`.
-    input: *const f32,
+    pub(crate) input: *const f32,
     /// Floats between input rows (`w c_in`).
-    row_stride: usize,
+    pub(crate) row_stride: usize,
     /// Floats between the strip's pixels (`s c_in`).
-    pix_stride: usize,
+    pub(crate) pix_stride: usize,
     /// Valid tap rows.
-    n_ky: usize,
+    pub(crate) n_ky: usize,
     /// Contiguous input values (and weight rows) per tap row: `n_kx c_in`.
-    run: usize,
+    pub(crate) run: usize,
     /// `W[ky_lo][kx_lo][0][0]`.
-    weights: *const f32,
+    pub(crate) weights: *const f32,
     /// Floats between weight tap rows (`3 c_in · 32`).
-    w_row_stride: usize,
+    pub(crate) w_row_stride: usize,
 }
 
-/// Computes `P` output pixels x 32 channels into `out` (`32 P` floats, pixel-major).
+/// Where a strip's results go: pixel `p`'s 32 channels at `ptr + p stride`; with a non-null `skip`,
+/// `skip + p stride`'s 32 values are added to them after the activation (the U-Net sum, one f32
+/// addition, the same bits as a separate `add`).
+pub(crate) struct Store {
+    pub(crate) ptr: *mut f32,
+    pub(crate) stride: usize,
+    pub(crate) skip: *const f32,
+    pub(crate) relu: bool,
+}
+
+impl Store {
+    /// Pixel `p`'s destination, `p` pixels on.
+    pub(crate) fn at(&self, p: usize) -> Store {
+        Store {
+            ptr: self.ptr.wrapping_add(p * self.stride),
+            stride: self.stride,
+            skip: if self.skip.is_null() { self.skip } else { self.skip.wrapping_add(p * self.stride) },
+            relu: self.relu,
+        }
+    }
+}
+
+/// Computes `P` output pixels x 32 channels into `o` (see [`Store`]).
 ///
 /// `PS` is the pixel stride `s c_in` as a constant (so that every broadcast is a fixed offset from
 /// one pointer), or 0 to read it from `t.pix_stride`.
@@ -41,9 +65,10 @@ struct Taps {
 /// # Safety
 /// The CPU has AVX-512F. For every `ky < n_ky`, `p < P`, `j < run`, the input value
 /// `t.input + ky row_stride + p pix_stride + j` is readable, as are `t.weights + ky w_row_stride
-/// + 32 j .. + 32` and `bias .. bias + 32`; `out .. out + 32 P` is writable and aliases none of them.
+/// + 32 j .. + 32` and `bias .. bias + 32`; `o.ptr + p o.stride .. + 32` is writable for `p < P`
+/// and aliases none of them; if `o.skip` is not null, `o.skip + p o.stride .. + 32` is readable.
 #[target_feature(enable = "avx512f")]
-unsafe fn strip<const P: usize, const PS: usize>(t: &Taps, bias: *const f32, out: *mut f32, relu: bool) {
+unsafe fn strip<const P: usize, const PS: usize>(t: &Taps, bias: *const f32, o: &Store) {
     let ps = if PS == 0 { t.pix_stride } else { PS };
     // SAFETY: bias holds 32 floats (caller contract).
     let (b0, b1) = unsafe { (_mm512_loadu_ps(bias), _mm512_loadu_ps(bias.add(LANES))) };
@@ -68,12 +93,17 @@ unsafe fn strip<const P: usize, const PS: usize>(t: &Taps, bias: *const f32, out
     }
     let zero = _mm512_setzero_ps();
     for (p, a) in acc.iter().enumerate() {
-        let (v0, v1) =
-            if relu { (_mm512_max_ps(a[0], zero), _mm512_max_ps(a[1], zero)) } else { (a[0], a[1]) };
-        // SAFETY: out holds 32 P floats (caller contract).
+        let (mut v0, mut v1) =
+            if o.relu { (_mm512_max_ps(a[0], zero), _mm512_max_ps(a[1], zero)) } else { (a[0], a[1]) };
+        // SAFETY: pixel p's 32 destination floats (and skip values) are in the caller contract.
         unsafe {
-            _mm512_storeu_ps(out.add(p * AVX512_C_OUT), v0);
-            _mm512_storeu_ps(out.add(p * AVX512_C_OUT + LANES), v1);
+            if !o.skip.is_null() {
+                let s = o.skip.add(p * o.stride);
+                v0 = _mm512_add_ps(_mm512_loadu_ps(s), v0);
+                v1 = _mm512_add_ps(_mm512_loadu_ps(s.add(LANES)), v1);
+            }
+            _mm512_storeu_ps(o.ptr.add(p * o.stride), v0);
+            _mm512_storeu_ps(o.ptr.add(p * o.stride + LANES), v1);
         }
     }
 }
@@ -83,17 +113,17 @@ unsafe fn strip<const P: usize, const PS: usize>(t: &Taps, bias: *const f32, out
 /// # Safety
 /// As [`strip`] with `P = STRIP`.
 #[target_feature(enable = "avx512f")]
-unsafe fn full_strip(t: &Taps, bias: *const f32, out: *mut f32, relu: bool) {
+pub(crate) unsafe fn full_strip(t: &Taps, bias: *const f32, o: &Store) {
     // SAFETY: forwarded caller contract; PS equals t.pix_stride in every specialised arm.
     unsafe {
         match t.pix_stride {
-            3 => strip::<STRIP, 3>(t, bias, out, relu),
-            6 => strip::<STRIP, 6>(t, bias, out, relu),
-            32 => strip::<STRIP, 32>(t, bias, out, relu),
-            35 => strip::<STRIP, 35>(t, bias, out, relu),
-            64 => strip::<STRIP, 64>(t, bias, out, relu),
-            70 => strip::<STRIP, 70>(t, bias, out, relu),
-            _ => strip::<STRIP, 0>(t, bias, out, relu),
+            3 => strip::<STRIP, 3>(t, bias, o),
+            6 => strip::<STRIP, 6>(t, bias, o),
+            32 => strip::<STRIP, 32>(t, bias, o),
+            35 => strip::<STRIP, 35>(t, bias, o),
+            64 => strip::<STRIP, 64>(t, bias, o),
+            70 => strip::<STRIP, 70>(t, bias, o),
+            _ => strip::<STRIP, 0>(t, bias, o),
         }
     }
 }
@@ -103,23 +133,23 @@ unsafe fn full_strip(t: &Taps, bias: *const f32, out: *mut f32, relu: bool) {
 /// # Safety
 /// As [`strip`] with `P = n`.
 #[target_feature(enable = "avx512f")]
-unsafe fn short_strip(n: usize, t: &Taps, bias: *const f32, out: *mut f32, relu: bool) {
+pub(crate) unsafe fn short_strip(n: usize, t: &Taps, bias: *const f32, o: &Store) {
     // SAFETY: forwarded caller contract with P = n.
     unsafe {
         match n {
-            1 => strip::<1, 0>(t, bias, out, relu),
-            2 => strip::<2, 0>(t, bias, out, relu),
-            3 => strip::<3, 0>(t, bias, out, relu),
-            4 => strip::<4, 0>(t, bias, out, relu),
-            5 => strip::<5, 0>(t, bias, out, relu),
-            6 => strip::<6, 0>(t, bias, out, relu),
-            7 => strip::<7, 0>(t, bias, out, relu),
-            8 => strip::<8, 0>(t, bias, out, relu),
-            9 => strip::<9, 0>(t, bias, out, relu),
-            10 => strip::<10, 0>(t, bias, out, relu),
-            11 => strip::<11, 0>(t, bias, out, relu),
-            12 => strip::<12, 0>(t, bias, out, relu),
-            13 => strip::<13, 0>(t, bias, out, relu),
+            1 => strip::<1, 0>(t, bias, o),
+            2 => strip::<2, 0>(t, bias, o),
+            3 => strip::<3, 0>(t, bias, o),
+            4 => strip::<4, 0>(t, bias, o),
+            5 => strip::<5, 0>(t, bias, o),
+            6 => strip::<6, 0>(t, bias, o),
+            7 => strip::<7, 0>(t, bias, o),
+            8 => strip::<8, 0>(t, bias, o),
+            9 => strip::<9, 0>(t, bias, o),
+            10 => strip::<10, 0>(t, bias, o),
+            11 => strip::<11, 0>(t, bias, o),
+            12 => strip::<12, 0>(t, bias, o),
+            13 => strip::<13, 0>(t, bias, o),
             _ => unreachable!("short strip of {n} pixels"),
         }
     }
@@ -161,7 +191,7 @@ pub(super) unsafe fn conv_row(
             w_row_stride: CONV_KERNEL * c_in * AVX512_C_OUT,
         }
     };
-    let out = out_row.as_mut_ptr();
+    let store = Store { ptr: out_row.as_mut_ptr(), stride: AVX512_C_OUT, skip: std::ptr::null(), relu };
     let (x_lo, x_hi) = interior_columns(geom);
     // Border columns: one pixel each, narrowed kx range.
     for x in (0..x_lo).chain(x_hi..geom.w_out()) {
@@ -169,22 +199,22 @@ pub(super) unsafe fn conv_row(
         // SAFETY: tap_range keeps rows s y + ky - 1 and columns s x + kx - 1 of every read inside
         // the h x w image, so all reads are in `input`; the weight rows are inside the 9 c_in x 32
         // packed matrix; pixel x of the row is inside `out_row`; AVX-512F per the caller.
-        unsafe { short_strip(1, &taps(x, kx_lo, kx_hi), bias, out.add(x * AVX512_C_OUT), relu) };
+        unsafe { short_strip(1, &taps(x, kx_lo, kx_hi), bias, &store.at(x)) };
     }
     // Interior columns: full strips, then one short strip.
     let mut x = x_lo;
     while x < x_hi {
         let n = STRIP.min(x_hi - x);
         let t = taps(x, 0, CONV_KERNEL);
-        let o = out.wrapping_add(x * AVX512_C_OUT);
+        let o = store.at(x);
         // SAFETY: every pixel x .. x + n is interior, so its full 3x3 window (rows within the ky
         // range) is inside `input`; pixels x .. x + n < w_out are inside `out_row`; weights and
         // bias as above; AVX-512F per the caller.
         unsafe {
             if n == STRIP {
-                full_strip(&t, bias, o, relu);
+                full_strip(&t, bias, &o);
             } else {
-                short_strip(n, &t, bias, o, relu);
+                short_strip(n, &t, bias, &o);
             }
         }
         x += n;

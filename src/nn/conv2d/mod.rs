@@ -33,7 +33,7 @@
 pub mod backward;
 pub mod direct;
 #[cfg(target_arch = "x86_64")]
-mod direct_avx512;
+pub(crate) mod direct_avx512;
 pub mod im2col;
 pub mod reference;
 

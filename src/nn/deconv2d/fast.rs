@@ -22,7 +22,7 @@ use crate::nn::geometry::{Deconv2dGeometry, DECONV_KERNEL, DECONV_PADDING, DECON
 use crate::nn::{expect_len, expect_shape, scratch_lanes, split_lanes};
 
 /// Number of output parities along one axis (the stride).
-const PARITIES: usize = DECONV_STRIDE;
+pub(crate) const PARITIES: usize = DECONV_STRIDE;
 
 /// Input offsets `d` and kernel indices `k` reaching an output of parity `q`: all `d` with
 /// `k = 2 + q - 2d` (that is `p + q - s·d`) in `0..5`, in increasing `d`.
@@ -75,6 +75,21 @@ impl PackedDeconv2d {
     /// The geometry the weights were packed for.
     pub fn geometry(&self) -> &Deconv2dGeometry {
         &self.geom
+    }
+
+    /// The input offsets `d` reaching output parity `q`, increasing.
+    pub(crate) fn offsets(&self, q: usize) -> Vec<isize> {
+        self.taps[q].iter().map(|&(d, _)| d).collect()
+    }
+
+    /// Parity `(qy, qx)`'s packed weights, `[t_y][t_x][c_in][c_out]`.
+    pub(crate) fn parity_weights(&self, qy: usize, qx: usize) -> &[f32] {
+        &self.weights[PARITIES * qy + qx]
+    }
+
+    /// The bias, `[c_out]`.
+    pub(crate) fn bias(&self) -> &[f32] {
+        &self.bias
     }
 }
 

@@ -24,6 +24,7 @@
 //! `[2h, 2w, c_out]` ([`Deconv2dGeometry`]).
 
 pub mod backward;
+pub mod direct;
 pub mod fast;
 pub mod reference;
 
@@ -33,6 +34,7 @@ pub use backward::{
     deconv2d_backward_input, deconv2d_backward_input_reference, deconv2d_backward_weight,
     deconv2d_backward_weight_reference,
 };
+pub use direct::deconv2d_direct;
 pub use fast::{deconv2d_fast, scratch_len, PackedDeconv2d};
 pub use reference::deconv2d_reference;
 
@@ -48,11 +50,16 @@ pub enum Deconv2dImpl {
     /// Gather as four parity sub-convolutions, each a GEMM, parallel over output row pairs
     /// ([`deconv2d_fast`]).
     ParityGemm,
+    /// The four parity convolutions run by the direct AVX-512F strip kernel of the 3x3 convolution
+    /// ([`deconv2d_direct`]) where the CPU has AVX-512F and `c_out = 32`; [`Deconv2dImpl::ParityGemm`]
+    /// otherwise.
+    Direct,
 }
 
 impl Deconv2dImpl {
     /// Every implementation, for tests and benches.
-    pub const ALL: [Deconv2dImpl; 2] = [Deconv2dImpl::Reference, Deconv2dImpl::ParityGemm];
+    pub const ALL: [Deconv2dImpl; 3] =
+        [Deconv2dImpl::Reference, Deconv2dImpl::ParityGemm, Deconv2dImpl::Direct];
 }
 
 /// Runs the chosen implementation on f32 arrays, allocating the output and any scratch. (The
@@ -78,7 +85,17 @@ pub fn deconv2d(
             )?;
             Ok(out.mapv(|v| v as f32))
         }
-        Deconv2dImpl::ParityGemm => {
+        Deconv2dImpl::Direct if direct::supported(geom) => {
+            let packed = PackedDeconv2d::new(geom, weight, bias)?;
+            let input = input.as_standard_layout();
+            let mut out = Array3::zeros(geom.output_shape());
+            let (Some(x), Some(y)) = (input.as_slice(), out.as_slice_mut()) else {
+                unreachable!("standard-layout arrays are contiguous")
+            };
+            deconv2d_direct(&packed, x, None, y)?;
+            Ok(out)
+        }
+        Deconv2dImpl::ParityGemm | Deconv2dImpl::Direct => {
             let packed = PackedDeconv2d::new(geom, weight, bias)?;
             let input = input.as_standard_layout();
             let mut out = Array3::zeros(geom.output_shape());

@@ -43,13 +43,18 @@ pub fn downsample2x(input: ArrayView3<f32>) -> Result<Array3<f32>> {
     let [h_out, w_out, _] = geom.output_shape();
     let mut out = Array3::zeros((h_out, w_out, c));
     let Some(out_slice) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
+    let input = input.as_standard_layout();
+    let Some(src) = input.as_slice() else { unreachable!("standard layout is contiguous") };
     out_slice.par_chunks_mut(w_out * c).enumerate().for_each(|(j, row)| {
+        let rows = [0, 1, 2].map(|a| tap(j, a, h) * w);
         for i in 0..w_out {
+            let cols = [0, 1, 2].map(|b| tap(i, b, w));
             for ch in 0..c {
+                // The nine terms in the order of the definition (a, then b), as before the slices.
                 let mut acc = 0.0f64;
-                for (a, ta) in TENT.iter().enumerate() {
-                    for (b, tb) in TENT.iter().enumerate() {
-                        acc += ta * tb * f64::from(input[[tap(j, a, h), tap(i, b, w), ch]]);
+                for (ta, &r) in TENT.iter().zip(&rows) {
+                    for (tb, &x) in TENT.iter().zip(&cols) {
+                        acc += ta * tb * f64::from(src[(r + x) * c + ch]);
                     }
                 }
                 row[i * c + ch] = acc as f32;

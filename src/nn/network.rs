@@ -16,7 +16,8 @@
 //! (`crate::train::backprop`), the per-op profiler and the error-bound propagation of
 //! [`crate::nn::budget`].
 
-use ndarray::{Array3, ArrayView3, Axis};
+use ndarray::{Array3, ArrayView3};
+use rayon::prelude::*;
 
 use crate::backend::{Backend, Tensor};
 use crate::error::{Error, Result};
@@ -191,11 +192,21 @@ pub fn padded_input(config: &NetworkConfig, image: ArrayView3<f32>) -> Result<Ar
         ));
     }
     let (hp, wp) = config.padded_size(h, w);
-    let mut level0 = pad_edge(image, hp, wp);
-    for (ch, mut plane) in level0.axis_iter_mut(Axis(2)).enumerate() {
-        let mean = config.input_mean[ch];
-        plane.mapv_inplace(|v| v - mean);
-    }
+    // `pad_edge` then `v - mean[ch]` in f32, written row-parallel from slices.
+    let image = image.as_standard_layout();
+    let Some(src) = image.as_slice() else { unreachable!("standard layout is contiguous") };
+    let mean = config.input_mean;
+    let mut level0 = Array3::<f32>::zeros((hp, wp, c));
+    let Some(dst) = level0.as_slice_mut() else { unreachable!("a new array is contiguous") };
+    dst.par_chunks_mut(wp * c).enumerate().for_each(|(y, row)| {
+        let src_row = &src[y.min(h - 1) * w * c..][..w * c];
+        for (x, px) in row.chunks_exact_mut(c).enumerate() {
+            let from = &src_row[x.min(w - 1) * c..][..c];
+            for ((o, &v), m) in px.iter_mut().zip(from).zip(mean) {
+                *o = v - m;
+            }
+        }
+    });
     Ok(level0)
 }
 

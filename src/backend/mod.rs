@@ -44,7 +44,7 @@ use crate::nn::{Activation, NetworkConfig};
 
 pub use cpu::CpuBackend;
 #[cfg(feature = "gpu")]
-pub use gpu::{GpuBackend, GpuBuffer};
+pub use gpu::{DtamTimings, GpuBackend, GpuBuffer};
 pub use tensor::{DeviceBuffer, Tensor};
 
 /// Every op the product runs, on one kind of hardware. See the module documentation for the list

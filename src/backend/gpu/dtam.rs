@@ -183,24 +183,24 @@ impl<'a> State<'a> {
         let measure = gpu.storage_zeroed(16)?;
         let log = gpu.storage_zeroed(16 * params.max_iterations as u64)?;
         let (ring_d, ring_a) = (gpu.storage_zeroed(ring_bytes)?, gpu.storage_zeroed(ring_bytes)?);
-        let kernel = |entry: &'static str, bindings: &[(u32, &wgpu::Buffer)]| {
-            let pipeline = gpu.pipeline_entry(MODULE, entry, || SOURCE.to_string());
+        let kernel = |entry: &'static str, bindings: &[(u32, &wgpu::Buffer)]| -> Result<_> {
+            let pipeline = gpu.pipeline_entry(MODULE, entry, || SOURCE.to_string())?;
             let group = gpu.bind(&pipeline, bindings);
-            (pipeline, group)
+            Ok((pipeline, group))
         };
-        let range_kernel = kernel("cost_range", &[(0, &pb), (2, &cb), (3, &range)]);
+        let range_kernel = kernel("cost_range", &[(0, &pb), (2, &cb), (3, &range)])?;
         let state = Self {
-            dual: kernel("dual", &[(0, &pb), (1, &consts), (5, &d_bar), (6, &gb), (7, &q)]),
+            dual: kernel("dual", &[(0, &pb), (1, &consts), (5, &d_bar), (6, &gb), (7, &q)])?,
             primal: kernel(
                 "primal",
                 &[(0, &pb), (1, &consts), (4, &d), (5, &d_bar), (6, &gb), (7, &q), (8, &a)],
-            ),
+            )?,
             search: kernel(
                 "search",
                 &[(0, &pb), (1, &consts), (2, &cb), (3, &range), (4, &d), (6, &gb), (8, &a), (9, &terms)],
-            ),
-            rows: kernel("row_sums", &[(0, &pb), (9, &terms), (10, &rows)]),
-            total: kernel("total", &[(0, &pb), (10, &rows), (11, &measure)]),
+            )?,
+            rows: kernel("row_sums", &[(0, &pb), (9, &terms), (10, &rows)])?,
+            total: kernel("total", &[(0, &pb), (10, &rows), (11, &measure)])?,
             gpu,
             pixels,
             consts,

@@ -107,9 +107,9 @@ fn primal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups
     let kt = -div;
     let s = c[STEP];
     let old = d[i];
-    let new = f32((f64(old) - s * kt + s * f64(a[i]) / c[THETA]) / c[PRIMAL_DEN]);
-    d[i] = new;
-    d_bar[i] = 2.0 * new - old;
+    let fresh = f32((f64(old) - s * kt + s * f64(a[i]) / c[THETA]) / c[PRIMAL_DEN]);
+    d[i] = fresh;
+    d_bar[i] = 2.0 * fresh - old;
 }
 
 fn rho(k: u32) -> f64 { return c[RHO0 + k]; }

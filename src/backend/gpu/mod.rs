@@ -13,6 +13,8 @@ mod kernels;
 mod volume;
 mod wta;
 
+pub use dtam::DtamTimings;
+
 use std::any::Any;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock, Weak};
@@ -129,6 +131,22 @@ impl GpuBackend {
         }))
     }
 
+    /// [`Backend::dtam_solve`] with the time of its parts: uploads, iterations (with the read-backs
+    /// of the stopping rule) and the final download (`densefeat bench tv --backend gpu`).
+    ///
+    /// # Errors
+    /// As [`Backend::dtam_solve`].
+    pub fn dtam_solve_timed(
+        &self,
+        costs: ArrayView3<f32>,
+        bins: &InverseDepthBins,
+        grey: ArrayView2<f32>,
+        init: ArrayView2<f32>,
+        params: &DtamParams,
+    ) -> Result<(DtamResult, DtamReport, DtamTimings)> {
+        dtam::solve_timed(self, costs, bins, grey, init, params)
+    }
+
     /// A shared handle to this backend.
     fn arc(&self) -> Result<Arc<GpuBackend>> {
         self.me.upgrade().ok_or_else(|| unsupported("the GPU backend was dropped"))
@@ -220,36 +238,46 @@ impl GpuBackend {
     }
 
     /// The compiled pipeline `name` (compiled once per backend).
-    fn pipeline(&self, name: &'static str, body: &str) -> wgpu::ComputePipeline {
+    fn pipeline(&self, name: &'static str, body: &str) -> Result<wgpu::ComputePipeline> {
         self.pipeline_entry(name, "main", || kernels::source(body))
     }
 
     /// The compiled pipeline of entry point `entry` of module `module` (compiled once per backend;
     /// `source` is only called the first time).
+    ///
+    /// # Errors
+    /// [`Error::Unsupported`] with the compiler's message when the device rejects the kernel.
     fn pipeline_entry(
         &self,
         module: &'static str,
         entry: &'static str,
         source: impl FnOnce() -> String,
-    ) -> wgpu::ComputePipeline {
-        let mut cache = self.pipelines.lock().expect("pipeline cache poisoned");
-        cache
-            .entry((module, entry))
-            .or_insert_with(|| {
-                let m = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some(module),
-                    source: wgpu::ShaderSource::Wgsl(source().into()),
-                });
-                self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(entry),
-                    layout: None,
-                    module: &m,
-                    entry_point: Some(entry),
-                    compilation_options: Default::default(),
-                    cache: None,
-                })
-            })
-            .clone()
+    ) -> Result<wgpu::ComputePipeline> {
+        let mut cache = self.pipelines.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(p) = cache.get(&(module, entry)) {
+            return Ok(p.clone());
+        }
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let m = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(module),
+            source: wgpu::ShaderSource::Wgsl(source().into()),
+        });
+        let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: None,
+            module: &m,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(unsupported(format!(
+                "kernel {module}::{entry} does not compile on adapter {}: {e}",
+                self.info.name
+            )));
+        }
+        cache.insert((module, entry), pipeline.clone());
+        Ok(pipeline)
     }
 
     /// A bind group of `pipeline`'s group 0 with `(binding, buffer)` entries.
@@ -316,13 +344,13 @@ impl GpuBackend {
         params: &[u32],
         inputs: &[&wgpu::Buffer],
         out: &Tensor,
-    ) {
+    ) -> Result<()> {
         let n = params[0];
         if n == 0 {
-            return;
+            return Ok(());
         }
-        let out = &self.buffer(out).expect("outputs are allocated here").buffer;
-        let pipeline = self.pipeline(name, body);
+        let out = &self.buffer(out)?.buffer;
+        let pipeline = self.pipeline(name, body)?;
         let params = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: None,
             contents: bytemuck::cast_slice(params),
@@ -352,6 +380,7 @@ impl GpuBackend {
             pass.dispatch_workgroups(gx, gy, 1);
         }
         self.queue.submit([encoder.finish()]);
+        Ok(())
     }
 
     /// A layer's weights repacked to `[c_out, ky, kx, c_in]` with the bias appended, on the device
@@ -435,7 +464,7 @@ impl Backend for GpuBackend {
         let out = self.alloc((h_out, w_out, c_out))?;
         let relu = usize::from(matches!(act, Activation::Relu));
         let p = params([h_out * w_out * c_out, h, w, c_in, w_out, c_out, stride, relu, bias_offset]);
-        self.dispatch("conv3x3", kernels::CONV3X3, &p, &[&xb.buffer, &wt], &out);
+        self.dispatch("conv3x3", kernels::CONV3X3, &p, &[&xb.buffer, &wt], &out)?;
         Ok(out)
     }
 
@@ -458,7 +487,7 @@ impl Backend for GpuBackend {
         let wt = self.layer_weights(packed);
         let out = self.alloc((h_out, w_out, c_out))?;
         let p = params([h_out * w_out * c_out, h, w, c_in, c_out, bias_offset]);
-        self.dispatch("deconv5x5s2", kernels::DECONV5X5S2, &p, &[&xb.buffer, &wt], &out);
+        self.dispatch("deconv5x5s2", kernels::DECONV5X5S2, &p, &[&xb.buffer, &wt], &out)?;
         Ok(out)
     }
 
@@ -474,7 +503,7 @@ impl Backend for GpuBackend {
         let [h_out, w_out, _] = DownsampleGeometry::new(h, w, c)?.output_shape();
         let out = self.alloc((h_out, w_out, c))?;
         let p = params([h_out * w_out * c, h, w, c, w_out]);
-        self.dispatch("downsample2x", kernels::DOWNSAMPLE_F64, &p, &[&xb.buffer], &out);
+        self.dispatch("downsample2x", kernels::DOWNSAMPLE_F64, &p, &[&xb.buffer], &out)?;
         Ok(out)
     }
 
@@ -489,7 +518,7 @@ impl Backend for GpuBackend {
         }
         let out = self.alloc((h, w, ca + cb))?;
         let p = params([h * w * (ca + cb), ca, cb]);
-        self.dispatch("concat", kernels::CONCAT, &p, &[&ab.buffer, &bb.buffer], &out);
+        self.dispatch("concat", kernels::CONCAT, &p, &[&ab.buffer, &bb.buffer], &out)?;
         Ok(out)
     }
 
@@ -502,7 +531,7 @@ impl Backend for GpuBackend {
             ));
         }
         let out = self.alloc(a.dim())?;
-        self.dispatch("add", kernels::ADD, &params([ab.len]), &[&ab.buffer, &bb.buffer], &out);
+        self.dispatch("add", kernels::ADD, &params([ab.len]), &[&ab.buffer, &bb.buffer], &out)?;
         Ok(out)
     }
 
@@ -516,7 +545,7 @@ impl Backend for GpuBackend {
             return Err(Error::invalid_argument("crop", format!("{h}x{w} window of a {hx}x{wx} map")));
         }
         let out = self.alloc((h, w, c))?;
-        self.dispatch("crop", kernels::CROP, &params([h * w * c, wx, w, c]), &[&xb.buffer], &out);
+        self.dispatch("crop", kernels::CROP, &params([h * w * c, wx, w, c]), &[&xb.buffer], &out)?;
         Ok(out)
     }
 

@@ -96,7 +96,7 @@ impl VolumeBuilder for GpuVolume {
         let p = super::params([self.cells, h, w, c, self.bins.count]);
         let pb = gpu.storage_bytes(bytemuck::cast_slice(&p));
         let gb = gpu.storage_bytes(bytemuck::cast_slice(&geometry(&self.camera, &self.bins, t_nr)));
-        let pipeline = gpu.pipeline_entry(MODULE, "add_frame", || SOURCE.to_string());
+        let pipeline = gpu.pipeline_entry(MODULE, "add_frame", || SOURCE.to_string())?;
         let rb = &gpu.buffer(&self.reference)?.buffer;
         let group = gpu.bind(
             &pipeline,

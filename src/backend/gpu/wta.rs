@@ -38,7 +38,7 @@ pub(super) fn winner_take_all(gpu: &GpuBackend, costs: ArrayView3<f32>, bins: &I
     let (pb, gb) = (gpu.storage_bytes(bytemuck::cast_slice(&p)), gpu.storage_bytes(bytemuck::cast_slice(&g)));
     let cb = gpu.storage_init(flat);
     let ob = gpu.storage_zeroed(out_bytes)?;
-    let pipeline = gpu.pipeline_entry(MODULE, "wta", || SOURCE.to_string());
+    let pipeline = gpu.pipeline_entry(MODULE, "wta", || SOURCE.to_string())?;
     let group = gpu.bind(&pipeline, &[(0, &pb), (1, &gb), (2, &cb), (3, &ob)]);
     let mut encoder = gpu.device.create_command_encoder(&Default::default());
     {

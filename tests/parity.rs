@@ -255,7 +255,8 @@ struct VolumeCase {
 /// 0.3 m and 0.05 rad away (some hypotheses fall behind a live camera or outside its image).
 fn volume_case_sized(seed: u64, (h, w): (usize, usize), c: usize, k: usize) -> VolumeCase {
     let mut rng = TestRng::seed_from_u64(seed);
-    let camera = PinholeCamera::new(12.0, 12.0, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0, w, h).unwrap();
+    let camera =
+        PinholeCamera::new(12.0, 12.0, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0, w, h).unwrap();
     let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
     let live = (0..3)
         .map(|_| {
@@ -321,7 +322,11 @@ fn assert_costs_within(label: &str, got: &Array3<f32>, want: &Array3<f32>, mag: 
 
 /// The same bits, with the first differing elements named.
 #[track_caller]
-fn assert_same_bits<D: ndarray::Dimension>(label: &str, got: &ndarray::Array<f32, D>, want: &ndarray::Array<f32, D>) {
+fn assert_same_bits<D: ndarray::Dimension>(
+    label: &str,
+    got: &ndarray::Array<f32, D>,
+    want: &ndarray::Array<f32, D>,
+) {
     assert_eq!(got.shape(), want.shape(), "{label}: shapes");
     let diff: Vec<_> = got
         .indexed_iter()
@@ -330,7 +335,10 @@ fn assert_same_bits<D: ndarray::Dimension>(label: &str, got: &ndarray::Array<f32
         .take(5)
         .map(|((i, g), w)| (format!("{i:?}"), *g, *w))
         .collect();
-    assert!(diff.is_empty(), "{label}: not bit-identical (budget: exact); first (index, got, want): {diff:?}");
+    assert!(
+        diff.is_empty(),
+        "{label}: not bit-identical (budget: exact); first (index, got, want): {diff:?}"
+    );
 }
 
 #[test]
@@ -357,7 +365,11 @@ fn cost_volume_counts_exact_costs_within_the_9_6_budget_and_wta_exact() {
             {
                 let wr = reference().winner_take_all(wts.view(), &case.bins).unwrap();
                 assert_eq!(wg.valid, wr.valid, "{label}: WTA validity");
-                assert_same_bits(&format!("{label}: WTA inverse depth"), &wg.inverse_depth, &wr.inverse_depth);
+                assert_same_bits(
+                    &format!("{label}: WTA inverse depth"),
+                    &wg.inverse_depth,
+                    &wr.inverse_depth,
+                );
                 assert_same_bits(&format!("{label}: WTA depth"), &wg.depth, &wr.depth);
                 assert_same_bits(&format!("{label}: WTA bin"), &wg.bin, &wr.bin);
             }
@@ -435,7 +447,13 @@ fn volume_snapshots_match_and_runs_repeat_bit_for_bit() {
             assert_same_counts(&format!("{label}: snapshot {n}"), &s.counts(), &want.counts());
             let mag = build(&reference(), &partial, true);
             let rel = (16 + n + 1 + 8) as f32 * EPS;
-            assert_costs_within(&format!("{label} snapshot {n}"), &s.costs(), &want.costs(), &mag.costs(), rel);
+            assert_costs_within(
+                &format!("{label} snapshot {n}"),
+                &s.costs(),
+                &want.costs(),
+                &mag.costs(),
+                rel,
+            );
         }
     }
 }
@@ -456,8 +474,12 @@ fn dtam_case(seed: u64) -> (Array3<f32>, InverseDepthBins, ndarray::Array2<f32>,
 #[test]
 fn dtam_one_iteration_matches_within_budget() {
     let (costs, bins, grey, init) = dtam_case(31);
-    let params =
-        densefeat::dtam::DtamParams { iterations: 1, max_iterations: 1, steps_per_search: 2, ..Default::default() };
+    let params = densefeat::dtam::DtamParams {
+        iterations: 1,
+        max_iterations: 1,
+        steps_per_search: 2,
+        ..Default::default()
+    };
     let (want, wr) = reference().dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params).unwrap();
     for b in backends() {
         let Some((got, report)) = supported(
@@ -485,9 +507,16 @@ fn dtam_one_iteration_matches_within_budget() {
             init.len(),
             bits2(&got.inverse_depth) == bits2(&want.inverse_depth)
         );
-        assert!(worst <= d_budget, "{label}: max |Δd| {worst:e} > {d_budget:e}; {}", first_diffs(&got.inverse_depth, &want.inverse_depth, d_budget));
+        assert!(
+            worst <= d_budget,
+            "{label}: max |Δd| {worst:e} > {d_budget:e}; {}",
+            first_diffs(&got.inverse_depth, &want.inverse_depth, d_budget)
+        );
         assert!(a_off * 100 <= init.len(), "{label}: a differs in {a_off} pixels (budget 1 %)");
-        assert!(e_rel <= 1e-6 && g_rel <= 1e-6, "{label}: energy / gap rel diff {e_rel:e} / {g_rel:e} > 1e-6");
+        assert!(
+            e_rel <= 1e-6 && g_rel <= 1e-6,
+            "{label}: energy / gap rel diff {e_rel:e} / {g_rel:e} > 1e-6"
+        );
     }
 }
 
@@ -526,7 +555,11 @@ fn dtam_solve_matches_within_budget_on_one_cost_array() {
             bits2(&got.inverse_depth) == bits2(&want.inverse_depth),
             report.energy == wr.energy
         );
-        assert!(far * 100 <= init.len(), "{label}: {far} pixels more than a bin off (budget 1 %); {}", first_diffs(&got.inverse_depth, &want.inverse_depth, step));
+        assert!(
+            far * 100 <= init.len(),
+            "{label}: {far} pixels more than a bin off (budget 1 %); {}",
+            first_diffs(&got.inverse_depth, &want.inverse_depth, step)
+        );
         assert!(e_rel <= 1e-3, "{label}: energy rel diff {e_rel:e} > 1e-3");
         assert!(report.converged == wr.converged || report.iterations == params.max_iterations);
     }
@@ -541,7 +574,12 @@ fn max_abs_diff(a: &ndarray::Array2<f32>, b: &ndarray::Array2<f32>) -> f32 {
 }
 
 fn count_beyond(a: &ndarray::Array2<f32>, b: &ndarray::Array2<f32>, tol: f32) -> usize {
-    a.iter().zip(b).filter(|(x, y)| !((*x - *y).abs() <= tol)).count()
+    a.iter().zip(b).filter(|(x, y)| beyond(**x - **y, tol)).count()
+}
+
+/// `|diff| > tol`, or NaN.
+fn beyond(diff: f32, tol: f32) -> bool {
+    diff.abs() > tol || diff.is_nan()
 }
 
 fn rel_diff(a: f64, b: f64) -> f64 {
@@ -552,7 +590,7 @@ fn rel_diff(a: f64, b: f64) -> f64 {
 fn first_diffs(got: &ndarray::Array2<f32>, want: &ndarray::Array2<f32>, tol: f32) -> String {
     let v: Vec<_> = got
         .indexed_iter()
-        .filter(|(i, g)| !((**g - want[*i]).abs() <= tol))
+        .filter(|(i, g)| beyond(**g - want[*i], tol))
         .take(5)
         .map(|(i, g)| format!("{i:?}: got {g:e}, want {:e}", want[i]))
         .collect();

@@ -384,7 +384,14 @@ impl History {
     }
 
     /// Record iteration `n`; `true` when the convergence test stops the solve there.
-    pub(crate) fn push(&mut self, n: usize, e: f64, g: f64, params: &DtamParams, bins: &InverseDepthBins) -> bool {
+    pub(crate) fn push(
+        &mut self,
+        n: usize,
+        e: f64,
+        g: f64,
+        params: &DtamParams,
+        bins: &InverseDepthBins,
+    ) -> bool {
         let settled =
             self.energy.last().is_some_and(|&p| (e - p).abs() <= params.tolerance * e.abs().max(p.abs()));
         let done = n + 1 >= params.iterations && settled && g <= GAP_TOLERANCE_BINS * bins.step();

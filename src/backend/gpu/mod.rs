@@ -82,9 +82,8 @@ impl std::fmt::Debug for GpuBackend {
 static SHARED: OnceLock<std::result::Result<Arc<GpuBackend>, String>> = OnceLock::new();
 
 /// Buffer usages of every storage buffer here (bound, copied from and to).
-const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
-    .union(wgpu::BufferUsages::COPY_SRC)
-    .union(wgpu::BufferUsages::COPY_DST);
+const STORAGE: wgpu::BufferUsages =
+    wgpu::BufferUsages::STORAGE.union(wgpu::BufferUsages::COPY_SRC).union(wgpu::BufferUsages::COPY_DST);
 
 impl GpuBackend {
     /// The process's GPU backend (created on first use, then shared: one device per process).

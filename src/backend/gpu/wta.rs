@@ -17,7 +17,11 @@ const SOURCE: &str = include_str!("wta.wgsl");
 ///
 /// # Errors
 /// No shader f64; a non-finite cost; a cost array over the adapter's binding limit; device errors.
-pub(super) fn winner_take_all(gpu: &GpuBackend, costs: ArrayView3<f32>, bins: &InverseDepthBins) -> Result<WtaDepth> {
+pub(super) fn winner_take_all(
+    gpu: &GpuBackend,
+    costs: ArrayView3<f32>,
+    bins: &InverseDepthBins,
+) -> Result<WtaDepth> {
     gpu.require_f64("winner_take_all", "the parabola refinement is the CPU's f64 arithmetic")?;
     let (h, w, k) = costs.dim();
     if k != bins.count {
@@ -48,5 +52,10 @@ pub(super) fn winner_take_all(gpu: &GpuBackend, costs: ArrayView3<f32>, bins: &I
     gpu.queue.submit([encoder.finish()]);
     let out = f32s(&gpu.read_back(&ob, 0, out_bytes)?);
     let field = |j: usize| Array2::from_shape_fn((h, w), |(y, x)| out[4 * (y * w + x) + j]);
-    Ok(WtaDepth { valid: field(0).mapv(|v| v != 0.0), inverse_depth: field(1), depth: field(2), bin: field(3) })
+    Ok(WtaDepth {
+        valid: field(0).mapv(|v| v != 0.0),
+        inverse_depth: field(1),
+        depth: field(2),
+        bin: field(3),
+    })
 }

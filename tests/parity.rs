@@ -539,6 +539,9 @@ fn dtam_solve_matches_within_budget_on_one_cost_array() {
         };
         let label = format!("{} DTAM solve", b.name());
         assert!(report.iterations >= 20, "{label}: {} iterations", report.iterations);
+        let (again, report2) = b.dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params).unwrap();
+        assert_same_bits(&format!("{label}: two runs"), &again.inverse_depth, &got.inverse_depth);
+        assert_eq!(report2.energy, report.energy, "{label}: two runs' energies");
         if b.name() == "cpu" {
             assert_same_bits(&label, &got.inverse_depth, &want.inverse_depth);
             continue;
@@ -562,6 +565,40 @@ fn dtam_solve_matches_within_budget_on_one_cost_array() {
         );
         assert!(e_rel <= 1e-3, "{label}: energy rel diff {e_rel:e} > 1e-3");
         assert!(report.converged == wr.converged || report.iterations == params.max_iterations);
+    }
+}
+
+/// A device backend refuses host tensors in its volume (no silent copy, no CPU fallback), and
+/// non-finite costs in WTA and DTAM (WGSL does not define comparisons with NaN or infinity), with
+/// [`Error::Unsupported`]; the CPU backend takes them.
+#[test]
+fn device_mapping_ops_refuse_host_tensors_and_non_finite_costs() {
+    let case = volume_case_sized(41, (5, 6), 3, 4);
+    let mut costs = Array3::from_elem((5, 6, 4), 1.0f32);
+    costs[[2, 3, 1]] = f32::NAN;
+    let init = ndarray::Array2::from_elem((5, 6), 1.0f32);
+    let grey = ndarray::Array2::from_elem((5, 6), 100.0f32);
+    let params = densefeat::dtam::DtamParams { iterations: 2, max_iterations: 2, ..Default::default() };
+    for b in backends() {
+        let host = Tensor::host(case.reference.clone());
+        let wta = b.winner_take_all(costs.view(), &case.bins);
+        let dtam = b.dtam_solve(costs.view(), &case.bins, grey.view(), init.view(), &params);
+        if b.name() == "cpu" {
+            assert!(b.cost_volume(&host, case.camera, case.bins).is_ok());
+            assert!(wta.is_ok() && dtam.is_ok(), "cpu takes NaN costs");
+            continue;
+        }
+        let unsupported = |r: densefeat::error::Result<()>, what: &str| match r {
+            Err(Error::Unsupported { what: w, .. }) => eprintln!("{} {what}: refused ({w})", b.name()),
+            other => panic!("{} {what}: expected Unsupported, got {other:?}", b.name()),
+        };
+        unsupported(b.cost_volume(&host, case.camera, case.bins).map(|_| ()), "host reference");
+        if let Ok(mut v) = b.cost_volume(&b.upload(case.reference.view()).unwrap(), case.camera, case.bins) {
+            unsupported(v.add_frame(&Tensor::host(case.live[0].0.clone()), &case.live[0].1), "host live frame");
+            assert_eq!(v.frames(), 0);
+        }
+        unsupported(wta.map(|_| ()), "NaN cost in WTA");
+        unsupported(dtam.map(|_| ()), "NaN cost in DTAM");
     }
 }
 

@@ -594,7 +594,10 @@ fn device_mapping_ops_refuse_host_tensors_and_non_finite_costs() {
         };
         unsupported(b.cost_volume(&host, case.camera, case.bins).map(|_| ()), "host reference");
         if let Ok(mut v) = b.cost_volume(&b.upload(case.reference.view()).unwrap(), case.camera, case.bins) {
-            unsupported(v.add_frame(&Tensor::host(case.live[0].0.clone()), &case.live[0].1), "host live frame");
+            unsupported(
+                v.add_frame(&Tensor::host(case.live[0].0.clone()), &case.live[0].1),
+                "host live frame",
+            );
             assert_eq!(v.frames(), 0);
         }
         unsupported(wta.map(|_| ()), "NaN cost in WTA");

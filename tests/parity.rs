@@ -243,6 +243,7 @@ fn exact_ops_are_bit_identical_to_reference() {
 }
 
 /// A small random scene for the volume: reference and live features, camera, bins, poses.
+#[derive(Clone)]
 struct VolumeCase {
     reference: Array3<f32>,
     live: Vec<(Array3<f32>, Pose)>,
@@ -250,11 +251,13 @@ struct VolumeCase {
     bins: InverseDepthBins,
 }
 
-fn volume_case(seed: u64, c: usize) -> VolumeCase {
+/// `h x w` maps with `c` channels, `k` hypotheses over `[0.1, 2]` 1/m, three live frames up to
+/// 0.3 m and 0.05 rad away (some hypotheses fall behind a live camera or outside its image).
+fn volume_case_sized(seed: u64, (h, w): (usize, usize), c: usize, k: usize) -> VolumeCase {
     let mut rng = TestRng::seed_from_u64(seed);
-    let (h, w) = (11, 14);
-    let camera = PinholeCamera::new(12.0, 12.0, 6.5, 5.0, w, h).unwrap();
-    let bins = InverseDepthBins::new(0.1, 2.0, 9).unwrap();
+    let camera =
+        PinholeCamera::new(12.0, 12.0, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0, w, h).unwrap();
+    let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
     let live = (0..3)
         .map(|_| {
             let t = nalgebra::Vector3::new(
@@ -292,11 +295,68 @@ fn build(b: &dyn Backend, case: &VolumeCase, abs: bool) -> densefeat::costvolume
     try_build(b, case, abs).unwrap()
 }
 
+/// Counts equal cell for cell; a failure names the first differing cells.
+#[track_caller]
+fn assert_same_counts(label: &str, got: &Array3<u16>, want: &Array3<u16>) {
+    assert_eq!(got.dim(), want.dim(), "{label}: count shapes");
+    let diff: Vec<_> = got.indexed_iter().filter(|(i, g)| **g != want[*i]).take(5).collect();
+    let total = got.iter().zip(want).filter(|(g, w)| g != w).count();
+    assert!(
+        diff.is_empty(),
+        "{label}: {total} counts differ (budget: exact); first (y, x, k): got, want: {:?}",
+        diff.iter().map(|(i, g)| (*i, **g, want[*i])).collect::<Vec<_>>()
+    );
+}
+
+/// Costs within `rel · M̄` (unseen cells compared as 0; the counts already matched); prints the
+/// largest difference and its share of the budget.
+#[track_caller]
+fn assert_costs_within(label: &str, got: &Array3<f32>, want: &Array3<f32>, mag: &Array3<f32>, rel: f32) {
+    let seen = |a: &Array3<f32>| a.mapv(|v| if v == UNSEEN_COST { 0.0 } else { v });
+    let (g, w, m) = (seen(got), seen(want), seen(mag));
+    report_budget(label, &g, &w, &m, rel);
+    if let Err(e) = within_budget(g.view(), w.view(), m.view(), rel) {
+        panic!("{label}: {e}");
+    }
+}
+
+/// The same bits, with the first differing elements named.
+#[track_caller]
+fn assert_same_bits<D: ndarray::Dimension>(
+    label: &str,
+    got: &ndarray::Array<f32, D>,
+    want: &ndarray::Array<f32, D>,
+) {
+    assert_eq!(got.shape(), want.shape(), "{label}: shapes");
+    let diff: Vec<_> = got
+        .indexed_iter()
+        .zip(want.iter())
+        .filter(|((_, g), w)| g.to_bits() != w.to_bits())
+        .take(5)
+        .map(|((i, g), w)| (format!("{i:?}"), *g, *w))
+        .collect();
+    assert!(
+        diff.is_empty(),
+        "{label}: not bit-identical (budget: exact); first (index, got, want): {diff:?}"
+    );
+}
+
 #[test]
 fn cost_volume_counts_exact_costs_within_the_9_6_budget_and_wta_exact() {
+    // (seed, (H, W), C, K): 1-pixel-wide and -high maps alias the bilinear corners; K = 2 has no
+    // inner hypothesis for the parabola.
+    let cases = [
+        (21, (11, 14), 3, 9),
+        (22, (11, 14), 32, 9),
+        (23, (11, 14), 5, 9),
+        (24, (1, 9), 3, 5),
+        (25, (8, 1), 4, 2),
+        (26, (7, 10), 35, 17),
+    ];
     for b in backends() {
-        for (seed, c) in [(21, 3), (22, 32), (23, 5)] {
-            let case = volume_case(seed, c);
+        for &(seed, hw, c, k) in &cases {
+            let case = volume_case_sized(seed, hw, c, k);
+            let label = format!("{} volume {}x{}, C = {c}, K = {k}", b.name(), hw.0, hw.1);
             let want = build(&reference(), &case, false);
             // WTA on one cost array is exact on every backend (argmin and parabola in f64).
             let wts = want.costs();
@@ -304,54 +364,277 @@ fn cost_volume_counts_exact_costs_within_the_9_6_budget_and_wta_exact() {
                 supported(b.as_ref(), "winner_take_all", b.winner_take_all(wts.view(), &case.bins))
             {
                 let wr = reference().winner_take_all(wts.view(), &case.bins).unwrap();
-                assert_eq!(wg.valid, wr.valid, "{} WTA validity", b.name());
-                let ib = |a: &ndarray::Array2<f32>| a.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-                assert_eq!(ib(&wg.inverse_depth), ib(&wr.inverse_depth), "{} WTA inverse depth", b.name());
+                assert_eq!(wg.valid, wr.valid, "{label}: WTA validity");
+                assert_same_bits(
+                    &format!("{label}: WTA inverse depth"),
+                    &wg.inverse_depth,
+                    &wr.inverse_depth,
+                );
+                assert_same_bits(&format!("{label}: WTA depth"), &wg.depth, &wr.depth);
+                assert_same_bits(&format!("{label}: WTA bin"), &wg.bin, &wr.bin);
             }
             let Some(got) = supported(b.as_ref(), "cost_volume", try_build(b.as_ref(), &case, false)) else {
                 continue;
             };
             let mag = build(&reference(), &case, true);
-            assert_eq!(got.counts(), want.counts(), "{} counts (C = {c})", b.name());
+            assert_same_counts(&label, &got.counts(), &want.counts());
             let n = case.live.len();
-            let rel = 2.0 * (c + n + 8) as f32 * EPS / 2.0; // (C + N + 8) ε (SPEC.md §9.6)
-            let (g, w, m) = (got.costs(), want.costs(), mag.costs());
-            let unseen = |x: &f32| if *x == UNSEEN_COST { 0.0 } else { *x };
-            if let Err(e) = within_budget(
-                g.mapv(|v| unseen(&v)).view(),
-                w.mapv(|v| unseen(&v)).view(),
-                m.mapv(|v| unseen(&v)).view(),
-                rel,
-            ) {
-                panic!("{} cost volume (C = {c}): {e}", b.name());
-            }
+            let rel = (c + n + 8) as f32 * EPS; // (C + N + 8) ε M̄ (SPEC.md §9.6)
+            assert_costs_within(&label, &got.costs(), &want.costs(), &mag.costs(), rel);
         }
     }
 }
 
+/// WTA on hand-made cost arrays: exact ties (the first minimum wins), unseen cells next to the
+/// minimum (no parabola), a pixel with nothing seen (invalid), minima at both ends, a flat curve
+/// (no positive curvature) and `ρ_min = 0` (depth 0 at infinity).
 #[test]
-fn dtam_solve_is_exact_on_one_cost_array() {
-    let case = volume_case(31, 3);
+fn winner_take_all_is_exact_on_ties_unseen_cells_and_ends() {
+    const U: f32 = UNSEEN_COST;
+    let curves: [[f32; 6]; 8] = [
+        [5.0, 3.0, 1.0, 1.0, 3.0, 5.0],
+        [U, U, U, U, U, U],
+        [4.0, U, 1.0, 2.0, 6.0, 7.0],
+        [0.5, 1.0, 2.0, 3.0, 4.0, 5.0],
+        [5.0, 4.0, 3.0, 2.0, 1.5, 0.25],
+        [2.0, 2.0, 2.0, 2.0, 2.0, 2.0],
+        [3.0, 1.0, 2.0, 9.0, U, 0.0],
+        [1e-7, 2e-7, 1.5e-7, 3e-7, 1e-6, 8e-8],
+    ];
+    let costs = Array3::from_shape_fn((2, 4, 6), |(y, x, k)| curves[y * 4 + x][k]);
+    for bins in [InverseDepthBins::new(0.0, 2.5, 6).unwrap(), InverseDepthBins::new(0.3, 1.7, 6).unwrap()] {
+        let want = reference().winner_take_all(costs.view(), &bins).unwrap();
+        for b in backends() {
+            let Some(got) = supported(b.as_ref(), "winner_take_all", b.winner_take_all(costs.view(), &bins))
+            else {
+                continue;
+            };
+            let label = format!("{} WTA ρ_min = {}", b.name(), bins.rho_min);
+            assert_eq!(got.valid, want.valid, "{label}: validity");
+            assert_same_bits(&format!("{label}: inverse depth"), &got.inverse_depth, &want.inverse_depth);
+            assert_same_bits(&format!("{label}: depth"), &got.depth, &want.depth);
+            assert_same_bits(&format!("{label}: bin"), &got.bin, &want.bin);
+        }
+    }
+}
+
+/// A snapshot taken while the volume fills equals the reference after as many frames, `finish`
+/// equals the last snapshot, and two runs give the same bits (fixed order, no atomics).
+#[test]
+fn volume_snapshots_match_and_runs_repeat_bit_for_bit() {
+    let case = volume_case_sized(27, (9, 12), 16, 7);
+    for b in backends() {
+        let run = || -> densefeat::error::Result<(Vec<densefeat::costvolume::CostVolume>, densefeat::costvolume::CostVolume)> {
+            let mut v = b.cost_volume(&b.upload(case.reference.view())?, case.camera, case.bins)?;
+            let mut snaps = Vec::new();
+            for (x, pose) in &case.live {
+                v.add_frame(&b.upload(x.view())?, pose)?;
+                snaps.push(v.snapshot()?);
+            }
+            Ok((snaps, v.finish()?))
+        };
+        let Some((snaps, last)) = supported(b.as_ref(), "cost_volume", run()) else { continue };
+        let (snaps2, last2) = run().unwrap();
+        let label = b.name();
+        assert_same_bits(&format!("{label}: two runs"), &last.costs(), &last2.costs());
+        assert_same_bits(&format!("{label}: finish vs last snapshot"), &last.costs(), &snaps[2].costs());
+        assert_eq!(last.counts(), last2.counts(), "{label}: two runs' counts");
+        for (n, (s, s2)) in snaps.iter().zip(&snaps2).enumerate() {
+            assert_eq!(s.frames(), n + 1, "{label}: snapshot frames");
+            assert_same_bits(&format!("{label}: snapshot {n} twice"), &s.costs(), &s2.costs());
+            let partial = VolumeCase { live: case.live[..=n].to_vec(), ..case.clone() };
+            let want = build(&reference(), &partial, false);
+            assert_same_counts(&format!("{label}: snapshot {n}"), &s.counts(), &want.counts());
+            let mag = build(&reference(), &partial, true);
+            let rel = (16 + n + 1 + 8) as f32 * EPS;
+            assert_costs_within(
+                &format!("{label} snapshot {n}"),
+                &s.costs(),
+                &want.costs(),
+                &mag.costs(),
+                rel,
+            );
+        }
+    }
+}
+
+/// A DTAM test problem: the reference volume of `volume_case`, a patterned grey image, WTA start.
+fn dtam_case(seed: u64) -> (Array3<f32>, InverseDepthBins, ndarray::Array2<f32>, ndarray::Array2<f32>) {
+    let case = volume_case_sized(seed, (13, 17), 3, 16);
     let costs = build(&reference(), &case, false).costs();
     let (h, w, _) = costs.dim();
-    let grey = Array3::from_shape_fn((h, w, 1), |(y, x, _)| ((y * 13 + x * 7) % 255) as f32)
-        .index_axis_move(ndarray::Axis(2), 0);
+    let grey = ndarray::Array2::from_shape_fn((h, w), |(y, x)| ((y * 13 + x * 7) % 255) as f32);
     let init = reference().winner_take_all(costs.view(), &case.bins).unwrap().inverse_depth;
-    let params = densefeat::dtam::DtamParams { iterations: 20, max_iterations: 40, ..Default::default() };
-    let (want, _) =
-        reference().dtam_solve(costs.view(), &case.bins, grey.view(), init.view(), &params).unwrap();
+    (costs, case.bins, grey, init)
+}
+
+/// One DTAM iteration (SPEC.md §15.3): `d` within `4 ε max |d|` elementwise, `a` the same except at
+/// most 1 % of pixels (a near-tie in the a-search may resolve the other way), energy and gap within
+/// a relative `1e-6`. The CPU backend is bit-identical.
+#[test]
+fn dtam_one_iteration_matches_within_budget() {
+    let (costs, bins, grey, init) = dtam_case(31);
+    let params = densefeat::dtam::DtamParams {
+        iterations: 1,
+        max_iterations: 1,
+        steps_per_search: 2,
+        ..Default::default()
+    };
+    let (want, wr) = reference().dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params).unwrap();
     for b in backends() {
         let Some((got, report)) = supported(
             b.as_ref(),
             "dtam_solve",
-            b.dtam_solve(costs.view(), &case.bins, grey.view(), init.view(), &params),
+            b.dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params),
         ) else {
             continue;
         };
-        assert!(report.iterations >= 20);
-        let ib = |a: &ndarray::Array2<f32>| a.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-        assert_eq!(ib(&got.inverse_depth), ib(&want.inverse_depth), "{} DTAM d", b.name());
+        let label = format!("{} DTAM one iteration", b.name());
+        assert_eq!(report.iterations, 1, "{label}: iterations");
+        if b.name() == "cpu" {
+            assert_same_bits(&label, &got.inverse_depth, &want.inverse_depth);
+            continue;
+        }
+        let scale = want.inverse_depth.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let d_budget = 4.0 * EPS * scale;
+        let worst = max_abs_diff(&got.inverse_depth, &want.inverse_depth);
+        let a_off = count_beyond(&got.auxiliary, &want.auxiliary, d_budget);
+        let e_rel = rel_diff(report.energy[0], wr.energy[0]);
+        let g_rel = rel_diff(report.gap[0], wr.gap[0]);
+        eprintln!(
+            "{label}: max |Δd| {worst:e} (budget {d_budget:e}), a differs in {a_off} of {} pixels, \
+             energy rel diff {e_rel:e}, gap rel diff {g_rel:e} (budget 1e-6); d bit-identical: {}",
+            init.len(),
+            bits2(&got.inverse_depth) == bits2(&want.inverse_depth)
+        );
+        assert!(
+            worst <= d_budget,
+            "{label}: max |Δd| {worst:e} > {d_budget:e}; {}",
+            first_diffs(&got.inverse_depth, &want.inverse_depth, d_budget)
+        );
+        assert!(a_off * 100 <= init.len(), "{label}: a differs in {a_off} pixels (budget 1 %)");
+        assert!(
+            e_rel <= 1e-6 && g_rel <= 1e-6,
+            "{label}: energy / gap rel diff {e_rel:e} / {g_rel:e} > 1e-6"
+        );
     }
+}
+
+/// A whole DTAM solve on one cost array (SPEC.md §15.3): at most 1 % of pixels' `d` more than one
+/// bin step from the reference, and the energies of the iterations both ran within a relative 1e-3
+/// (the stopping rule's own tolerance). The CPU backend is bit-identical.
+#[test]
+fn dtam_solve_matches_within_budget_on_one_cost_array() {
+    let (costs, bins, grey, init) = dtam_case(32);
+    let params = densefeat::dtam::DtamParams { iterations: 20, max_iterations: 40, ..Default::default() };
+    let (want, wr) = reference().dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params).unwrap();
+    let step = bins.step() as f32;
+    for b in backends() {
+        let Some((got, report)) = supported(
+            b.as_ref(),
+            "dtam_solve",
+            b.dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params),
+        ) else {
+            continue;
+        };
+        let label = format!("{} DTAM solve", b.name());
+        assert!(report.iterations >= 20, "{label}: {} iterations", report.iterations);
+        let (again, report2) = b.dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params).unwrap();
+        assert_same_bits(&format!("{label}: two runs"), &again.inverse_depth, &got.inverse_depth);
+        assert_eq!(report2.energy, report.energy, "{label}: two runs' energies");
+        if b.name() == "cpu" {
+            assert_same_bits(&label, &got.inverse_depth, &want.inverse_depth);
+            continue;
+        }
+        let far = count_beyond(&got.inverse_depth, &want.inverse_depth, step);
+        let e_rel = report.energy.iter().zip(&wr.energy).map(|(g, w)| rel_diff(*g, *w)).fold(0.0, f64::max);
+        eprintln!(
+            "{label}: {} iterations (reference {}), {far} of {} pixels more than a bin off, max |Δd| {:e}, \
+             max energy rel diff {e_rel:e} (budget 1e-3); d bit-identical: {}, energies bit-identical: {}",
+            report.iterations,
+            wr.iterations,
+            init.len(),
+            max_abs_diff(&got.inverse_depth, &want.inverse_depth),
+            bits2(&got.inverse_depth) == bits2(&want.inverse_depth),
+            report.energy == wr.energy
+        );
+        assert!(
+            far * 100 <= init.len(),
+            "{label}: {far} pixels more than a bin off (budget 1 %); {}",
+            first_diffs(&got.inverse_depth, &want.inverse_depth, step)
+        );
+        assert!(e_rel <= 1e-3, "{label}: energy rel diff {e_rel:e} > 1e-3");
+        assert!(report.converged == wr.converged || report.iterations == params.max_iterations);
+    }
+}
+
+/// A device backend refuses host tensors in its volume (no silent copy, no CPU fallback), and
+/// non-finite costs in WTA and DTAM (WGSL does not define comparisons with NaN or infinity), with
+/// [`Error::Unsupported`]; the CPU backend takes them.
+#[test]
+fn device_mapping_ops_refuse_host_tensors_and_non_finite_costs() {
+    let case = volume_case_sized(41, (5, 6), 3, 4);
+    let mut costs = Array3::from_elem((5, 6, 4), 1.0f32);
+    costs[[2, 3, 1]] = f32::NAN;
+    let init = ndarray::Array2::from_elem((5, 6), 1.0f32);
+    let grey = ndarray::Array2::from_elem((5, 6), 100.0f32);
+    let params = densefeat::dtam::DtamParams { iterations: 2, max_iterations: 2, ..Default::default() };
+    for b in backends() {
+        let host = Tensor::host(case.reference.clone());
+        let wta = b.winner_take_all(costs.view(), &case.bins);
+        let dtam = b.dtam_solve(costs.view(), &case.bins, grey.view(), init.view(), &params);
+        if b.name() == "cpu" {
+            assert!(b.cost_volume(&host, case.camera, case.bins).is_ok());
+            assert!(wta.is_ok() && dtam.is_ok(), "cpu takes NaN costs");
+            continue;
+        }
+        let unsupported = |r: densefeat::error::Result<()>, what: &str| match r {
+            Err(Error::Unsupported { what: w, .. }) => eprintln!("{} {what}: refused ({w})", b.name()),
+            other => panic!("{} {what}: expected Unsupported, got {other:?}", b.name()),
+        };
+        unsupported(b.cost_volume(&host, case.camera, case.bins).map(|_| ()), "host reference");
+        if let Ok(mut v) = b.cost_volume(&b.upload(case.reference.view()).unwrap(), case.camera, case.bins) {
+            unsupported(
+                v.add_frame(&Tensor::host(case.live[0].0.clone()), &case.live[0].1),
+                "host live frame",
+            );
+            assert_eq!(v.frames(), 0);
+        }
+        unsupported(wta.map(|_| ()), "NaN cost in WTA");
+        unsupported(dtam.map(|_| ()), "NaN cost in DTAM");
+    }
+}
+
+fn bits2(a: &ndarray::Array2<f32>) -> Vec<u32> {
+    a.iter().map(|v| v.to_bits()).collect()
+}
+
+fn max_abs_diff(a: &ndarray::Array2<f32>, b: &ndarray::Array2<f32>) -> f32 {
+    a.iter().zip(b).fold(0.0f32, |m, (x, y)| m.max((x - y).abs()))
+}
+
+fn count_beyond(a: &ndarray::Array2<f32>, b: &ndarray::Array2<f32>, tol: f32) -> usize {
+    a.iter().zip(b).filter(|(x, y)| beyond(**x - **y, tol)).count()
+}
+
+/// `|diff| > tol`, or NaN.
+fn beyond(diff: f32, tol: f32) -> bool {
+    diff.abs() > tol || diff.is_nan()
+}
+
+fn rel_diff(a: f64, b: f64) -> f64 {
+    (a - b).abs() / a.abs().max(b.abs()).max(f64::MIN_POSITIVE)
+}
+
+/// The first five elements further apart than `tol`, for failure messages.
+fn first_diffs(got: &ndarray::Array2<f32>, want: &ndarray::Array2<f32>, tol: f32) -> String {
+    let v: Vec<_> = got
+        .indexed_iter()
+        .filter(|(i, g)| beyond(**g - want[*i], tol))
+        .take(5)
+        .map(|(i, g)| format!("{i:?}: got {g:e}, want {:e}", want[i]))
+        .collect();
+    format!("first beyond {tol:e}: [{}]", v.join(", "))
 }
 
 /// Every device op twice on the same inputs: the same bits (fixed summation order, no atomics).
@@ -391,6 +674,49 @@ fn every_network_op_is_deterministic_run_after_run() {
             let second = run(b.as_ref(), &[&x, &y], f);
             assert_eq!(bits(&first), bits(&second), "{} {op}: two runs differ", b.name());
         }
+    }
+}
+
+/// End to end on the fixture: a whole RGB cost volume (keyframe 10, six live frames, K = 32 over
+/// 0.4..10 m) on the top-left 96x72 window of the 320x240 frames (the same intrinsics: a top-left
+/// window keeps `cx, cy`), counts exact and costs within SPEC.md §9.6's budget, then WTA exact.
+#[test]
+fn fixture_cost_volume_and_wta_match_reference() {
+    let seq = open(std::path::Path::new(FIXTURE)).unwrap();
+    let (w, h) = (96, 72);
+    let cam = seq.camera;
+    let camera = PinholeCamera::new(cam.fx, cam.fy, cam.cx, cam.cy, w, h).unwrap();
+    let bins = InverseDepthBins::from_depth_range(0.4, 10.0, 32).unwrap();
+    let crop = |i: usize| {
+        let f = seq.load_frame(i).unwrap();
+        (f.rgb.slice(ndarray::s![..h, ..w, ..]).to_owned(), f.pose)
+    };
+    let (key, key_pose) = crop(10);
+    let live: Vec<(Array3<f32>, Pose)> = [7, 8, 9, 11, 12, 13]
+        .iter()
+        .map(|&i| {
+            let (f, pose) = crop(i);
+            (f, densefeat::geometry::relative_pose(&key_pose, &pose))
+        })
+        .collect();
+    let case = VolumeCase { reference: key, live, camera, bins };
+    let want = build(&reference(), &case, false);
+    // RGB is non-negative, so the magnitude run is the reference on `f_r` and `-f_n` (§9.6).
+    let mag = build(&reference(), &case, true);
+    let seen = want.counts().iter().filter(|&&n| n > 0).count();
+    assert!(seen * 2 > want.counts().len(), "the window sees most cells ({seen})");
+    for b in backends() {
+        let Some(got) = supported(b.as_ref(), "cost_volume", try_build(b.as_ref(), &case, false)) else {
+            continue;
+        };
+        let label = format!("{} fixture volume 96x72x32, 6 frames", b.name());
+        assert_same_counts(&label, &got.counts(), &want.counts());
+        assert_costs_within(&label, &got.costs(), &want.costs(), &mag.costs(), (3 + 6 + 8) as f32 * EPS);
+        let costs = want.costs();
+        let wg = b.winner_take_all(costs.view(), &bins).unwrap();
+        let wr = reference().winner_take_all(costs.view(), &bins).unwrap();
+        assert_eq!(wg.valid, wr.valid, "{label}: WTA validity");
+        assert_same_bits(&format!("{label}: WTA inverse depth"), &wg.inverse_depth, &wr.inverse_depth);
     }
 }
 

@@ -44,7 +44,7 @@ use crate::nn::{Activation, NetworkConfig};
 
 pub use cpu::CpuBackend;
 #[cfg(feature = "gpu")]
-pub use gpu::{GpuBackend, GpuBuffer};
+pub use gpu::{DtamTimings, GpuBackend, GpuBuffer};
 pub use tensor::{DeviceBuffer, Tensor};
 
 /// Every op the product runs, on one kind of hardware. See the module documentation for the list
@@ -72,6 +72,14 @@ pub trait Backend: Send + Sync + Debug {
     /// # Errors
     /// [`Error::Unsupported`] for another backend's tensor; device read-back failures.
     fn download(&self, x: &Tensor) -> Result<Array3<f32>>;
+    /// Wait until every op submitted so far has finished (a device backend's ops only submit work;
+    /// benches stop the clock after this). The CPU backend's ops finish before they return.
+    ///
+    /// # Errors
+    /// Device failures.
+    fn synchronize(&self) -> Result<()> {
+        Ok(())
+    }
 
     /// 3x3 convolution, padding 1, stride 1 or 2, bias, optional fused ReLU (SPEC.md §7.2); the
     /// layer's weight is `[c_out, c_in, 3, 3]` (PyTorch layout).

@@ -11,7 +11,7 @@ use crate::error::Result;
 /// The `--backend` flag.
 #[derive(Debug, Clone, Args)]
 pub struct BackendFlag {
-    /// Where the ops run: `cpu`, or `gpu` (the wgpu backend: builds with `--features gpu`; network ops only, SPEC.md §15.4).
+    /// Where the ops run: `cpu`, or `gpu` (the wgpu backend, in builds with `--features gpu`: the network, cost volume, WTA and DTAM; SPEC.md §15.4).
     #[arg(long = "backend", default_value = "cpu")]
     pub name: String,
 }

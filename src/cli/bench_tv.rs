@@ -35,6 +35,9 @@ pub struct BenchTvArgs {
     /// Memory limit.
     #[command(flatten)]
     pub memory: super::validate::MemoryLimit,
+    /// Where the solver runs (`gpu`: uploads, iterations and download timed separately).
+    #[command(flatten)]
+    pub backend: super::backend_flag::BackendFlag,
 }
 
 /// Inputs of the DTAM benchmark (see [`tv_inputs`]).
@@ -128,6 +131,9 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
     if args.runs < 5 {
         return Err(Error::invalid_argument("--runs", format!("{}: must be at least 5", args.runs)));
     }
+    if args.backend.resolve()?.name() != "cpu" {
+        return device(args, width, height);
+    }
     let pool = super::bench::pool(args.threads)?;
     let TvInputs { costs, bins, grey, init } = tv_inputs(width, height, args.bins)?;
     let params = DtamParams::default();
@@ -216,4 +222,17 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
         solve_ms / solve_iterations.max(1) as f64
     );
     Ok(())
+}
+
+#[cfg(feature = "gpu")]
+fn device(args: &BenchTvArgs, width: usize, height: usize) -> Result<()> {
+    super::bench_tv_gpu::run(args, width, height)
+}
+
+#[cfg(not(feature = "gpu"))]
+fn device(args: &BenchTvArgs, _: usize, _: usize) -> Result<()> {
+    Err(Error::Unsupported {
+        backend: args.backend.name.clone(),
+        what: "bench tv: no device backend in this build".into(),
+    })
 }

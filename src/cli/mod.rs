@@ -9,6 +9,8 @@ pub mod backend_flag;
 pub mod bench;
 pub mod bench_costvolume;
 pub mod bench_tv;
+#[cfg(feature = "gpu")]
+mod bench_tv_gpu;
 pub mod costcurve;
 pub mod demo;
 pub mod eval;

@@ -141,6 +141,37 @@ impl CostVolume {
         })
     }
 
+    /// A volume from running sums and counts accumulated elsewhere (a device backend's
+    /// [`crate::backend::VolumeBuilder::finish`]), `[H, W, K]` hypothesis fastest, after `frames`
+    /// frames. The sums are `f32`, so it continues as a [`CostVolumeImpl::Fast`] volume.
+    ///
+    /// # Errors
+    /// As [`CostVolume::with_impl`]; [`Error::InvalidArgument`] if `sums` or `counts` is not
+    /// `H·W·K` long or `frames` exceeds [`MAX_FRAMES`].
+    pub fn from_sums(
+        reference: Array3<f32>,
+        camera: PinholeCamera,
+        bins: InverseDepthBins,
+        sums: Vec<f32>,
+        counts: Vec<u16>,
+        frames: usize,
+    ) -> Result<Self> {
+        let mut cv = Self::with_impl(reference, camera, bins, CostVolumeImpl::Fast)?;
+        if sums.len() != cv.counts.len() || counts.len() != cv.counts.len() || frames > MAX_FRAMES {
+            return Err(Error::invalid_argument(
+                "cost volume",
+                format!(
+                    "{} sums, {} counts, {frames} frames for a {:?} volume",
+                    sums.len(),
+                    counts.len(),
+                    cv.dim()
+                ),
+            ));
+        }
+        (cv.sums, cv.counts, cv.frames) = (Sums::F32(sums), counts, frames);
+        Ok(cv)
+    }
+
     /// Add one live frame: its features `[H, W, C]` (same camera and channel count as the reference)
     /// and `T_nr = T_wn⁻¹ T_wr` ([`crate::geometry::relative_pose`]).
     ///

@@ -342,7 +342,7 @@ pub fn solve_reference(
     Ok((DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report))
 }
 
-fn check_inputs(
+pub(crate) fn check_inputs(
     costs: ArrayView3<f32>,
     bins: &InverseDepthBins,
     grey: ArrayView2<f32>,
@@ -366,15 +366,16 @@ fn check_inputs(
     Ok(())
 }
 
-/// The energies and gaps so far, and the stopping rule (SPEC.md §10).
-struct History {
+/// The energies and gaps so far, and the stopping rule (SPEC.md §10). Shared with the GPU backend's
+/// solve, so that both stop by the same rule.
+pub(crate) struct History {
     energy: Vec<f64>,
     gap: Vec<f64>,
     converged: bool,
 }
 
 impl History {
-    fn new(params: &DtamParams) -> Self {
+    pub(crate) fn new(params: &DtamParams) -> Self {
         Self {
             energy: Vec::with_capacity(params.iterations),
             gap: Vec::with_capacity(params.iterations),
@@ -383,7 +384,14 @@ impl History {
     }
 
     /// Record iteration `n`; `true` when the convergence test stops the solve there.
-    fn push(&mut self, n: usize, e: f64, g: f64, params: &DtamParams, bins: &InverseDepthBins) -> bool {
+    pub(crate) fn push(
+        &mut self,
+        n: usize,
+        e: f64,
+        g: f64,
+        params: &DtamParams,
+        bins: &InverseDepthBins,
+    ) -> bool {
         let settled =
             self.energy.last().is_some_and(|&p| (e - p).abs() <= params.tolerance * e.abs().max(p.abs()));
         let done = n + 1 >= params.iterations && settled && g <= GAP_TOLERANCE_BINS * bins.step();
@@ -393,7 +401,7 @@ impl History {
         done
     }
 
-    fn report(self, start: Instant) -> DtamReport {
+    pub(crate) fn report(self, start: Instant) -> DtamReport {
         DtamReport {
             iterations: self.energy.len(),
             energy: self.energy,

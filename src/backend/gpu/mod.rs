@@ -2,14 +2,22 @@
 //! on whatever adapter wgpu finds (Vulkan, Metal, DX12, GL; in CI Mesa's software Vulkan driver,
 //! lavapipe). Tensors live in device storage buffers ([`GpuBuffer`]) between ops; `upload` and
 //! `download` are the only crossings, and an op given a host tensor returns
-//! [`Error::Unsupported`] ("upload it first"). The mapping ops (cost volume, WTA, DTAM) are not
-//! implemented on the GPU yet and return [`Error::Unsupported`].
+//! [`Error::Unsupported`] ("upload it first"). The mapping ops run here too: the cost volume keeps
+//! its sums and counts on the device between frames ([`volume`]), winner-take-all ([`wta`]) and the
+//! DTAM solve ([`dtam`]) keep their state on the device and only scalars cross per iteration. They
+//! need shader f64 (the CPU's f64 geometry and solver arithmetic) and return
+//! [`Error::Unsupported`] on an adapter without it.
 
+mod dtam;
 mod kernels;
+mod volume;
+mod wta;
+
+pub use dtam::DtamTimings;
 
 use std::any::Any;
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock, Weak};
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 use wgpu::util::DeviceExt;
@@ -52,13 +60,15 @@ impl DeviceBuffer for GpuBuffer {
 
 /// The wgpu backend: one device and queue, compiled pipelines and packed layer weights cached.
 pub struct GpuBackend {
+    /// This backend itself (it lives in an `Arc`), for the cost-volume builders that outlive a call.
+    me: Weak<GpuBackend>,
     device: wgpu::Device,
     queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     /// `Features::SHADER_F64` is on (the bit-exact downsampling needs it).
     f64: bool,
     max_binding: u64,
-    pipelines: Mutex<HashMap<&'static str, wgpu::ComputePipeline>>,
+    pipelines: Mutex<HashMap<(&'static str, &'static str), wgpu::ComputePipeline>>,
     /// Packed `[c_out, ky, kx, c_in] ++ bias` weights by their bits (content-keyed: no stale hits).
     weights: Mutex<HashMap<Vec<u32>, Arc<wgpu::Buffer>>>,
 }
@@ -71,17 +81,21 @@ impl std::fmt::Debug for GpuBackend {
 
 static SHARED: OnceLock<std::result::Result<Arc<GpuBackend>, String>> = OnceLock::new();
 
+/// Buffer usages of every storage buffer here (bound, copied from and to).
+const STORAGE: wgpu::BufferUsages =
+    wgpu::BufferUsages::STORAGE.union(wgpu::BufferUsages::COPY_SRC).union(wgpu::BufferUsages::COPY_DST);
+
 impl GpuBackend {
     /// The process's GPU backend (created on first use, then shared: one device per process).
     ///
     /// # Errors
     /// [`Error::Unsupported`] when wgpu finds no adapter or the device cannot be created.
     pub fn shared() -> Result<Arc<GpuBackend>> {
-        SHARED.get_or_init(|| Self::new().map(Arc::new)).clone().map_err(unsupported)
+        SHARED.get_or_init(Self::new).clone().map_err(unsupported)
     }
 
     /// A new device on the first adapter wgpu offers (any backend; `WGPU_BACKEND` narrows it).
-    fn new() -> std::result::Result<Self, String> {
+    fn new() -> std::result::Result<Arc<Self>, String> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
@@ -104,7 +118,8 @@ impl GpuBackend {
             ..Default::default()
         }))
         .map_err(|e| format!("adapter {} refused a device: {e}", info.name))?;
-        Ok(Self {
+        Ok(Arc::new_cyclic(|me| Self {
+            me: me.clone(),
             device,
             queue,
             info,
@@ -112,7 +127,40 @@ impl GpuBackend {
             max_binding,
             pipelines: Mutex::new(HashMap::new()),
             weights: Mutex::new(HashMap::new()),
-        })
+        }))
+    }
+
+    /// [`Backend::dtam_solve`] with the time of its parts: uploads, iterations (with the read-backs
+    /// of the stopping rule) and the final download (`densefeat bench tv --backend gpu`).
+    ///
+    /// # Errors
+    /// As [`Backend::dtam_solve`].
+    pub fn dtam_solve_timed(
+        &self,
+        costs: ArrayView3<f32>,
+        bins: &InverseDepthBins,
+        grey: ArrayView2<f32>,
+        init: ArrayView2<f32>,
+        params: &DtamParams,
+    ) -> Result<(DtamResult, DtamReport, DtamTimings)> {
+        dtam::solve_timed(self, costs, bins, grey, init, params)
+    }
+
+    /// A shared handle to this backend.
+    fn arc(&self) -> Result<Arc<GpuBackend>> {
+        self.me.upgrade().ok_or_else(|| unsupported("the GPU backend was dropped"))
+    }
+
+    /// [`Error::Unsupported`] for `op` unless the device has shader f64.
+    fn require_f64(&self, op: &str, why: &str) -> Result<()> {
+        if self.f64 {
+            Ok(())
+        } else {
+            Err(unsupported(format!(
+                "{op} needs shader f64 ({why}), which adapter {} lacks; use --backend cpu",
+                self.info.name
+            )))
+        }
     }
 
     /// The buffer of a tensor of this backend, or [`Error::Unsupported`] naming where it lives.
@@ -143,41 +191,147 @@ impl GpuBackend {
         let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: None,
             size,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            usage: STORAGE,
             mapped_at_creation: false,
         });
         Ok(Tensor::device(NAME, dim, Arc::new(GpuBuffer { buffer, len })))
     }
 
     fn storage_init(&self, data: &[f32]) -> wgpu::Buffer {
-        let contents: &[u8] = if data.is_empty() { &[0; 4] } else { bytemuck::cast_slice(data) };
+        self.storage_bytes(bytemuck::cast_slice(data))
+    }
+
+    /// A storage buffer holding `contents` (at least 8 bytes: wgpu binds no empty buffer, and an
+    /// f64 array needs one element).
+    fn storage_bytes(&self, contents: &[u8]) -> wgpu::Buffer {
+        let mut padded;
+        let contents = if contents.len() < 8 {
+            padded = contents.to_vec();
+            padded.resize(8, 0);
+            &padded[..]
+        } else {
+            contents
+        };
         self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: None,
             contents,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            usage: STORAGE,
         })
     }
 
+    /// A zero-filled storage buffer of `bytes` bytes (at least 8), after checking it fits a binding.
+    fn storage_zeroed(&self, bytes: u64) -> Result<wgpu::Buffer> {
+        if bytes > self.max_binding {
+            return Err(unsupported(format!(
+                "a buffer of {bytes} bytes exceeds the adapter's largest storage binding ({} bytes)",
+                self.max_binding
+            )));
+        }
+        // wgpu zero-initialises new buffers.
+        Ok(self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: bytes.max(8).next_multiple_of(4),
+            usage: STORAGE,
+            mapped_at_creation: false,
+        }))
+    }
+
     /// The compiled pipeline `name` (compiled once per backend).
-    fn pipeline(&self, name: &'static str, body: &str) -> wgpu::ComputePipeline {
-        let mut cache = self.pipelines.lock().expect("pipeline cache poisoned");
-        cache
-            .entry(name)
-            .or_insert_with(|| {
-                let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some(name),
-                    source: wgpu::ShaderSource::Wgsl(kernels::source(body).into()),
-                });
-                self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(name),
-                    layout: None,
-                    module: &module,
-                    entry_point: Some("main"),
-                    compilation_options: Default::default(),
-                    cache: None,
-                })
-            })
-            .clone()
+    fn pipeline(&self, name: &'static str, body: &str) -> Result<wgpu::ComputePipeline> {
+        self.pipeline_entry(name, "main", || kernels::source(body))
+    }
+
+    /// The compiled pipeline of entry point `entry` of module `module` (compiled once per backend;
+    /// `source` is only called the first time).
+    ///
+    /// # Errors
+    /// [`Error::Unsupported`] with the compiler's message when the device rejects the kernel.
+    fn pipeline_entry(
+        &self,
+        module: &'static str,
+        entry: &'static str,
+        source: impl FnOnce() -> String,
+    ) -> Result<wgpu::ComputePipeline> {
+        let mut cache = self.pipelines.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(p) = cache.get(&(module, entry)) {
+            return Ok(p.clone());
+        }
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let m = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(module),
+            source: wgpu::ShaderSource::Wgsl(source().into()),
+        });
+        let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: None,
+            module: &m,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(unsupported(format!(
+                "kernel {module}::{entry} does not compile on adapter {}: {e}",
+                self.info.name
+            )));
+        }
+        cache.insert((module, entry), pipeline.clone());
+        Ok(pipeline)
+    }
+
+    /// A bind group of `pipeline`'s group 0 with `(binding, buffer)` entries.
+    fn bind(&self, pipeline: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = entries
+            .iter()
+            .map(|(binding, b)| wgpu::BindGroupEntry { binding: *binding, resource: b.as_entire_binding() })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        })
+    }
+
+    /// Waits until every submitted command has finished.
+    fn wait(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| unsupported(format!("device poll failed: {e}")))
+    }
+
+    /// `size` bytes of `src` from `offset`, copied back to the host (waits for the device).
+    fn read_back(&self, src: &wgpu::Buffer, offset: u64, size: u64) -> Result<Vec<u8>> {
+        if size == 0 {
+            return Ok(Vec::new());
+        }
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("download"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("download") });
+        encoder.copy_buffer_to_buffer(src, offset, &staging, 0, size);
+        self.queue.submit([encoder.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|_| unsupported("download: the map callback never ran"))?
+            .map_err(|e| unsupported(format!("download: mapping failed: {e}")))?;
+        let data = {
+            let view = staging
+                .slice(..)
+                .get_mapped_range()
+                .map_err(|e| unsupported(format!("download: mapped range: {e}")))?;
+            view[..].to_vec()
+        };
+        staging.unmap();
+        Ok(data)
     }
 
     /// Runs kernel `name` over `params[0]` outputs: binding 0 the parameters, then `inputs`, then
@@ -189,13 +343,13 @@ impl GpuBackend {
         params: &[u32],
         inputs: &[&wgpu::Buffer],
         out: &Tensor,
-    ) {
+    ) -> Result<()> {
         let n = params[0];
         if n == 0 {
-            return;
+            return Ok(());
         }
-        let out = &self.buffer(out).expect("outputs are allocated here").buffer;
-        let pipeline = self.pipeline(name, body);
+        let out = &self.buffer(out)?.buffer;
+        let pipeline = self.pipeline(name, body)?;
         let params = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: None,
             contents: bytemuck::cast_slice(params),
@@ -225,6 +379,7 @@ impl GpuBackend {
             pass.dispatch_workgroups(gx, gy, 1);
         }
         self.queue.submit([encoder.finish()]);
+        Ok(())
     }
 
     /// A layer's weights repacked to `[c_out, ky, kx, c_in]` with the bias appended, on the device
@@ -279,36 +434,13 @@ impl Backend for GpuBackend {
         if src.len == 0 {
             return Ok(Array3::zeros(x.dim()));
         }
-        let size = src.len as u64 * 4;
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("download"),
-            size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut encoder =
-            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("download") });
-        encoder.copy_buffer_to_buffer(&src.buffer, 0, &staging, 0, size);
-        self.queue.submit([encoder.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| unsupported(format!("device poll failed during download: {e}")))?;
-        rx.recv()
-            .map_err(|_| unsupported("download: the map callback never ran"))?
-            .map_err(|e| unsupported(format!("download: mapping failed: {e}")))?;
-        let data: Vec<f32> = {
-            let view = staging
-                .slice(..)
-                .get_mapped_range()
-                .map_err(|e| unsupported(format!("download: mapped range: {e}")))?;
-            bytemuck::cast_slice::<u8, f32>(&view[..]).to_vec()
-        };
-        staging.unmap();
+        let bytes = self.read_back(&src.buffer, 0, src.len as u64 * 4)?;
+        let data = f32s(&bytes);
         Array3::from_shape_vec(x.dim(), data).map_err(|e| unsupported(format!("download: {e}")))
+    }
+
+    fn synchronize(&self) -> Result<()> {
+        self.wait()
     }
 
     fn conv3x3(&self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
@@ -331,7 +463,7 @@ impl Backend for GpuBackend {
         let out = self.alloc((h_out, w_out, c_out))?;
         let relu = usize::from(matches!(act, Activation::Relu));
         let p = params([h_out * w_out * c_out, h, w, c_in, w_out, c_out, stride, relu, bias_offset]);
-        self.dispatch("conv3x3", kernels::CONV3X3, &p, &[&xb.buffer, &wt], &out);
+        self.dispatch("conv3x3", kernels::CONV3X3, &p, &[&xb.buffer, &wt], &out)?;
         Ok(out)
     }
 
@@ -354,7 +486,7 @@ impl Backend for GpuBackend {
         let wt = self.layer_weights(packed);
         let out = self.alloc((h_out, w_out, c_out))?;
         let p = params([h_out * w_out * c_out, h, w, c_in, c_out, bias_offset]);
-        self.dispatch("deconv5x5s2", kernels::DECONV5X5S2, &p, &[&xb.buffer, &wt], &out);
+        self.dispatch("deconv5x5s2", kernels::DECONV5X5S2, &p, &[&xb.buffer, &wt], &out)?;
         Ok(out)
     }
 
@@ -370,7 +502,7 @@ impl Backend for GpuBackend {
         let [h_out, w_out, _] = DownsampleGeometry::new(h, w, c)?.output_shape();
         let out = self.alloc((h_out, w_out, c))?;
         let p = params([h_out * w_out * c, h, w, c, w_out]);
-        self.dispatch("downsample2x", kernels::DOWNSAMPLE_F64, &p, &[&xb.buffer], &out);
+        self.dispatch("downsample2x", kernels::DOWNSAMPLE_F64, &p, &[&xb.buffer], &out)?;
         Ok(out)
     }
 
@@ -385,7 +517,7 @@ impl Backend for GpuBackend {
         }
         let out = self.alloc((h, w, ca + cb))?;
         let p = params([h * w * (ca + cb), ca, cb]);
-        self.dispatch("concat", kernels::CONCAT, &p, &[&ab.buffer, &bb.buffer], &out);
+        self.dispatch("concat", kernels::CONCAT, &p, &[&ab.buffer, &bb.buffer], &out)?;
         Ok(out)
     }
 
@@ -398,7 +530,7 @@ impl Backend for GpuBackend {
             ));
         }
         let out = self.alloc(a.dim())?;
-        self.dispatch("add", kernels::ADD, &params([ab.len]), &[&ab.buffer, &bb.buffer], &out);
+        self.dispatch("add", kernels::ADD, &params([ab.len]), &[&ab.buffer, &bb.buffer], &out)?;
         Ok(out)
     }
 
@@ -412,33 +544,80 @@ impl Backend for GpuBackend {
             return Err(Error::invalid_argument("crop", format!("{h}x{w} window of a {hx}x{wx} map")));
         }
         let out = self.alloc((h, w, c))?;
-        self.dispatch("crop", kernels::CROP, &params([h * w * c, wx, w, c]), &[&xb.buffer], &out);
+        self.dispatch("crop", kernels::CROP, &params([h * w * c, wx, w, c]), &[&xb.buffer], &out)?;
         Ok(out)
     }
 
     fn cost_volume(
         &self,
-        _reference: &Tensor,
-        _camera: PinholeCamera,
-        _bins: InverseDepthBins,
+        reference: &Tensor,
+        camera: PinholeCamera,
+        bins: InverseDepthBins,
     ) -> Result<Box<dyn VolumeBuilder>> {
-        Err(unsupported(
-            "cost_volume: no WGSL cost volume yet (SPEC.md §15.5); use --backend cpu for mapping",
-        ))
+        Ok(Box::new(volume::GpuVolume::new(self.arc()?, reference, camera, bins)?))
     }
 
-    fn winner_take_all(&self, _costs: ArrayView3<f32>, _bins: &InverseDepthBins) -> Result<WtaDepth> {
-        Err(unsupported("winner_take_all: no WGSL kernel yet (SPEC.md §15.5); use --backend cpu for mapping"))
+    fn winner_take_all(&self, costs: ArrayView3<f32>, bins: &InverseDepthBins) -> Result<WtaDepth> {
+        wta::winner_take_all(self, costs, bins)
     }
 
     fn dtam_solve(
         &self,
-        _costs: ArrayView3<f32>,
-        _bins: &InverseDepthBins,
-        _grey: ArrayView2<f32>,
-        _init: ArrayView2<f32>,
-        _params: &DtamParams,
+        costs: ArrayView3<f32>,
+        bins: &InverseDepthBins,
+        grey: ArrayView2<f32>,
+        init: ArrayView2<f32>,
+        params: &DtamParams,
     ) -> Result<(DtamResult, DtamReport)> {
-        Err(unsupported("dtam_solve: no WGSL kernel yet (SPEC.md §15.5); use --backend cpu for mapping"))
+        dtam::solve(self, costs, bins, grey, init, params)
     }
+}
+
+/// Host `f32`s from bytes read back (native byte order, as the device wrote them).
+fn f32s(bytes: &[u8]) -> Vec<f32> {
+    bytes.chunks_exact(4).map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]])).collect()
+}
+
+/// Host `u32`s from bytes read back.
+fn u32s(bytes: &[u8]) -> Vec<u32> {
+    bytes.chunks_exact(4).map(|b| u32::from_ne_bytes([b[0], b[1], b[2], b[3]])).collect()
+}
+
+/// Host `f64`s from bytes read back.
+fn f64s(bytes: &[u8]) -> Vec<f64> {
+    bytes
+        .chunks_exact(8)
+        .map(|b| f64::from_ne_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]))
+        .collect()
+}
+
+/// [`Error::Unsupported`] unless every cost is finite: WGSL lets a device assume no NaN or infinity
+/// reaches a comparison, so the GPU's argmin over such costs would not be defined
+/// (`UNSEEN_COST` itself is finite).
+fn check_finite(op: &str, what: &str, values: impl IntoIterator<Item = f32>) -> Result<()> {
+    match values.into_iter().find(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(v) => Err(unsupported(format!(
+            "{op}: a non-finite {what} ({v}); the GPU kernels take finite values only \
+             (unseen cells are UNSEEN_COST); use --backend cpu"
+        ))),
+    }
+}
+
+/// Workgroups for `n` invocations of a 64-wide kernel on the 2D grid (see [`kernels`]).
+fn groups(n: u32) -> (u32, u32) {
+    let groups = n.div_ceil(WORKGROUP);
+    let gx = groups.clamp(1, MAX_GROUPS_X);
+    (gx, groups.div_ceil(gx))
+}
+
+/// Records one dispatch of `pipeline` over `n` invocations (nothing for `n = 0`).
+fn record(pass: &mut wgpu::ComputePass, pipeline: &wgpu::ComputePipeline, group: &wgpu::BindGroup, n: u32) {
+    if n == 0 {
+        return;
+    }
+    let (gx, gy) = groups(n);
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, group, &[]);
+    pass.dispatch_workgroups(gx, gy, 1);
 }

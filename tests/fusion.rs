@@ -352,3 +352,98 @@ fn mesh_metrics_of_shifted_meshes() {
     let empty = mesh_metrics(&Mesh::default(), &mesh, 0.05);
     assert_eq!((empty.precision, empty.recall, empty.fscore), (0.0, 0.0, 0.0));
 }
+
+// ---------------------------------------------------------------------------------------------
+// `densefeat map` on a tiny slice of the shipped fixture (RGB features, few bins, level 1).
+
+fn map_cmd(out: &std::path::Path, extra: &[&str]) -> std::process::Output {
+    let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");
+    let mut args = vec![
+        "map",
+        "--sequence",
+        fixture,
+        "--frames",
+        "0:11",
+        "--features",
+        "rgb",
+        "--bins",
+        "16",
+        "--level",
+        "1",
+        "--window",
+        "3,3",
+        "--iterations",
+        "30",
+        "--max-iterations",
+        "30",
+        "--kf-baseline",
+        "0.05",
+        "--voxel-size",
+        "0.1",
+    ];
+    args.extend_from_slice(extra);
+    std::process::Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(&args)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn map_writes_mesh_metrics_and_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("map");
+    let first = map_cmd(&out, &[]);
+    let text = String::from_utf8_lossy(&first.stdout).to_string();
+    assert!(first.status.success(), "{text}\n{}", String::from_utf8_lossy(&first.stderr));
+    assert!(text.contains("F-score"), "{text}");
+    let mesh = read_mesh_ply(&out.join("mesh.ply")).unwrap();
+    assert!(!mesh.triangles.is_empty());
+    let gt = read_mesh_ply(&out.join("mesh_gt.ply")).unwrap();
+    assert!(!gt.triangles.is_empty());
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("map.json")).unwrap()).unwrap();
+    let f = doc["metrics"]["fscore"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&f), "{f}");
+    assert_eq!(doc["mesh"]["edges"]["boundary"].as_u64().unwrap() as usize, mesh.edge_report().boundary);
+    let keys: Vec<u64> =
+        doc["keyframes"].as_array().unwrap().iter().map(|k| k["index"].as_u64().unwrap()).collect();
+    assert!(keys.len() >= 2, "{keys:?}");
+    assert!(out.join("mesh.png").is_file());
+    let kf = out.join(format!("keyframes/kf_{:05}/keyframe.json", keys[1]));
+    let stamp = std::fs::metadata(&kf).unwrap().modified().unwrap();
+
+    // A re-run reuses every keyframe and reproduces the mesh bit for bit.
+    let second = map_cmd(&out, &[]);
+    let text = String::from_utf8_lossy(&second.stdout).to_string();
+    assert!(second.status.success(), "{text}");
+    assert!(text.contains("0 computed") && text.contains(&format!("{} reused", keys.len())), "{text}");
+    assert_eq!(std::fs::metadata(&kf).unwrap().modified().unwrap(), stamp);
+    assert_eq!(read_mesh_ply(&out.join("mesh.ply")).unwrap(), mesh);
+
+    // A changed mapping setting recomputes the keyframes.
+    let third = map_cmd(&out, &["--min-evidence", "0.3"]);
+    let text = String::from_utf8_lossy(&third.stdout).to_string();
+    assert!(third.status.success() && text.contains(&format!("{} computed", keys.len())), "{text}");
+}
+
+#[test]
+fn map_rejects_bad_flags_before_writing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("map");
+    for (extra, flag) in [
+        (&["--voxel-size", "0"][..], "--voxel-size"),
+        (&["--truncation", "0.01"][..], "--truncation"),
+        (&["--frames", "5:3"][..], "--frames"),
+        (&["--frames", "0:999"][..], "--frames"),
+        (&["--kf-overlap", "1.5"][..], "--kf-overlap"),
+        (&["--max-memory-mb", "1"][..], "--max-memory-mb"),
+    ] {
+        let o = map_cmd(&out, extra);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{extra:?} was accepted");
+        assert!(err.contains(flag), "{extra:?}: {err}");
+        assert!(!out.exists(), "{extra:?} wrote {}", out.display());
+    }
+}

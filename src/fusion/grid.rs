@@ -29,15 +29,15 @@ impl Aabb {
 
     /// Grow to contain `p`.
     pub fn add(&mut self, p: [f64; 3]) {
-        for a in 0..3 {
-            self.min[a] = self.min[a].min(p[a]);
-            self.max[a] = self.max[a].max(p[a]);
+        for ((lo, hi), v) in self.min.iter_mut().zip(&mut self.max).zip(p) {
+            *lo = lo.min(v);
+            *hi = hi.max(v);
         }
     }
 
     /// Whether no point was added.
     pub fn is_empty(&self) -> bool {
-        (0..3).any(|a| !(self.min[a] <= self.max[a]))
+        (0..3).any(|a| self.min[a].is_nan() || self.max[a].is_nan() || self.min[a] > self.max[a])
     }
 
     /// The intersection (possibly empty).
@@ -103,12 +103,12 @@ impl VoxelGrid {
             return Err(Error::invalid_argument("fusion bounds", "no depth to fuse: the volume is empty"));
         }
         let mut dims = [0usize; 3];
-        for a in 0..3 {
+        for (a, d) in dims.iter_mut().enumerate() {
             let n = ((bounds.max[a] - bounds.min[a]) / voxel).ceil() + 1.0;
             if n > (1u64 << 31) as f64 {
                 return Err(Error::invalid_argument("--voxel-size", format!("{voxel} m: too many voxels")));
             }
-            dims[a] = (n as usize).max(2);
+            *d = (n as usize).max(2);
         }
         let g = Self { origin: bounds.min, voxel, dims };
         if g.len() as u64 > 1u64 << 31 {
@@ -152,7 +152,7 @@ impl VoxelGrid {
 /// Voxels of a grid of voxel size `voxel` over `bounds`, without building it (saturating; an empty
 /// box has none).
 pub fn voxel_count(bounds: &Aabb, voxel: f64) -> u64 {
-    if bounds.is_empty() || !(voxel > 0.0) {
+    if bounds.is_empty() || voxel.is_nan() || voxel <= 0.0 {
         return 0;
     }
     (0..3).fold(1u64, |acc, a| {

@@ -40,8 +40,8 @@ pub fn integrate_reference(
                         let w0 = v.weight[idx];
                         let w1 = w0 + w;
                         v.tsdf[idx] = (w0 * v.tsdf[idx] + w * tv) / w1;
-                        for a in 0..3 {
-                            v.colour[idx][a] = (w0 * v.colour[idx][a] + w * c[a]) / w1;
+                        for (vc, c) in v.colour[idx].iter_mut().zip(c) {
+                            *vc = (w0 * *vc + w * c) / w1;
                         }
                         v.weight[idx] = w1;
                     }

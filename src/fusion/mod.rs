@@ -6,7 +6,7 @@
 //!   projective distance `d(π(X_c)) - z`, truncated to `[-μ, μ]` (voxels further than `μ` behind
 //!   the surface are left alone), weighted running average. Parallel over z slabs, so every voxel
 //!   is owned by one task: bit-identical for any thread count.
-//! - [`reference`]: the same maths as naive f64 loops, the oracle [`tsdf`] is tested against.
+//! - [`reference`](mod@reference): the same maths as naive f64 loops, the oracle [`tsdf`] is tested against.
 //! - [`mesh`]: masked surface nets (one vertex per active cell, one quad per active edge) with
 //!   vertex colours, boundary-edge count.
 //! - [`ply`]: binary PLY with faces, writer and parser.

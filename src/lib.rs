@@ -11,6 +11,7 @@
 //! - [`costvolume`]: the multi-view feature cost volume (paper eq. 4) and winner-take-all depth.
 //! - [`dtam`]: Huber-TV regularisation of inverse depth (DTAM's primal-dual optimiser).
 //! - [`mapping`]: keyframe reconstruction with RGB or learned features, outputs and evaluation.
+//! - [`fusion`]: TSDF fusion of keyframe depth maps, its mesh, mesh-to-mesh metrics and pictures.
 //! - [`geometry`]: pinhole cameras, distortion, SE(3), the inverse-depth warp.
 //! - [`image`]: image types, PNG I/O, bilinear sampling, undistortion.
 //! - [`sequence`]: posed RGB-D sequences (TUM, ICL-NUIM, DeepVideoMVS / 7-Scenes, stereo pairs).
@@ -42,6 +43,7 @@ pub mod costvolume;
 pub mod dtam;
 pub mod error;
 pub mod eval;
+pub mod fusion;
 pub mod geometry;
 pub mod image;
 pub mod io;

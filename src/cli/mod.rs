@@ -17,6 +17,7 @@ pub mod eval;
 pub mod features;
 pub mod init_weights;
 pub mod inspect;
+pub mod map;
 pub mod mapping_args;
 pub mod reconstruct;
 pub mod synth;
@@ -54,6 +55,8 @@ pub enum Command {
     Reconstruct(reconstruct::ReconstructArgs),
     /// Evaluate methods over keyframes against ground truth: the paper's table.
     Eval(eval::EvalArgs),
+    /// A whole sequence to a mesh: keyframes, depth, TSDF fusion, mesh, metrics against ground truth.
+    Map(map::MapArgs),
     /// Reconstruct a keyframe of the shipped synthetic fixture with every method.
     Demo(demo::DemoArgs),
     /// Plot the cost curves of a few keyframe pixels (RGB vs learned) as the volume fills (PNG + CSV).
@@ -79,6 +82,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Reconstruct(args) => reconstruct::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Demo(args) => demo::run(args),
+        Command::Map(args) => map::run(args),
         Command::Costcurve(args) => costcurve::run(args),
     }
 }

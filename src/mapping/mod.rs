@@ -1,12 +1,15 @@
 //! Keyframe mapping: the features that fill the cost volume, the keyframe reconstruction (cost
 //! volume of [`crate::costvolume`], regulariser of [`crate::dtam`]), its output files, and the
-//! evaluation table over keyframes and methods (SPEC.md §11); the cost-curve diagnostic (§12.1).
+//! evaluation table over keyframes and methods (SPEC.md §11); the cost-curve diagnostic (§12.1);
+//! keyframe selection and the whole-sequence map (§16.8).
 
 pub mod costcurve;
 pub mod evaluate;
 pub mod features;
 pub mod keyframe;
+pub mod keyframe_select;
 pub mod output;
+pub mod sequence_map;
 
 pub use evaluate::{evaluate, EvalOptions, EvalTable, Method};
 pub use features::{FeatureExtractor, FeatureKind, FeatureMap};

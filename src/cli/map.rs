@@ -1,0 +1,152 @@
+//! `densefeat map`: a whole sequence to a mesh (SPEC.md §16.8-16.10).
+
+use std::path::PathBuf;
+
+use clap::Args;
+
+use crate::error::Result;
+use crate::mapping::keyframe::Regularizer;
+use crate::mapping::keyframe_select::KeyframeRule;
+use crate::mapping::sequence_map::{map_sequence, MapConfig};
+use crate::mapping::FeatureKind;
+use crate::sequence::open;
+
+use super::mapping_args::{progress_bar, MappingArgs};
+use super::validate::{flag, mapping_preflight};
+
+/// Arguments of `densefeat map`.
+#[derive(Debug, Clone, Args)]
+pub struct MapArgs {
+    /// Sequence folder (any format `densefeat inspect` reads).
+    #[arg(long)]
+    pub sequence: PathBuf,
+    /// Frames to map, `FIRST:LAST` (inclusive; default: all).
+    #[arg(long)]
+    pub frames: Option<String>,
+    /// `learned` (shipped weights), `learned=WEIGHTS.safetensors` or `rgb`.
+    #[arg(long, default_value = "learned")]
+    pub features: FeatureKind,
+    /// `tv` (DTAM) or `none` (winner-take-all).
+    #[arg(long, default_value = "tv")]
+    pub regularizer: Regularizer,
+    /// A frame this far (metres) from the last keyframe becomes a keyframe.
+    #[arg(long, default_value_t = KeyframeRule::default().baseline)]
+    pub kf_baseline: f64,
+    /// A frame whose view overlap with the last keyframe falls below this becomes a keyframe.
+    #[arg(long, default_value_t = KeyframeRule::default().overlap)]
+    pub kf_overlap: f64,
+    /// Depth (metres) at which view overlaps are measured.
+    #[arg(long, default_value_t = KeyframeRule::default().nominal_depth)]
+    pub kf_depth: f64,
+    /// Live frames need at least this view overlap with their keyframe (at most --window P,F).
+    #[arg(long, default_value_t = KeyframeRule::default().window_overlap)]
+    pub window_overlap: f64,
+    /// TSDF voxel size, metres.
+    #[arg(long, default_value_t = 0.04)]
+    pub voxel_size: f64,
+    /// TSDF truncation, metres (default: 4 voxels).
+    #[arg(long)]
+    pub truncation: Option<f64>,
+    /// Depths beyond this (metres) are not fused.
+    #[arg(long, default_value_t = 5.0)]
+    pub max_fusion_depth: f64,
+    /// Distance threshold of precision, recall and F-score, metres.
+    #[arg(long, default_value_t = 0.05)]
+    pub fscore_threshold: f64,
+    /// Mapping flags (window, depth range, bins, DTAM, memory limit).
+    #[command(flatten)]
+    pub mapping: MappingArgs,
+    /// Output folder (re-running into it skips keyframes already done with the same settings).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Parse `FIRST:LAST`.
+fn parse_frames(text: &str) -> Result<(usize, usize)> {
+    let bad = || flag("frames", format!("{text:?}: expected FIRST:LAST (non-negative integers)"));
+    let (a, b) = text.split_once(':').ok_or_else(bad)?;
+    Ok((a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?))
+}
+
+/// Runs the command.
+///
+/// # Errors
+/// Bad arguments, reading or writing errors.
+pub fn run(args: MapArgs) -> Result<()> {
+    let frames = args.frames.as_deref().map(parse_frames).transpose()?;
+    let seq = open(&args.sequence)?;
+    let keyframe = args.mapping.config(0, args.features.clone(), args.regularizer)?;
+    let cfg = MapConfig {
+        keyframe,
+        frames: frames.unwrap_or((0, seq.len().saturating_sub(1))),
+        rule: KeyframeRule {
+            baseline: args.kf_baseline,
+            overlap: args.kf_overlap,
+            nominal_depth: args.kf_depth,
+            window_overlap: args.window_overlap,
+        },
+        voxel: args.voxel_size,
+        truncation: args.truncation.unwrap_or(4.0 * args.voxel_size),
+        max_fusion_depth: args.max_fusion_depth,
+        min_confidence: args.mapping.min_confidence,
+        fscore_threshold: args.fscore_threshold,
+    };
+    let plan = cfg.plan(&seq)?;
+    let keys: Vec<usize> = plan.keyframes.iter().map(|k| k.index).collect();
+    // Every keyframe's window must leave a live frame.
+    for k in &plan.keyframes {
+        let mut c = cfg.keyframe.clone();
+        (c.keyframe, c.past, c.future) = (k.index, k.past, k.future);
+        c.live_frames(seq.len()).map_err(|e| flag("frames", e.to_string()))?;
+    }
+    mapping_preflight(&seq, &cfg.keyframe, &keys[..1], std::slice::from_ref(&args.features), "map")?;
+    crate::memory::check(
+        cfg.keyframe.max_memory_mb,
+        "the TSDF volumes (bounded by the keyframes' frusta)",
+        plan.fusion_bytes_bound,
+        "use a larger --voxel-size or a smaller --max-fusion-depth",
+    )?;
+    println!(
+        "map: {} frames {}..={}, {} keyframes {:?}; fusion volume at most {} MiB",
+        args.sequence.display(),
+        cfg.frames.0,
+        cfg.frames.1,
+        keys.len(),
+        keys,
+        plan.fusion_bytes_bound.div_ceil(1 << 20)
+    );
+    let bar = progress_bar();
+    let result = map_sequence(&seq, &cfg, &args.out, |done, total, msg| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+        bar.set_message(msg.to_string());
+    });
+    bar.finish_and_clear();
+    let s = result?;
+    let t = &s.timings;
+    let computed: Vec<f64> = t.keyframes.iter().map(|k| k.1).collect();
+    println!(
+        "keyframes: {} computed ({:.1} s each on average), {} reused; fusion {:.2} s, mesh {:.2} s, \
+         metrics {:.2} s, writing {:.2} s",
+        computed.len(),
+        computed.iter().sum::<f64>() / computed.len().max(1) as f64,
+        s.resumed.len(),
+        t.fusion,
+        t.mesh,
+        t.metrics,
+        t.write
+    );
+    println!("mesh: {} vertices, {} triangles", s.mesh.0, s.mesh.1);
+    if let Some(m) = &s.metrics {
+        println!(
+            "against the fused ground truth: accuracy {:.4} m, completeness {:.4} m, precision {:.4}, \
+             recall {:.4}, F-score {:.4} at {} m",
+            m.accuracy, m.completeness, m.precision, m.recall, m.fscore, m.threshold
+        );
+    }
+    println!(
+        "wrote mesh.ply, mesh.png, map.json (and mesh_gt.ply with ground truth) to {}",
+        args.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,455 @@
+//! A whole sequence to a mesh (SPEC.md §16.8-16.9): keyframe selection, each keyframe
+//! reconstructed ([`super::reconstruct`]) and written into its own folder (resumable), then TSDF
+//! fusion of the keyframe depth maps (confidence-weighted) and of the ground-truth depth maps,
+//! meshes, mesh-to-mesh metrics, pictures and `map.json`.
+//!
+//! Output folder `OUT`: `keyframes/kf_IIIII/` per keyframe (each committed whole through
+//! [`Staging`]; `keyframe.json` names the configuration, and a re-run with the same configuration
+//! skips the folder), then, committed together at the end, `mesh.ply`, `mesh_gt.ply` (with ground
+//! truth), `mesh.png` and `map.json`.
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use serde::Serialize;
+use serde_json::json;
+
+use super::keyframe::{depth_at_level, KeyframeConfig, Regularizer, Stage};
+use super::keyframe_select::{keyframe_window, select_keyframes, KeyframeRule};
+use super::output::{write_outputs_with, write_pfm};
+use crate::error::{Error, Result};
+use crate::fusion::grid::{voxel_count, Aabb, VoxelGrid, BYTES_PER_VOXEL};
+use crate::fusion::ply::write_mesh_ply;
+use crate::fusion::render::{render, tile, View};
+use crate::fusion::{extract_mesh, mesh_metrics, DepthObservation, Mesh, MeshMetrics, Tsdf};
+use crate::image::{is_valid_depth, load_rgb, save_rgb_png, DepthMap, RgbImage};
+use crate::io::{write_atomic_with, Staging};
+use crate::sequence::disparity::read_pfm;
+use crate::sequence::Sequence;
+
+/// Everything [`map_sequence`] needs besides the sequence.
+#[derive(Clone, Debug)]
+pub struct MapConfig {
+    /// Template for every keyframe (features, bins, range, DTAM, level, ...); `past` / `future`
+    /// are the largest window, `keyframe` is ignored.
+    pub keyframe: KeyframeConfig,
+    /// Inclusive frame range `[first, last]`.
+    pub frames: (usize, usize),
+    /// Keyframe selection and windows.
+    pub rule: KeyframeRule,
+    /// Voxel size, metres.
+    pub voxel: f64,
+    /// Truncation `μ`, metres.
+    pub truncation: f64,
+    /// Depths beyond this (metres) are not fused.
+    pub max_fusion_depth: f64,
+    /// Estimated depth below this confidence is not fused (the mapper's `--min-confidence`).
+    pub min_confidence: f32,
+    /// F-score threshold `τ`, metres.
+    pub fscore_threshold: f64,
+}
+
+/// One keyframe's plan.
+#[derive(Clone, Debug, Serialize)]
+pub struct PlannedKeyframe {
+    /// Frame index.
+    pub index: usize,
+    /// Live frames before it.
+    pub past: usize,
+    /// Live frames after it.
+    pub future: usize,
+}
+
+/// The keyframes and windows of a run, and the memory bound of its fusion, known before any work.
+#[derive(Clone, Debug, Serialize)]
+pub struct MapPlan {
+    /// Keyframes in order.
+    pub keyframes: Vec<PlannedKeyframe>,
+    /// The box around the keyframes' frusta up to `max_fusion_depth`: the fusion volume is inside.
+    pub frusta: Aabb,
+    /// Upper bound of the fusion volumes' bytes (estimate and ground truth).
+    pub fusion_bytes_bound: u64,
+}
+
+/// Everything a run measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct MapSummary {
+    /// The plan.
+    pub plan: MapPlan,
+    /// Keyframes reused from an earlier run.
+    pub resumed: Vec<usize>,
+    /// Seconds per stage.
+    pub timings: MapTimings,
+    /// The estimated mesh's vertices and triangles.
+    pub mesh: (usize, usize),
+    /// Metrics against the fused ground truth, if the keyframes have depth.
+    pub metrics: Option<MeshMetrics>,
+}
+
+/// Wall seconds per stage.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct MapTimings {
+    /// Keyframe reconstruction and its files, per keyframe computed in this run.
+    pub keyframes: Vec<(usize, f64)>,
+    /// Reading keyframe depth back and fusing (both volumes).
+    pub fusion: f64,
+    /// Mesh extraction (both).
+    pub mesh: f64,
+    /// Mesh metrics.
+    pub metrics: f64,
+    /// Pictures and files.
+    pub write: f64,
+}
+
+impl MapConfig {
+    /// Check the fusion parameters.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming the flag.
+    pub fn validate(&self, seq: &Sequence) -> Result<()> {
+        self.rule.validate()?;
+        let pos = |flag: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(Error::invalid_argument(flag, format!("{v}: must be a finite number > 0")))
+            }
+        };
+        pos("--voxel-size", self.voxel)?;
+        pos("--truncation", self.truncation)?;
+        pos("--max-fusion-depth", self.max_fusion_depth)?;
+        pos("--fscore-threshold", self.fscore_threshold)?;
+        if self.truncation < self.voxel {
+            return Err(Error::invalid_argument(
+                "--truncation",
+                format!(
+                    "{} m is less than --voxel-size {} m: the surface would fall between voxels",
+                    self.truncation, self.voxel
+                ),
+            ));
+        }
+        let (a, b) = self.frames;
+        if a > b || b >= seq.len() {
+            return Err(Error::invalid_argument(
+                "--frames",
+                format!("{a}:{b}: need FIRST <= LAST < {} (the sequence's frame count)", seq.len()),
+            ));
+        }
+        if a == b {
+            return Err(Error::invalid_argument("--frames", format!("{a}:{b}: one frame has no live frame")));
+        }
+        Ok(())
+    }
+
+    /// Keyframes, windows and the fusion memory bound (SPEC.md §16.8-16.9).
+    ///
+    /// # Errors
+    /// As [`MapConfig::validate`].
+    pub fn plan(&self, seq: &Sequence) -> Result<MapPlan> {
+        self.validate(seq)?;
+        let poses: Vec<_> = seq.frames.iter().map(|f| f.pose).collect();
+        let range: Vec<usize> = (self.frames.0..=self.frames.1).collect();
+        let cam = seq.camera;
+        let keys = select_keyframes(&cam, &poses, &range, &self.rule);
+        let max = (self.keyframe.past, self.keyframe.future);
+        let keyframes: Vec<PlannedKeyframe> = keys
+            .iter()
+            .map(|&k| {
+                let (past, future) = keyframe_window(&cam, &poses, k, self.frames, max, &self.rule);
+                PlannedKeyframe { index: k, past, future }
+            })
+            .collect();
+        let key_poses: Vec<_> = keys.iter().map(|&k| poses[k]).collect();
+        let frusta = Aabb::of_frusta(&cam, &key_poses, self.max_fusion_depth).padded(self.truncation);
+        let volumes = if seq.frames[keys[0]].depth.is_some() { 2 } else { 1 };
+        let fusion_bytes_bound =
+            voxel_count(&frusta, self.voxel).saturating_mul(BYTES_PER_VOXEL).saturating_mul(volumes);
+        Ok(MapPlan { keyframes, frusta, fusion_bytes_bound })
+    }
+
+    /// The configuration of keyframe `k`.
+    fn keyframe_config(&self, k: &PlannedKeyframe) -> KeyframeConfig {
+        KeyframeConfig { keyframe: k.index, past: k.past, future: k.future, ..self.keyframe.clone() }
+    }
+
+    /// What makes a keyframe folder reusable: every setting that changes its files.
+    fn fingerprint(&self, seq: &Sequence, k: &PlannedKeyframe) -> String {
+        let c = self.keyframe_config(k);
+        format!(
+            "sequence={} keyframe={} window={},{} features={:?} near={} far={} bins={} regularizer={:?} \
+             dtam={:?} level={} min_evidence={} min_confidence={} backend={}",
+            seq.root.canonicalize().unwrap_or(seq.root.clone()).display(),
+            c.keyframe,
+            c.past,
+            c.future,
+            c.features,
+            c.near,
+            c.far,
+            c.bins,
+            c.regularizer,
+            c.dtam,
+            c.level,
+            c.min_evidence,
+            self.min_confidence,
+            c.backend.name()
+        )
+    }
+}
+
+/// Name of a keyframe's folder under `OUT/keyframes/`.
+pub fn keyframe_dir(out: &Path, index: usize) -> PathBuf {
+    out.join("keyframes").join(format!("kf_{index:05}"))
+}
+
+/// The estimate's file name in a keyframe folder.
+fn depth_file(cfg: &MapConfig) -> &'static str {
+    if cfg.keyframe.regularizer == Regularizer::Tv {
+        "depth_tv.pfm"
+    } else {
+        "depth_wta.pfm"
+    }
+}
+
+/// Whether `dir` holds a complete keyframe made with `fingerprint`.
+fn is_complete(dir: &Path, fingerprint: &str, depth_name: &str) -> bool {
+    let Ok(text) = std::fs::read_to_string(dir.join("keyframe.json")) else { return false };
+    let Ok(doc) = serde_json::from_str::<serde_json::Value>(&text) else { return false };
+    doc["config"].as_str() == Some(fingerprint)
+        && ["keyframe.png", "confidence.pfm", depth_name].iter().all(|f| dir.join(f).is_file())
+}
+
+/// Run the whole job (module docs). `progress(done, total, message)` is called as work completes.
+///
+/// # Errors
+/// Bad configuration, reading and writing errors, naming the flag or file. Keyframe folders
+/// committed before an error stay (they are complete); the final files appear together or not at all.
+pub fn map_sequence(
+    seq: &Sequence,
+    cfg: &MapConfig,
+    out: &Path,
+    mut progress: impl FnMut(usize, usize, &str),
+) -> Result<MapSummary> {
+    let plan = cfg.plan(seq)?;
+    let n = plan.keyframes.len();
+    let mut timings = MapTimings::default();
+    let mut resumed = Vec::new();
+    for (i, k) in plan.keyframes.iter().enumerate() {
+        let dir = keyframe_dir(out, k.index);
+        let fp = cfg.fingerprint(seq, k);
+        if is_complete(&dir, &fp, depth_file(cfg)) {
+            resumed.push(k.index);
+            progress(i + 1, n, &format!("keyframe {} (already done)", k.index));
+            continue;
+        }
+        let t = Instant::now();
+        let kcfg = cfg.keyframe_config(k);
+        let r = super::reconstruct(seq, &kcfg, |s: Stage, d, tot| {
+            progress(i, n, &format!("keyframe {}: {s} {d}/{tot}", k.index))
+        })?;
+        let mut staging = Staging::new();
+        let stage = staging.dir(&dir)?;
+        write_outputs_with(&r, &stage, cfg.min_confidence)?;
+        write_pfm(&stage.join("confidence.pfm"), r.confidence.view())?;
+        let seconds = t.elapsed().as_secs_f64();
+        let doc = json!({
+            "config": fp,
+            "keyframe": k.index,
+            "window": [k.past, k.future],
+            "live_frames": r.live_frames,
+            "stage_timings_s": r.timings,
+            "seconds": seconds,
+        });
+        write_text(&stage.join("keyframe.json"), &serde_json::to_string_pretty(&doc).expect("plain data"))?;
+        staging.commit()?;
+        timings.keyframes.push((k.index, seconds));
+        progress(i + 1, n, &format!("keyframe {} done ({seconds:.1} s)", k.index));
+    }
+
+    progress(n, n, "fusion");
+    let t = Instant::now();
+    let maps = load_keyframes(seq, cfg, &plan, out)?;
+    let mut bounds = Aabb::empty();
+    for m in &maps {
+        add_points(&mut bounds, &m.depth, m, cfg.max_fusion_depth);
+        if let Some(gt) = &m.gt {
+            add_points(&mut bounds, gt, m, cfg.max_fusion_depth);
+        }
+    }
+    let bounds = bounds.padded(cfg.truncation).intersect(&plan.frusta);
+    let grid = VoxelGrid::covering(&bounds, cfg.voxel)?;
+    let has_gt = maps.iter().all(|m| m.gt.is_some());
+    let mut est = Tsdf::new(grid, cfg.truncation)?;
+    let mut gt_volume = if has_gt { Some(Tsdf::new(grid, cfg.truncation)?) } else { None };
+    for m in &maps {
+        let capped = cap(&m.depth, cfg.max_fusion_depth);
+        est.integrate(&DepthObservation {
+            depth: capped.view(),
+            weight: Some(m.confidence.view()),
+            colour: Some(m.colour.view()),
+            camera: m.camera,
+            pose: m.pose,
+        })?;
+        if let (Some(v), Some(gt)) = (gt_volume.as_mut(), &m.gt) {
+            let capped = cap(gt, cfg.max_fusion_depth);
+            v.integrate(&DepthObservation {
+                depth: capped.view(),
+                weight: None,
+                colour: Some(m.colour.view()),
+                camera: m.camera,
+                pose: m.pose,
+            })?;
+        }
+    }
+    timings.fusion = t.elapsed().as_secs_f64();
+    progress(n, n, "mesh");
+    let t = Instant::now();
+    let mesh = extract_mesh(&est);
+    let gt_mesh = gt_volume.as_ref().map(extract_mesh);
+    timings.mesh = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let metrics = gt_mesh.as_ref().map(|g| mesh_metrics(&mesh, g, cfg.fscore_threshold));
+    timings.metrics = t.elapsed().as_secs_f64();
+
+    progress(n, n, "writing");
+    let t = Instant::now();
+    let mut staging = Staging::new();
+    let mesh_path = staging.file(&out.join("mesh.ply"))?;
+    write_mesh_ply(&mesh_path, &mesh, "densefeat map: fused keyframe depth, world frame, metres")?;
+    if let Some(g) = &gt_mesh {
+        let p = staging.file(&out.join("mesh_gt.ply"))?;
+        write_mesh_ply(&p, g, "densefeat map: fused ground-truth depth, world frame, metres")?;
+    }
+    let picture = pictures(&mesh, gt_mesh.as_ref(), &maps);
+    save_rgb_png(&staging.file(&out.join("mesh.png"))?, &picture)?;
+    timings.write = t.elapsed().as_secs_f64();
+    let summary =
+        MapSummary { plan, resumed, timings, mesh: (mesh.vertices.len(), mesh.triangles.len()), metrics };
+    let doc = map_json(seq, cfg, &summary, &grid, &mesh, gt_mesh.as_ref(), &est, gt_volume.as_ref());
+    write_text(
+        &staging.file(&out.join("map.json"))?,
+        &serde_json::to_string_pretty(&doc).expect("plain data"),
+    )?;
+    staging.commit()?;
+    Ok(summary)
+}
+
+/// One keyframe read back for fusion.
+struct KeyframeMaps {
+    depth: DepthMap,
+    confidence: DepthMap,
+    colour: RgbImage,
+    gt: Option<DepthMap>,
+    camera: crate::geometry::PinholeCamera,
+    pose: crate::geometry::Pose,
+}
+
+fn load_keyframes(seq: &Sequence, cfg: &MapConfig, plan: &MapPlan, out: &Path) -> Result<Vec<KeyframeMaps>> {
+    let camera = seq.camera.at_level(cfg.keyframe.level);
+    plan.keyframes
+        .iter()
+        .map(|k| {
+            let dir = keyframe_dir(out, k.index);
+            let depth = read_pfm(&dir.join(depth_file(cfg)))?;
+            let confidence = read_pfm(&dir.join("confidence.pfm"))?;
+            let colour = load_rgb(&dir.join("keyframe.png"))?;
+            let frame = &seq.frames[k.index];
+            let gt = match &frame.depth {
+                Some(_) => seq.load_frame(k.index)?.depth.map(|d| depth_at_level(&d, cfg.keyframe.level)),
+                None => None,
+            };
+            Ok(KeyframeMaps { depth, confidence, colour, gt, camera, pose: frame.pose })
+        })
+        .collect()
+}
+
+fn cap(depth: &DepthMap, max: f64) -> DepthMap {
+    depth.mapv(|z| if is_valid_depth(z) && (z as f64) <= max { z } else { 0.0 })
+}
+
+fn add_points(b: &mut Aabb, depth: &DepthMap, m: &KeyframeMaps, max: f64) {
+    for ((y, x), &z) in depth.indexed_iter() {
+        if is_valid_depth(z) && (z as f64) <= max {
+            let p = m.pose * nalgebra::Point3::from(m.camera.ray(x as f64, y as f64) * z as f64);
+            b.add([p.x, p.y, p.z]);
+        }
+    }
+}
+
+/// `mesh.png`: rows = (estimate, ground truth), columns = (the middle keyframe's camera, an oblique
+/// view from above).
+fn pictures(mesh: &Mesh, gt: Option<&Mesh>, maps: &[KeyframeMaps]) -> RgbImage {
+    let up = -maps.iter().map(|m| m.pose.rotation * Vector3::y()).sum::<Vector3<f64>>();
+    let forward = maps.iter().map(|m| m.pose.rotation * Vector3::z()).sum::<Vector3<f64>>();
+    let mid = &maps[maps.len() / 2];
+    let scale = 480.0 / mid.camera.width as f64;
+    let c = mid.camera;
+    let cam = crate::geometry::PinholeCamera {
+        fx: c.fx * scale,
+        fy: c.fy * scale,
+        cx: (c.cx + 0.5) * scale - 0.5,
+        cy: (c.cy + 0.5) * scale - 0.5,
+        width: 480,
+        height: ((c.height as f64 * scale).round() as usize).max(1),
+    };
+    let pinhole = View::Pinhole { camera: cam, pose: mid.pose };
+    let oblique = View::oblique(gt.unwrap_or(mesh), up, forward, 50.0, (480, 360));
+    let mut rows = vec![vec![render(mesh, &pinhole), render(mesh, &oblique)]];
+    if let Some(g) = gt {
+        rows.push(vec![render(g, &pinhole), render(g, &oblique)]);
+    }
+    tile(&rows)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn map_json(
+    seq: &Sequence,
+    cfg: &MapConfig,
+    s: &MapSummary,
+    grid: &VoxelGrid,
+    mesh: &Mesh,
+    gt_mesh: Option<&Mesh>,
+    est: &Tsdf,
+    gt_volume: Option<&Tsdf>,
+) -> serde_json::Value {
+    let computed: Vec<f64> = s.timings.keyframes.iter().map(|k| k.1).collect();
+    let per_kf =
+        if computed.is_empty() { None } else { Some(computed.iter().sum::<f64>() / computed.len() as f64) };
+    json!({
+        "sequence": seq.root.display().to_string(),
+        "frames": [cfg.frames.0, cfg.frames.1],
+        "keyframe_rule": cfg.rule,
+        "keyframes": s.plan.keyframes,
+        "resumed_keyframes": s.resumed,
+        "mapping": {
+            "features": format!("{:?}", cfg.keyframe.features),
+            "regularizer": cfg.keyframe.regularizer,
+            "bins": cfg.keyframe.bins,
+            "depth_range_m": [cfg.keyframe.near, cfg.keyframe.far],
+            "level": cfg.keyframe.level,
+            "min_confidence": cfg.min_confidence,
+        },
+        "fusion": {
+            "voxel_m": cfg.voxel,
+            "truncation_m": cfg.truncation,
+            "max_fusion_depth_m": cfg.max_fusion_depth,
+            "grid": grid,
+            "volume_bytes": grid.bytes() * if gt_volume.is_some() { 2 } else { 1 },
+            "volume_bytes_bound": s.plan.fusion_bytes_bound,
+            "observed_voxels": est.observed(),
+            "observed_voxels_gt": gt_volume.map(Tsdf::observed),
+        },
+        "mesh": { "vertices": mesh.vertices.len(), "triangles": mesh.triangles.len(), "edges": mesh.edge_report() },
+        "mesh_gt": gt_mesh.map(|g| json!({
+            "vertices": g.vertices.len(), "triangles": g.triangles.len(), "edges": g.edge_report()
+        })),
+        "metrics": s.metrics,
+        "timings_s": s.timings,
+        "seconds_per_keyframe": per_kf,
+    })
+}
+
+fn write_text(path: &Path, text: &str) -> Result<()> {
+    write_atomic_with(path, |w| w.write_all(text.as_bytes()))
+}

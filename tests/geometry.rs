@@ -46,7 +46,9 @@ proptest! {
         prop_assume!(direct.is_some() && first.is_some());
         let (direct, first) = (direct.unwrap(), first.unwrap());
         let second = Warp::new(&k, &k, &t_ab).apply(first.uv.x, first.uv.y, first.rho).unwrap();
-        prop_assert!((second.uv - direct.uv).norm() < 1e-7, "{:?} vs {:?}", second.uv, direct.uv);
+        // Relative to the projection's size: a point next to camera a's image plane projects millions of
+        // pixels out, where f64 rounding of the two routes differs by ~1e-16 of that.
+        prop_assert!((second.uv - direct.uv).norm() < 1e-7 * (1.0 + direct.uv.coords.norm()), "{:?} vs {:?}", second.uv, direct.uv);
         prop_assert!((second.rho - direct.rho).abs() < 1e-9 * (1.0 + direct.rho));
     }
 

@@ -93,12 +93,13 @@ impl Backend for CpuBackend {
         Ok(Tensor::host(deconv2d(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view())?))
     }
 
-    fn deconv5x5s2_add(&self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
-        let (x, skip) = (host(self.name(), x)?, host(self.name(), skip)?);
+    fn deconv5x5s2_add(&self, x_map: &Tensor, l: &LayerParams, skip_map: &Tensor) -> Result<Tensor> {
+        let (x, skip) = (host(self.name(), x_map)?, host(self.name(), skip_map)?);
         let g = deconv_geometry(x.dim(), l)?;
         if self.network.deconv != Deconv2dImpl::Direct || !direct_deconv_supported(&g) {
-            let up = deconv2d(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view())?;
-            return Ok(Tensor::host(add(skip.view(), up.view())?));
+            // The unfused ops, as the trait's default.
+            let up = self.deconv5x5s2(x_map, l)?;
+            return self.add(skip_map, &up);
         }
         expect_shape("U-Net skip map", skip.shape(), &g.output_shape())?;
         let packed = PackedDeconv2d::new(&g, l.weight.view(), l.bias.view())?;

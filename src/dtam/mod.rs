@@ -285,23 +285,15 @@ pub fn solve_with(
     let start = Instant::now();
     let costs = costs.as_standard_layout();
     let costs = costs.view();
-    let g = edge_weights(grey, params.alpha, params.beta);
     let range = CostRange::new(costs);
-    let mut tv = HuberTv::new(init.to_owned(), g, params.epsilon);
-    let mut a = init.to_owned();
-    let mut history = History::new(params);
-    for n in 0..params.max_iterations {
+    Ok(iterate(start, grey, init, params, bins, |n, tv, a| {
         let theta = params.theta(n);
         for _ in 0..params.steps_per_search {
             tv.step_with(a.view(), theta, dispatch);
         }
-        let m = search_with_energy(costs, &range, bins, &tv, theta, params.lambda, &mut a, dispatch);
-        if history.push(n, m.energy, m.gap, params, bins) {
-            break;
-        }
-    }
-    let report = history.report(start);
-    Ok((DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report))
+        let m = search_with_energy(costs, &range, bins, tv, theta, params.lambda, a, dispatch);
+        (m.energy, m.gap)
+    }))
 }
 
 /// The unfused formulation of [`solve`], kept as its definition: per iteration
@@ -321,25 +313,41 @@ pub fn solve_reference(
 ) -> Result<(DtamResult, DtamReport)> {
     check_inputs(costs, bins, grey, init, params)?;
     let start = Instant::now();
-    let g = edge_weights(grey, params.alpha, params.beta);
     let range = CostRange::new(costs);
-    let mut tv = HuberTv::new(init.to_owned(), g, params.epsilon);
-    let mut a = init.to_owned();
-    let mut history = History::new(params);
-    for n in 0..params.max_iterations {
+    Ok(iterate(start, grey, init, params, bins, |n, tv, a| {
         let theta = params.theta(n);
         for _ in 0..params.steps_per_search {
             tv.step_reference(a.view(), theta);
         }
-        a = exhaustive_search_reference(costs, &range, bins, tv.primal(), theta, params.lambda);
-        let e = total_energy(&tv, costs, bins, a.view(), theta, params.lambda);
-        let g = rms_gap(tv.primal(), a.view());
-        if history.push(n, e, g, params, bins) {
+        *a = exhaustive_search_reference(costs, &range, bins, tv.primal(), theta, params.lambda);
+        let e = total_energy(tv, costs, bins, a.view(), theta, params.lambda);
+        (e, rms_gap(tv.primal(), a.view()))
+    }))
+}
+
+/// The solve loop [`solve_with`] and [`solve_reference`] share (timed from `start`): edge weights, `d = a = init`, then
+/// `iteration(n, tv, a)` (which updates `d`, `q` and `a` and returns the energy and the gap) until
+/// the stopping rule of SPEC.md §10 or `max_iterations`.
+fn iterate(
+    start: Instant,
+    grey: ArrayView2<f32>,
+    init: ArrayView2<f32>,
+    params: &DtamParams,
+    bins: &InverseDepthBins,
+    mut iteration: impl FnMut(usize, &mut HuberTv, &mut Array2<f32>) -> (f64, f64),
+) -> (DtamResult, DtamReport) {
+    let g = edge_weights(grey, params.alpha, params.beta);
+    let mut tv = HuberTv::new(init.to_owned(), g, params.epsilon);
+    let mut a = init.to_owned();
+    let mut history = History::new(params);
+    for n in 0..params.max_iterations {
+        let (e, gap) = iteration(n, &mut tv, &mut a);
+        if history.push(n, e, gap, params, bins) {
             break;
         }
     }
     let report = history.report(start);
-    Ok((DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report))
+    (DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report)
 }
 
 pub(crate) fn check_inputs(

@@ -66,36 +66,43 @@ pub fn deconv2d_direct(
         ));
     }
     let pair_len = PARITIES * w_out * c_out;
+    let offsets = [packed.offsets(0), packed.offsets(1)];
     out.par_chunks_mut(pair_len).enumerate().for_each(|(m, pair)| {
         let skip = skip.map(|s| &s[m * pair_len..(m + 1) * pair_len]);
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `supported` checked AVX-512F and c_out = 32; lengths checked above.
         unsafe {
-            row_pair(packed, input, m, skip, pair)
+            row_pair(packed, &offsets, input, m, skip, pair)
         };
         #[cfg(not(target_arch = "x86_64"))]
-        let _ = (m, skip, pair);
+        let _ = (m, skip, pair, &offsets);
     });
     Ok(())
 }
 
-/// Output rows `2m`, `2m + 1` (`pair`, and `skip` alike: `2 · 2w · 32` floats).
+/// Output rows `2m`, `2m + 1` (`pair`, and `skip` alike: `2 · 2w · 32` floats); `offsets[q]` are
+/// parity `q`'s input offsets ([`PackedDeconv2d::offsets`]).
 ///
 /// # Safety
 /// AVX-512F, `c_out = 32`, slice lengths as [`deconv2d_direct`] checks.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn row_pair(packed: &PackedDeconv2d, input: &[f32], m: usize, skip: Option<&[f32]>, pair: &mut [f32]) {
+unsafe fn row_pair(
+    packed: &PackedDeconv2d,
+    offsets: &[Vec<isize>; PARITIES],
+    input: &[f32],
+    m: usize,
+    skip: Option<&[f32]>,
+    pair: &mut [f32],
+) {
     use crate::nn::conv2d::direct_avx512::{full_strip, short_strip, Store, Taps};
     let geom = packed.geometry();
     let (h, w, c_in, w_out) = (geom.h(), geom.w(), geom.c_in(), geom.w_out());
     let c = AVX512_C_OUT;
     let bias = packed.bias().as_ptr();
-    for qy in 0..PARITIES {
-        let dys = packed.offsets(qy);
-        let (ty_lo, ty_hi) = valid_taps(&dys, m, h);
-        for qx in 0..PARITIES {
-            let dxs = packed.offsets(qx);
+    for (qy, dys) in offsets.iter().enumerate() {
+        let (ty_lo, ty_hi) = valid_taps(dys, m, h);
+        for (qx, dxs) in offsets.iter().enumerate() {
             let weights = packed.parity_weights(qy, qx);
             let n_tx = dxs.len();
             // Taps of input columns n .. with tap columns tx_lo .. tx_hi inside the image.
@@ -119,15 +126,14 @@ unsafe fn row_pair(packed: &PackedDeconv2d, input: &[f32], m: usize, skip: Optio
                 skip: skip.map_or(std::ptr::null(), |s| s.as_ptr().wrapping_add(base)),
                 relu: false,
             };
-            let at = |n: usize| store.at(n);
             // Interior columns: every tap column inside the input.
             let n_lo = dxs.iter().map(|&d| (-d).max(0) as usize).max().unwrap_or(0).min(w);
             let n_hi = w.saturating_sub(dxs.iter().map(|&d| d.max(0) as usize).max().unwrap_or(0)).max(n_lo);
             for n in (0..n_lo).chain(n_hi..w) {
-                let (tx_lo, tx_hi) = valid_taps(&dxs, n, w);
+                let (tx_lo, tx_hi) = valid_taps(dxs, n, w);
                 // SAFETY: valid taps keep every read inside the h x w input; weights inside the
                 // parity's packed matrix; pixel (2m + qy, 2n + qx) inside `pair` (and `skip`).
-                unsafe { short_strip(1, &taps(n, tx_lo, tx_hi), bias, &at(n)) };
+                unsafe { short_strip(1, &taps(n, tx_lo, tx_hi), bias, &store.at(n)) };
             }
             let mut n = n_lo;
             while n < n_hi {
@@ -137,9 +143,9 @@ unsafe fn row_pair(packed: &PackedDeconv2d, input: &[f32], m: usize, skip: Optio
                 // their outputs are inside `pair`; AVX-512F per the caller.
                 unsafe {
                     if len == STRIP {
-                        full_strip(&t, bias, &at(n));
+                        full_strip(&t, bias, &store.at(n));
                     } else {
-                        short_strip(len, &t, bias, &at(n));
+                        short_strip(len, &t, bias, &store.at(n));
                     }
                 }
                 n += len;

@@ -13,6 +13,7 @@ use crate::mapping::keyframe::{
     KeyframeConfig, Regularizer, Stage, DEFAULT_BINS, DEFAULT_MAX_MEMORY_MB, DEFAULT_MIN_EVIDENCE,
 };
 use crate::mapping::output::DEFAULT_MIN_CONFIDENCE;
+use crate::mapping::photometric::PhotometricMode;
 use crate::mapping::{FeatureKind, KeyframeResult};
 
 /// Mapping flags (SPEC.md §10, §11).
@@ -68,6 +69,10 @@ pub struct MappingArgs {
     /// DTAM convergence: relative change of energy and d-a gap per iteration.
     #[arg(long, default_value_t = MAPPING_DEFAULTS.tolerance)]
     pub tolerance: f64,
+    /// Photometric calibration before matching: none, affine (per-frame gain and offset) or
+    /// affine-vignetting (plus one shared vignetting strength), SPEC.md §11.9.
+    #[arg(long, default_value = "none")]
+    pub photometric: PhotometricMode,
     /// Refuse to run when the estimated memory exceeds this many MiB.
     #[arg(long, default_value_t = DEFAULT_MAX_MEMORY_MB)]
     pub max_memory_mb: usize,
@@ -113,6 +118,7 @@ impl MappingArgs {
             min_evidence: self.min_evidence,
             lambda_sweep: Vec::new(),
             backend: self.backend.resolve()?,
+            photometric: self.photometric,
         })
     }
 }

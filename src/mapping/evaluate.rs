@@ -196,6 +196,7 @@ pub fn evaluate(
                 cost_volume: t.cost_volume / n,
                 wta: t.wta / n,
                 tv: t.tv / n,
+                photometric: t.photometric / n,
             };
             let cs: Vec<DepthMetrics> =
                 per_keyframe_conf.iter().filter(|(pm, _)| *pm == m).map(|(_, d)| *d).collect();
@@ -231,6 +232,7 @@ fn add_timings(sum: &mut StageTimings, t: &StageTimings) {
     sum.cost_volume += t.cost_volume;
     sum.wta += t.wta;
     sum.tv += t.tv;
+    sum.photometric += t.photometric;
 }
 
 /// Mean of per-keyframe metrics (`count` summed).
@@ -309,15 +311,16 @@ impl EvalTable {
     /// Mean wall time per keyframe by stage, as Markdown, one row per method.
     pub fn timings_markdown(&self) -> String {
         let mut s = String::from(
-            "| method | load s | features s | cost volume s | WTA s | TV s | total s |\n|---|---|---|---|---|---|---|\n",
+            "| method | load s | photometric s | features s | cost volume s | WTA s | TV s | total s |\n|---|---|---|---|---|---|---|---|\n",
         );
         for r in &self.rows {
             let t = &r.timings;
             let _ = writeln!(
                 s,
-                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
                 r.method,
                 t.load,
+                t.photometric,
                 t.features,
                 t.cost_volume,
                 t.wta,

@@ -21,6 +21,7 @@ use crate::eval::{depth_metrics, DepthMetrics};
 use crate::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
 use crate::image::{to_gray, DepthMap, RgbImage};
 use crate::mapping::features::downsample_to;
+use crate::mapping::photometric::{self, PhotometricFit, PhotometricMode};
 use crate::mapping::{FeatureExtractor, FeatureKind};
 use crate::sequence::Sequence;
 
@@ -80,6 +81,8 @@ pub struct KeyframeConfig {
     pub lambda_sweep: Vec<f64>,
     /// Where every op runs (network, cost volume, WTA, DTAM; SPEC.md §15).
     pub backend: Arc<dyn Backend>,
+    /// Photometric calibration of the window before matching (SPEC.md §11.9).
+    pub photometric: PhotometricMode,
 }
 
 /// Default of [`KeyframeConfig::bins`].
@@ -110,6 +113,7 @@ impl KeyframeConfig {
             min_evidence: DEFAULT_MIN_EVIDENCE,
             lambda_sweep: Vec::new(),
             backend: crate::backend::default_backend(),
+            photometric: PhotometricMode::None,
         }
     }
 
@@ -195,12 +199,14 @@ pub struct StageTimings {
     pub wta: f64,
     /// DTAM (0 without TV).
     pub tv: f64,
+    /// Photometric calibration (0 without it).
+    pub photometric: f64,
 }
 
 impl StageTimings {
     /// Sum of the stages.
     pub fn total(&self) -> f64 {
-        self.load + self.features + self.cost_volume + self.wta + self.tv
+        self.load + self.features + self.cost_volume + self.wta + self.tv + self.photometric
     }
 }
 
@@ -265,6 +271,8 @@ pub struct KeyframeResult {
     pub sweep: Vec<(f64, DepthEstimate)>,
     /// [`memory_estimate`] of this run, bytes.
     pub memory_estimate: u64,
+    /// The photometric fit used (the identity without calibration).
+    pub photometric: PhotometricFit,
 }
 
 impl KeyframeResult {
@@ -337,6 +345,22 @@ pub fn reconstruct(
     let t = Instant::now();
     let key = seq.load_frame(cfg.keyframe)?;
     timings.load += t.elapsed().as_secs_f64();
+    let photo = if cfg.photometric == PhotometricMode::None {
+        PhotometricFit::identity(live.len())
+    } else {
+        let t = Instant::now();
+        // Each live frame is loaded and reduced to the coarse level at once (only the coarse
+        // images are kept).
+        let lc = photometric::coarse_level(&seq.camera, level);
+        let coarse = |rgb: &RgbImage| downsample_to(rgb.view(), lc);
+        let all = live
+            .par_iter()
+            .map(|&m| seq.load_frame(m).and_then(|f| Ok((coarse(&f.rgb)?, f.pose))))
+            .collect::<Result<Vec<_>>>()?;
+        let fit = photometric::fit((&coarse(&key.rgb)?, &key.pose), &all, &seq.camera, &bins, lc)?;
+        timings.photometric = t.elapsed().as_secs_f64();
+        fit
+    };
     let t = Instant::now();
     let key_features = extractor.extract(&key.rgb)?.data;
     timings.features += t.elapsed().as_secs_f64();
@@ -379,7 +403,11 @@ pub fn reconstruct(
         let frame = loaded.pop_front().expect("a batch was just loaded");
         debug_assert_eq!(frame.index, n);
         let t = Instant::now();
-        let f = extractor.extract(&frame.rgb)?.data;
+        let f = if cfg.photometric == PhotometricMode::None {
+            extractor.extract(&frame.rgb)?.data
+        } else {
+            extractor.extract(&photo.correct_live(i, &frame.rgb))?.data
+        };
         timings.features += t.elapsed().as_secs_f64();
         let t = Instant::now();
         cv.add_frame(&backend.upload_owned(f)?, &relative_pose(&key.pose, &frame.pose))?;
@@ -443,6 +471,7 @@ pub fn reconstruct(
         cost_scale: scale,
         sweep,
         memory_estimate: estimate,
+        photometric: photo,
     })
 }
 

@@ -9,6 +9,7 @@ pub mod features;
 pub mod keyframe;
 pub mod keyframe_select;
 pub mod output;
+pub mod photometric;
 pub mod sequence_map;
 
 pub use evaluate::{evaluate, EvalOptions, EvalTable, Method};

@@ -81,7 +81,7 @@ def densefeat_features(binary, image, weights):
 
 
 def bench_densefeat(binary, size, stride, threads, runs):
-    out = subprocess.run([binary, "bench", "forward", "--size", size, "--b1-stride", str(stride), "--threads", str(threads), "--runs", str(runs)], check=True, capture_output=True, text=True).stdout
+    out = subprocess.run([binary, "bench", "forward", "--size", size, "--b1-stride", str(stride), "--threads", str(threads), "--runs", str(max(runs, 20))], check=True, capture_output=True, text=True).stdout
     row = [l for l in out.splitlines() if l.startswith(f"| {size} |")][0]
     return float(row.split("|")[5])
 
@@ -115,6 +115,8 @@ def main():
     ap.add_argument("--densefeat", default=str(ROOT / "target/release/densefeat"))
     ap.add_argument("--runs", type=int, default=20)
     args = ap.parse_args()
+    if args.runs < 1:
+        ap.error("--runs must be at least 1")
     print(f"torch {torch.__version__}, numpy {np.__version__}, cpus {os.cpu_count()}, load {os.getloadavg()}")
     ok = True
     with tempfile.TemporaryDirectory() as d:
@@ -142,7 +144,7 @@ def main():
                 rel = diff / mag
                 ok &= rel <= BUDGET
                 print(f"| {img.name} | {rgb.shape[1]}x{rgb.shape[0]} | {s} | {diff:.3e} | {mag:.3f} | {rel:.2e} | {BUDGET:.2e} | {'yes' if rel <= BUDGET else 'NO'} |")
-        print("\n## Timing: median ms (densefeat: `bench forward`, 20+ runs; PyTorch: inference_mode)\n")
+        print(f"\n## Timing: median ms (densefeat: `bench forward`, {max(args.runs, 20)} runs; PyTorch: inference_mode, {args.runs} runs)\n")
         print("| size | b1 stride | threads | densefeat ms | torch NCHW ms | torch channels_last ms | densefeat / best torch |")
         print("|---|---|---|---|---|---|---|")
         for size in ["320x240", "640x480"]:

@@ -25,6 +25,13 @@ pub enum Format {
     DeepVideoMvs,
     /// A rectified stereo pair (Middlebury, ETH3D) read as a two-frame sequence.
     Stereo,
+    /// A COLMAP sparse model (`cameras`, `images`, optional `points3D`; text or binary) with its
+    /// `images/` folder. Poses have no metric scale.
+    Colmap,
+    /// A nerfstudio / instant-ngp `transforms.json` (OpenGL camera axes).
+    Nerfstudio,
+    /// 7-Scenes as distributed: `frame-XXXXXX.color.png`, `.depth.png`, `.pose.txt`.
+    SevenScenes,
 }
 
 impl std::fmt::Display for Format {
@@ -33,6 +40,9 @@ impl std::fmt::Display for Format {
             Format::Tum => "TUM RGB-D",
             Format::DeepVideoMvs => "DeepVideoMVS / 7-Scenes",
             Format::Stereo => "rectified stereo pair",
+            Format::Colmap => "COLMAP sparse model",
+            Format::Nerfstudio => "nerfstudio / instant-ngp transforms.json",
+            Format::SevenScenes => "7-Scenes (native layout)",
         })
     }
 }
@@ -97,6 +107,9 @@ pub struct FrameInfo {
     pub rgb: PathBuf,
     /// Ground-truth depth, if any.
     pub depth: Option<DepthSource>,
+    /// Depth range `(near, far)` of the format's sparse points seen in this frame (COLMAP
+    /// `points3D`, SPEC.md §4a), in the sequence's length unit; `None` where the format has none.
+    pub sparse_depth_range: Option<(f64, f64)>,
 }
 
 /// Stereo-specific facts of a two-frame [`Format::Stereo`] sequence (frame 0 = left, 1 = right).
@@ -127,6 +140,9 @@ pub struct Sequence {
     pub frames: Vec<FrameInfo>,
     /// Present for stereo pairs.
     pub stereo: Option<StereoInfo>,
+    /// Whether lengths (pose translations, depths) are metres: `false` for formats without a metric
+    /// scale (COLMAP, `transforms.json` without depth) unless [`OpenOptions::scale`] was given.
+    pub metric: bool,
     /// What the reader decided on the user's behalf (calibration used, frames dropped, ...). Notes
     /// starting with [`WARNING_NOTE`] are warnings.
     pub notes: Vec<String>,
@@ -189,7 +205,7 @@ impl Sequence {
             (Some(d), true) if !d.is_identity() => Some(UndistortMap::new(&k, d)),
             _ => None,
         };
-        Ok(Self { format, root, camera: k, raw_camera, frames, stereo, notes, undistort: map })
+        Ok(Self { format, root, camera: k, raw_camera, frames, stereo, metric: true, notes, undistort: map })
     }
 
     /// Number of frames.
@@ -200,6 +216,32 @@ impl Sequence {
     /// Whether there are no frames (never true for a constructed sequence).
     pub fn is_empty(&self) -> bool {
         self.frames.is_empty()
+    }
+
+    /// Multiply every length by `scale` (pose translations, depth units, disparity `f b`, sparse
+    /// depth ranges, stereo baseline) and mark the sequence metric: `--scale` (SPEC.md §4a).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] unless `scale` is finite and positive.
+    pub fn rescale(&mut self, scale: f64) -> Result<()> {
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(Error::invalid_argument("--scale", format!("{scale}: must be a finite number > 0")));
+        }
+        for f in &mut self.frames {
+            f.pose.translation.vector *= scale;
+            f.sparse_depth_range = f.sparse_depth_range.map(|(a, b)| (a * scale, b * scale));
+            match &mut f.depth {
+                Some(DepthSource::Png16 { metres_per_unit, .. }) => *metres_per_unit *= scale,
+                Some(DepthSource::Disparity { focal_baseline, .. }) => *focal_baseline *= scale,
+                None => {}
+            }
+        }
+        if let Some(s) = &mut self.stereo {
+            s.baseline *= scale;
+        }
+        self.metric = true;
+        self.notes.push(format!("lengths scaled by {scale} (--scale): poses and depths are in metres"));
+        Ok(())
     }
 
     /// Whether frames are undistorted on load.
@@ -290,11 +332,16 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
 }
 
 pub mod calib;
+pub mod colmap;
 mod detect;
 pub mod disparity;
 mod dvmvs;
 mod dvmvs_write;
 pub mod inspect;
+mod nerfstudio;
+pub mod nerfstudio_write;
+mod sevenscenes;
+pub mod sevenscenes_write;
 mod stereo;
 mod text;
 mod tum;

@@ -333,6 +333,7 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
 
 pub mod calib;
 pub mod colmap;
+pub mod depth_range;
 mod detect;
 pub mod disparity;
 mod dvmvs;

@@ -13,12 +13,10 @@ mod write;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-pub use model::{
-    colmap_params, sparse_depth_range, CameraModel, MIN_RANGE_POINTS, RANGE_MARGIN, RANGE_PERCENTILES,
-    SUPPORTED_MODELS,
-};
+pub use model::{colmap_params, CameraModel, SUPPORTED_MODELS};
 pub use write::{write_model, ColmapExport};
 
+use super::depth_range::depth_range_of;
 use super::text::{list_colour_images, stem};
 use super::{Format, FrameInfo, OpenOptions, Sequence, WARNING_NOTE};
 use crate::error::{Error, Result};
@@ -98,7 +96,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
                         format!("image {} observes 3D point {id}, which points3D lacks", im.id),
                     )
                 })?;
-                let r = sparse_depth_range(z);
+                let r = depth_range_of(z);
                 without_range += usize::from(r.is_none());
                 r
             }

@@ -223,25 +223,6 @@ pub fn colmap_params(model: CameraModel, camera: &Camera) -> Result<Vec<f64>> {
     })
 }
 
-/// Smallest number of observed points for a per-frame sparse depth range.
-pub const MIN_RANGE_POINTS: usize = 8;
-/// Lower and upper percentiles of the observed points' depths.
-pub const RANGE_PERCENTILES: (f64, f64) = (0.02, 0.98);
-/// The percentile depths are widened by this factor: `near = p02 / f`, `far = p98 * f`.
-pub const RANGE_MARGIN: f64 = 1.25;
-
-/// The sparse depth range of one image from the depths `z > 0` of the points it observes
-/// (SPEC.md §4a): `(p02 / 1.25, p98 * 1.25)`, `None` with fewer than [`MIN_RANGE_POINTS`].
-pub fn sparse_depth_range(mut depths: Vec<f64>) -> Option<(f64, f64)> {
-    depths.retain(|z| z.is_finite() && *z > 0.0);
-    if depths.len() < MIN_RANGE_POINTS {
-        return None;
-    }
-    depths.sort_by(f64::total_cmp);
-    let at = |q: f64| depths[((depths.len() - 1) as f64 * q).round() as usize];
-    Some((at(RANGE_PERCENTILES.0) / RANGE_MARGIN, at(RANGE_PERCENTILES.1) * RANGE_MARGIN))
-}
-
 /// Depths in camera `t_cw` of the points `ids` (looked up in `points`).
 pub(crate) fn observed_depths(
     t_cw: &Pose,

@@ -79,8 +79,10 @@ impl<'a> Cursor<'a> {
             return Err(Error::bad_file(
                 self.path,
                 format!(
-                    "{what} at byte {} is {n}, but only {left} bytes follow (each entry needs at least {min_size})",
-                    self.pos - 8
+                    "{what} at byte {} of {} is {n}, but only {left} bytes follow (each entry needs at least \
+                     {min_size})",
+                    self.pos - 8,
+                    self.record
                 ),
             ));
         }

@@ -1,0 +1,158 @@
+//! nerfstudio / instant-ngp `transforms.json`.
+
+use std::path::Path;
+
+use densefeat::geometry::Camera;
+use densefeat::sequence::depth_range::depth_range_of;
+use densefeat::sequence::inspect::Summary;
+use densefeat::sequence::nerfstudio_write::NerfstudioWriter;
+use densefeat::sequence::{open, Format};
+use serde_json::Value;
+
+use crate::render::{
+    assert_error, assert_same_geometry, assert_warp_matches_renderer, render, reprojection_difference,
+    Rendered,
+};
+
+/// Depth PNGs store millimetres: a round trip is off by at most half a unit, plus f32 rounding.
+const DEPTH_TOLERANCE_M: f32 = 0.5e-3 + 1e-6;
+
+fn write(dir: &Path, r: &Rendered, per_frame: bool, depth: bool) {
+    let mut w = NerfstudioWriter::create(dir, Camera::pinhole(r.camera), per_frame).unwrap();
+    for (rgb, d, pose) in &r.frames {
+        w.push(rgb, depth.then_some(d), pose).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+#[test]
+fn transforms_json_round_trip_with_depth_is_metric() {
+    let r = render(96, 72, 4, None);
+    let d = tempfile::tempdir().unwrap();
+    write(d.path(), &r, false, true);
+    let seq = open(d.path()).unwrap();
+    assert_eq!(seq.format, Format::Nerfstudio);
+    assert!(seq.metric);
+    assert_same_geometry(&seq, &r);
+    for (a, b) in [(0, 1), (0, 3), (3, 2)] {
+        let e = reprojection_difference(&seq, &r, a, b);
+        assert!(e < crate::render::REPROJECTION_TOLERANCE_PX, "{a} -> {b}: {e:e} px");
+    }
+    // The depth read back is the rendered depth within the PNG quantisation.
+    for (i, (_, want, _)) in r.frames.iter().enumerate() {
+        let got = seq.load_frame(i).unwrap().depth.unwrap();
+        let worst = got.iter().zip(want).map(|(g, w)| (g - w).abs()).fold(0.0f32, f32::max);
+        assert!(worst <= DEPTH_TOLERANCE_M, "frame {i}: depth off by {worst} m");
+    }
+    assert_warp_matches_renderer(&seq, &r, 0, 1, None);
+    // --depth-range auto on ground-truth depth: the rule applied to the frame's valid depths.
+    let z: Vec<f64> = seq.load_frame(2).unwrap().depth.unwrap().iter().map(|v| f64::from(*v)).collect();
+    assert_eq!(seq.estimate_depth_range(2).unwrap(), depth_range_of(z));
+    let text = Summary::new(&seq).unwrap().to_string();
+    eprintln!("{text}");
+    for part in [
+        "format       nerfstudio / instant-ngp transforms.json",
+        "scale        metric",
+        "consistency  pose/depth",
+    ] {
+        assert!(text.contains(part), "inspect output lacks {part:?}");
+    }
+}
+
+#[test]
+fn transforms_json_per_frame_intrinsics_without_depth_warns_of_scale() {
+    let r = render(96, 72, 3, None);
+    let d = tempfile::tempdir().unwrap();
+    write(d.path(), &r, true, false);
+    let seq = open(d.path()).unwrap();
+    assert!(!seq.metric);
+    assert_same_geometry(&seq, &r);
+    assert!(reprojection_difference(&seq, &r, 0, 2) < crate::render::REPROJECTION_TOLERANCE_PX);
+    let text = Summary::new(&seq).unwrap().to_string();
+    assert!(text.contains("transforms.json without depth maps: the pose scale is unknown"), "{text}");
+}
+
+fn edit_json(dir: &Path, f: impl FnOnce(&mut Value)) {
+    let p = dir.join("transforms.json");
+    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    f(&mut v);
+    std::fs::write(&p, serde_json::to_string_pretty(&v).unwrap()).unwrap();
+}
+
+#[test]
+fn transforms_json_camera_angle_and_paths_without_extension() {
+    let r = render(96, 72, 2, None);
+    let d = tempfile::tempdir().unwrap();
+    write(d.path(), &r, false, false);
+    edit_json(d.path(), |v| {
+        let o = v.as_object_mut().unwrap();
+        for k in ["fl_x", "fl_y", "cx", "cy", "w", "h"] {
+            o.remove(k);
+        }
+        o.insert("camera_angle_x".into(), (2.0 * (48.0 / r.camera.fx).atan()).into());
+        for f in o["frames"].as_array_mut().unwrap() {
+            let p = f["file_path"].as_str().unwrap().trim_end_matches(".png").to_string();
+            f["file_path"] = p.into();
+        }
+    });
+    let seq = open(d.path()).unwrap();
+    let k = seq.camera;
+    assert!((k.fx - r.camera.fx).abs() < 1e-9 && (k.fy - r.camera.fy).abs() < 1e-9, "{k:?}");
+    // Without cx, cy the principal point is the image centre, w / 2 - 0.5 in our convention.
+    assert_eq!((k.cx, k.cy), (47.5, 35.5));
+    assert_eq!(seq.len(), 2);
+}
+
+#[test]
+fn transforms_json_malformed_inputs_name_file_and_entry() {
+    let r = render(48, 36, 2, None);
+    let fresh = || {
+        let d = tempfile::tempdir().unwrap();
+        write(d.path(), &r, false, true);
+        d
+    };
+    let d = fresh();
+    std::fs::write(d.path().join("transforms.json"), "{\n  \"frames\": [\n    {\"file_path\": }\n  ]\n}\n")
+        .unwrap();
+    assert_error(open(d.path()), &["transforms.json:3:", "not valid JSON"]);
+    type Edit = Box<dyn Fn(&mut Value)>;
+    let cases: Vec<(Edit, Vec<&str>)> = vec![
+        (
+            Box::new(|v| drop(v["frames"][1].as_object_mut().unwrap().remove("transform_matrix"))),
+            vec!["transforms.json", "frames[1]", "transform_matrix"],
+        ),
+        (
+            Box::new(|v| drop(v["frames"][0]["transform_matrix"].as_array_mut().unwrap().pop())),
+            vec!["frames[0]", "4 rows of 4 numbers"],
+        ),
+        (
+            Box::new(|v| v["frames"][0]["transform_matrix"][0][0] = "a".into()),
+            vec!["frames[0]", "is not a number"],
+        ),
+        (
+            Box::new(|v| v["frames"][0]["transform_matrix"][0][0] = 3.0.into()),
+            vec!["frames[0]", "not orthonormal"],
+        ),
+        (
+            Box::new(|v| v["frames"][1]["file_path"] = "images/nope.png".into()),
+            vec!["frames[1]", "nope.png", "does not exist"],
+        ),
+        (
+            Box::new(|v| v["frames"][1]["depth_file_path"] = "depth/nope.png".into()),
+            vec!["frames[1]", "depth/nope.png"],
+        ),
+        (
+            Box::new(|v| drop(v["frames"][1].as_object_mut().unwrap().remove("depth_file_path"))),
+            vec!["1 of 2 frames have depth_file_path"],
+        ),
+        (Box::new(|v| v["frames"][1]["fl_x"] = 99.0.into()), vec!["frames[1]", "differ from frames[0]"]),
+        (Box::new(|v| v["camera_model"] = "OPENCV_FISHEYE".into()), vec!["camera_model \"OPENCV_FISHEYE\""]),
+        (Box::new(|v| v["fl_x"] = (-3.0).into()), vec!["frames[0]", "fx"]),
+        (Box::new(|v| v["frames"] = Value::Array(vec![])), vec!["\"frames\" is empty"]),
+    ];
+    for (f, parts) in cases {
+        let d = fresh();
+        edit_json(d.path(), f);
+        assert_error(open(d.path()), &parts);
+    }
+}

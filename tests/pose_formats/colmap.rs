@@ -261,3 +261,49 @@ fn colmap_binary_malformed_inputs_name_record_and_offset() {
     std::fs::write(&cameras, &c).unwrap();
     assert_error(open(d.path()), &["cameras.bin", "record 0 (byte offset 8)", "unknown camera model id 99"]);
 }
+
+#[test]
+fn colmap_cli_inspect_warns_and_map_needs_scale_then_runs_with_auto_range() {
+    use std::process::Command;
+    let r = render(96, 72, 4, None);
+    let d = tempfile::tempdir().unwrap();
+    write(d.path(), &r, "sparse/0", false);
+    let exe = env!("CARGO_BIN_EXE_densefeat");
+    let out = Command::new(exe).arg("inspect").arg(d.path()).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("WARNING      COLMAP poses have no metric scale"), "{stdout}");
+    let o = d.path().join("out");
+    let map = |extra: &[&str]| {
+        Command::new(exe)
+            .args([
+                "map",
+                "--features",
+                "rgb",
+                "--regularizer",
+                "none",
+                "--bins",
+                "16",
+                "--voxel-size",
+                "0.1",
+            ])
+            .arg("--sequence")
+            .arg(d.path())
+            .arg("--out")
+            .arg(&o)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let refused = map(&[]);
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success());
+    assert!(stderr.contains("invalid --scale") && stderr.contains("has no metric scale"), "{stderr}");
+    let ran = map(&["--scale", "1", "--depth-range", "auto"]);
+    assert!(ran.status.success(), "{}", String::from_utf8_lossy(&ran.stderr));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(o.join("map.json")).unwrap()).unwrap();
+    let text = json.to_string();
+    assert!(text.contains("\"depth_range_auto\":true"), "{text}");
+    assert!(text.contains("\"depth_range\":["), "map.json lists each keyframe's estimated range: {text}");
+}

@@ -156,7 +156,8 @@ fn line(path: &Path, n: usize) -> String {
 #[test]
 fn colmap_text_malformed_inputs_name_file_and_line() {
     // images.txt: 3 comment lines, then image 1 on line 4, its points on line 5, image 2 on line 6.
-    let cases: Vec<(&str, usize, Box<dyn Fn(String) -> String>, Vec<&str>)> = vec![
+    type LineEdit = Box<dyn Fn(String) -> String>;
+    let cases: Vec<(&str, usize, LineEdit, Vec<&str>)> = vec![
         ("images.txt", 4, Box::new(|l| l.replacen(' ', " x", 1)), vec!["images.txt:4:", "quaternion", "\"x"]),
         (
             "images.txt",

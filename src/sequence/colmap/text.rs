@@ -94,7 +94,7 @@ pub(crate) fn read_images(path: &Path) -> Result<Vec<RawImage>> {
 /// The 2D points line `(X Y POINT3D_ID)*` at 1-based line `number`: the observed point ids.
 fn read_points2d(path: &Path, number: usize, text: &str) -> Result<Vec<u64>> {
     let f: Vec<&str> = text.split_whitespace().collect();
-    if f.len() % 3 != 0 {
+    if !f.len().is_multiple_of(3) {
         return Err(Error::parse(
             path,
             number,
@@ -132,7 +132,7 @@ pub(crate) fn read_points(path: &Path) -> Result<Vec<RawPoint>> {
     let mut out = Vec::new();
     for l in data_lines(path)? {
         l.expect_at_least(path, 8, "`POINT3D_ID X Y Z R G B ERROR TRACK[]`")?;
-        if (l.fields.len() - 8) % 2 != 0 {
+        if !(l.fields.len() - 8).is_multiple_of(2) {
             return Err(Error::parse(
                 path,
                 l.number,

@@ -187,6 +187,18 @@ fn colmap_text_malformed_inputs_name_file_and_line() {
         ("images.txt", 5, Box::new(|l| l + " 3.5"), vec!["images.txt:5:", "multiple of 3"]),
         ("images.txt", 5, Box::new(|l| l + " 1 2 999999"), vec!["images.txt:4:", "3D point 999999"]),
         (
+            "images.txt",
+            6,
+            Box::new(|l| l.replace("0001.png", "0000.png")),
+            vec!["images.txt:6:", "\"0000.png\" is registered twice"],
+        ),
+        (
+            "cameras.txt",
+            3,
+            Box::new(|l| format!("{l}\n{l}")),
+            vec!["cameras.txt:4:", "camera id 1 is defined twice"],
+        ),
+        (
             "cameras.txt",
             3,
             Box::new(|l| l.replace("PINHOLE", "FOO")),
@@ -307,4 +319,56 @@ fn colmap_cli_inspect_warns_and_map_needs_scale_then_runs_with_auto_range() {
     let text = json.to_string();
     assert!(text.contains("\"depth_range_auto\":true"), "{text}");
     assert!(text.contains("\"depth_range\":["), "map.json lists each keyframe's estimated range: {text}");
+}
+
+#[test]
+fn colmap_opencv_images_are_undistorted_onto_the_pinhole_rendering() {
+    // A smooth pattern seen through a distorted camera (as `tests/image_ops.rs` does), written as
+    // 8-bit PNGs with an OPENCV model: loading undistorts it onto the pinhole rendering within half
+    // a grey level of quantisation plus half of interpolation, in the interior.
+    use densefeat::geometry::PinholeCamera;
+    use densefeat::sequence::open_with;
+    use ndarray::Array3;
+    let k = PinholeCamera::new(120.0, 118.0, 63.5, 47.5, 128, 96).unwrap();
+    let d = RadTan { k1: -0.2, k2: 0.05, p1: 2e-3, p2: -1e-3, k3: 0.0 };
+    let pattern = |x: f64, y: f64| 128.0 + 100.0 * (8.0 * x).sin() * (6.0 * y).cos();
+    let pinhole = Array3::from_shape_fn((96, 128, 3), |(v, u, _)| {
+        let r = k.ray(u as f64, v as f64);
+        pattern(r.x, r.y) as f32
+    });
+    let raw = Array3::from_shape_fn((96, 128, 3), |(v, u, _)| {
+        let r = k.ray(u as f64, v as f64);
+        let (x, y) = d.undistort(r.x, r.y).unwrap();
+        pattern(x, y) as f32
+    });
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("images")).unwrap();
+    let mut images = Vec::new();
+    for i in 0..2 {
+        save_rgb_png(&dir.path().join("images").join(format!("{i:04}.png")), &raw).unwrap();
+        images.push((format!("{i:04}.png"), nalgebra::Isometry3::translation(0.1 * i as f64, 0.0, 0.0)));
+    }
+    let e = ColmapExport {
+        model: CameraModel::Opencv,
+        camera: Camera { pinhole: k, distortion: Some(d) },
+        images,
+        points: Vec::new(),
+        observations: vec![Vec::new(), Vec::new()],
+    };
+    write_model(&dir.path().join("sparse/0"), &e, true).unwrap();
+    let worst = |undistort: bool| {
+        let seq = open_with(dir.path(), &OpenOptions { undistort, ..OpenOptions::default() }).unwrap();
+        let rgb = seq.load_frame(1).unwrap().rgb;
+        let mut w = 0.0f32;
+        for v in 6..90 {
+            for u in 6..122 {
+                w = w.max((rgb[[v, u, 0]] - pinhole[[v, u, 0]]).abs());
+            }
+        }
+        w
+    };
+    let (on, off) = (worst(true), worst(false));
+    eprintln!("worst grey error against the pinhole rendering: undistorted {on:.3}, raw {off:.3}");
+    assert!(on < 1.0, "undistorted worst error {on}");
+    assert!(off > 10.0 * on, "distortion must matter in this test: raw worst error {off}");
 }

@@ -77,6 +77,10 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
     let images_dir = root.join("images");
     let mut sorted: Vec<&RawImage> = images.iter().collect();
     sorted.sort_by(|a, b| a.name.cmp(&b.name));
+    if let Some(w) = sorted.windows(2).find(|w| w[0].name == w[1].name) {
+        let later = if w[0].loc.order() > w[1].loc.order() { w[0] } else { w[1] };
+        return Err(later.loc.error(&img_path, format!("image name {:?} is registered twice", later.name)));
+    }
     let mut frames = Vec::with_capacity(sorted.len());
     let mut without_range = 0;
     for im in sorted {
@@ -142,6 +146,11 @@ fn shared_camera(
     cam_path: &Path,
     img_path: &Path,
 ) -> Result<crate::geometry::Camera> {
+    for (i, c) in cameras.iter().enumerate() {
+        if cameras[..i].iter().any(|o| o.id == c.id) {
+            return Err(c.loc.error(cam_path, format!("camera id {} is defined twice", c.id)));
+        }
+    }
     let mut used: Option<&RawCamera> = None;
     for im in images {
         let c = cameras.iter().find(|c| c.id == im.camera_id).ok_or_else(|| {

@@ -94,6 +94,14 @@ pub(crate) enum Loc {
 }
 
 impl Loc {
+    /// Position in the file, for ordering records.
+    pub fn order(self) -> usize {
+        match self {
+            Loc::Line(n) => n,
+            Loc::Record { index, .. } => index,
+        }
+    }
+
     /// An error about this record of `path`.
     pub fn error(self, path: &Path, what: impl Into<String>) -> Error {
         match self {

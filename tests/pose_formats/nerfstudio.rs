@@ -156,3 +156,43 @@ fn transforms_json_malformed_inputs_name_file_and_entry() {
         assert_error(open(d.path()), &parts);
     }
 }
+
+#[test]
+fn transforms_json_reconstructs_as_the_deepvideomvs_layout_does() {
+    // The same rendered frames through two readers: the keyframe reconstruction (RGB features, TV,
+    // range from the ground truth by `--depth-range auto`'s rule) must agree, so the reader changes
+    // nothing the mapper sees beyond rounding in the last bits of the poses.
+    use densefeat::mapping::keyframe::{reconstruct, KeyframeConfig};
+    use densefeat::sequence::DvmvsWriter;
+    let r = render(96, 72, 7, None);
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    write(a.path(), &r, false, true);
+    let mut w = DvmvsWriter::create(b.path(), r.camera).unwrap();
+    for (rgb, d, pose) in &r.frames {
+        w.push(rgb, d, pose).unwrap();
+    }
+    w.finish().unwrap();
+    let (ns, dv) = (open(a.path()).unwrap(), open(b.path()).unwrap());
+    assert_eq!(dv.format, Format::DeepVideoMvs);
+    let range = ns.estimate_depth_range(3).unwrap().unwrap();
+    assert_eq!(Some(range), dv.estimate_depth_range(3).unwrap());
+    let mut cfg = KeyframeConfig::new(3, range.0, range.1);
+    (cfg.past, cfg.future, cfg.bins) = (3, 3, 32);
+    let run = |seq| {
+        let res = reconstruct(seq, &cfg, |_, _, _| {}).unwrap();
+        let m = res.metrics(res.tv.as_ref().unwrap()).unwrap();
+        eprintln!(
+            "{}: range {:.3}..{:.3} m, TV rms {:.4} m, abs rel {:.4}, δ<1.25 {:.4}",
+            seq.format, range.0, range.1, m.rms, m.abs_rel, m.delta_1_25
+        );
+        m
+    };
+    let (m_ns, m_dv) = (run(&ns), run(&dv));
+    for (x, y, name) in [
+        (m_ns.rms, m_dv.rms, "rms"),
+        (m_ns.abs_rel, m_dv.abs_rel, "abs rel"),
+        (m_ns.delta_1_25, m_dv.delta_1_25, "δ<1.25"),
+    ] {
+        assert!((x - y).abs() <= 1e-3 * y.abs().max(1e-3), "{name}: transforms.json {x} vs DeepVideoMVS {y}");
+    }
+}

@@ -124,6 +124,27 @@ pub fn resolve_depth_range(range: DepthRange, seq: &Sequence, keyframe: usize) -
     }
 }
 
+/// Open `path` with `scale` (`--scale`), refusing a sequence without a metric scale when `scale` is
+/// `None` (SPEC.md §4a).
+///
+/// # Errors
+/// Opening errors; [`Error::InvalidArgument`] naming `--scale`.
+pub fn open_metric(path: &Path, scale: Option<f64>) -> Result<Sequence> {
+    let seq = open_with(path, &OpenOptions { scale, ..OpenOptions::default() })?;
+    if !seq.metric {
+        return Err(Error::invalid_argument(
+            "--scale",
+            format!(
+                "{} ({}) has no metric scale: pass --scale METRES_PER_UNIT (--scale 1 keeps the model's \
+                 units, and then --depth-range, --voxel-size and the other lengths are in those units)",
+                path.display(),
+                seq.format
+            ),
+        ));
+    }
+    Ok(seq)
+}
+
 impl MappingArgs {
     /// Open `path` with `--scale`, refusing a sequence without a metric scale when `--scale` is
     /// absent (SPEC.md §4a).
@@ -131,19 +152,7 @@ impl MappingArgs {
     /// # Errors
     /// Opening errors; [`Error::InvalidArgument`] naming `--scale`.
     pub fn open_sequence(&self, path: &Path) -> Result<Sequence> {
-        let seq = open_with(path, &OpenOptions { scale: self.scale, ..OpenOptions::default() })?;
-        if !seq.metric {
-            return Err(Error::invalid_argument(
-                "--scale",
-                format!(
-                    "{} ({}) has no metric scale: pass --scale METRES_PER_UNIT (--scale 1 keeps the model's \
-                     units, and then --depth-range, --voxel-size and the other lengths are in those units)",
-                    path.display(),
-                    seq.format
-                ),
-            ));
-        }
-        Ok(seq)
+        open_metric(path, self.scale)
     }
 
     /// A configuration for `keyframe` of `seq` with these flags (`--depth-range auto` resolved at

@@ -71,6 +71,20 @@ pub enum DepthSource {
         /// An extra "no depth" value (7-Scenes: 65535).
         invalid: Option<u16>,
     },
+    /// A 16-bit grey PNG smaller than the colour images, with their aspect ratio (phone depth in
+    /// `transforms.json`): `z = value * metres_per_unit`, 0 = no depth, upsampled to `width x height`
+    /// by nearest neighbour with pixel centres aligned (colour pixel `x` reads depth pixel
+    /// `round((x + 0.5) w_d / W - 0.5)`, likewise `y`; SPEC.md §4a).
+    Png16Upsampled {
+        /// The file.
+        path: PathBuf,
+        /// Metres per stored unit.
+        metres_per_unit: f64,
+        /// The camera's width.
+        width: usize,
+        /// The camera's height.
+        height: usize,
+    },
     /// A disparity map, converted with `z = focal_baseline / (d + doffs)` (`focal_baseline = f b`, in metres
     /// times pixels, or in baseline units when uncalibrated).
     Disparity {
@@ -89,7 +103,9 @@ impl DepthSource {
     /// The file the depth is read from.
     pub fn path(&self) -> &Path {
         match self {
-            DepthSource::Png16 { path, .. } | DepthSource::Disparity { path, .. } => path,
+            DepthSource::Png16 { path, .. }
+            | DepthSource::Png16Upsampled { path, .. }
+            | DepthSource::Disparity { path, .. } => path,
         }
     }
 }
@@ -189,8 +205,10 @@ impl Sequence {
                 files.push(d.path());
             }
             for path in files {
-                if d_is_pfm(path) {
-                    continue; // PFM sizes are checked when loaded
+                if d_is_pfm(path)
+                    || matches!(&f.depth, Some(DepthSource::Png16Upsampled { path: p, .. }) if p == path)
+                {
+                    continue; // PFM sizes are checked when loaded; upsampled depth by its reader
                 }
                 let (w, h) = image::read_dimensions(path)?;
                 if (w, h) != (k.width, k.height) {
@@ -231,7 +249,10 @@ impl Sequence {
             f.pose.translation.vector *= scale;
             f.sparse_depth_range = f.sparse_depth_range.map(|(a, b)| (a * scale, b * scale));
             match &mut f.depth {
-                Some(DepthSource::Png16 { metres_per_unit, .. }) => *metres_per_unit *= scale,
+                Some(
+                    DepthSource::Png16 { metres_per_unit, .. }
+                    | DepthSource::Png16Upsampled { metres_per_unit, .. },
+                ) => *metres_per_unit *= scale,
                 Some(DepthSource::Disparity { focal_baseline, .. }) => *focal_baseline *= scale,
                 None => {}
             }
@@ -317,6 +338,10 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
         DepthSource::Png16 { path, metres_per_unit, invalid } => {
             image::load_depth_png(path, *metres_per_unit, *invalid)
         }
+        DepthSource::Png16Upsampled { path, metres_per_unit, width, height } => {
+            let d = image::load_depth_png(path, *metres_per_unit, None)?;
+            Ok(upsample_nearest(&d, *width, *height))
+        }
         DepthSource::Disparity { path, encoding, focal_baseline, doffs } => {
             let d = disparity::load_disparity(path, *encoding)?;
             Ok(d.mapv(|v| {
@@ -329,6 +354,17 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
             }))
         }
     }
+}
+
+/// `d` resampled to `width x height` by nearest neighbour with pixel centres aligned: output pixel
+/// `x` reads `round((x + 0.5) w_d / width - 0.5)` (half away from zero, clamped), likewise `y`.
+pub fn upsample_nearest(d: &DepthMap, width: usize, height: usize) -> DepthMap {
+    let (hd, wd) = d.dim();
+    let src = |x: usize, n_out: usize, n_in: usize| {
+        let s = ((x as f64 + 0.5) * n_in as f64 / n_out as f64 - 0.5).round();
+        (s.max(0.0) as usize).min(n_in - 1)
+    };
+    Array2::from_shape_fn((height, width), |(y, x)| d[[src(y, height, hd), src(x, width, wd)]])
 }
 
 pub mod calib;

@@ -102,6 +102,12 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             }
             Some(_) => {}
         }
+        let depth = match depth {
+            Some(DepthSource::Png16 { path: p, metres_per_unit, .. }) => {
+                Some(fit_depth(p, metres_per_unit, &cam.pinhole).map_err(at)?)
+            }
+            other => other,
+        };
         frames.push(FrameInfo {
             name: stem(&rgb),
             timestamp: None,
@@ -210,4 +216,31 @@ fn frame_camera(
     let c = |k: &str| get.get(k).copied().unwrap_or(0.0);
     let d = RadTan { k1: c("k1"), k2: c("k2"), p1: c("p1"), p2: c("p2"), k3: c("k3") };
     Ok(Camera { pinhole, distortion: (!d.is_identity()).then_some(d) })
+}
+
+/// Largest relative difference between the depth and colour aspect ratios for upsampling.
+pub const ASPECT_TOLERANCE: f64 = 0.01;
+
+/// The depth source for a depth PNG: as is at the camera's size, upsampled when smaller with the
+/// same aspect ratio (within [`ASPECT_TOLERANCE`]), else an error.
+fn fit_depth(
+    path: PathBuf,
+    metres_per_unit: f64,
+    k: &PinholeCamera,
+) -> std::result::Result<DepthSource, String> {
+    let (w, h) = read_dimensions(&path).map_err(|e| e.to_string())?;
+    if (w, h) == (k.width, k.height) {
+        return Ok(DepthSource::Png16 { path, metres_per_unit, invalid: None });
+    }
+    let aspect = |a: usize, b: usize| a as f64 / b as f64;
+    let same_aspect = (aspect(w, h) / aspect(k.width, k.height) - 1.0).abs() <= ASPECT_TOLERANCE;
+    if w < k.width && h < k.height && same_aspect {
+        return Ok(DepthSource::Png16Upsampled { path, metres_per_unit, width: k.width, height: k.height });
+    }
+    Err(format!(
+        "depth {} is {w}x{h}: it must be the colour size {}x{} or smaller with the same aspect ratio",
+        path.display(),
+        k.width,
+        k.height
+    ))
 }

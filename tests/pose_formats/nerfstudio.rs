@@ -196,3 +196,33 @@ fn transforms_json_reconstructs_as_the_deepvideomvs_layout_does() {
         assert!((x - y).abs() <= 1e-3 * y.abs().max(1e-3), "{name}: transforms.json {x} vs DeepVideoMVS {y}");
     }
 }
+
+#[test]
+fn transforms_json_smaller_depth_is_upsampled_with_centres_aligned() {
+    // Phone exports store depth below the colour resolution. Half-size depth maps (depth pixel j
+    // = rendered pixel 2j) upsample so that colour pixels 2j and 2j + 1 read depth pixel j: the
+    // even pixels get the rendered depth back within the PNG quantisation.
+    use densefeat::image::save_depth_png_mm;
+    use ndarray::Array2;
+    let r = render(96, 72, 2, None);
+    let d = tempfile::tempdir().unwrap();
+    write(d.path(), &r, false, true);
+    for (i, (_, depth, _)) in r.frames.iter().enumerate() {
+        let half = Array2::from_shape_fn((36, 48), |(y, x)| depth[[2 * y, 2 * x]]);
+        save_depth_png_mm(&d.path().join(format!("depth/frame_{:05}.png", i + 1)), &half).unwrap();
+    }
+    let seq = open(d.path()).unwrap();
+    assert!(seq.metric);
+    let got = seq.load_frame(1).unwrap().depth.unwrap();
+    assert_eq!(got.dim(), (72, 96));
+    let want = &r.frames[1].1;
+    for y in 0..72 {
+        for x in 0..96 {
+            let src = want[[2 * (y / 2), 2 * (x / 2)]];
+            assert!((got[[y, x]] - src).abs() <= DEPTH_TOLERANCE_M, "({x}, {y}): {} vs {src}", got[[y, x]]);
+        }
+    }
+    // A depth map of another aspect ratio is refused, naming the frame and the file.
+    save_depth_png_mm(&d.path().join("depth/frame_00002.png"), &Array2::from_elem((30, 48), 1.0)).unwrap();
+    assert_error(open(d.path()), &["frames[1]", "frame_00002.png is 48x30", "same aspect ratio"]);
+}

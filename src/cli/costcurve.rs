@@ -12,7 +12,7 @@ use crate::mapping::costcurve::{cost_curves, curves_csv, panels};
 use crate::mapping::features::{FeatureExtractor, FeatureKind};
 use crate::memory;
 use crate::plot::grid_of_plots_png;
-use crate::sequence::{open, Sequence};
+use crate::sequence::Sequence;
 
 use super::validate::{feature_channels, flag, frames_big_enough, MemoryLimit};
 
@@ -40,6 +40,10 @@ pub struct CostcurveArgs {
     /// Number of inverse-depth hypotheses K.
     #[arg(long, default_value_t = 64)]
     pub bins: usize,
+    /// Metres per unit of the sequence's poses: required for sequences without a metric scale
+    /// (COLMAP); `--scale 1` keeps their units.
+    #[arg(long)]
+    pub scale: Option<f64>,
     /// Output PNG; the raw curves go to the same path with extension `.csv`.
     #[arg(long)]
     pub out: PathBuf,
@@ -145,7 +149,7 @@ pub fn run(args: CostcurveArgs) -> Result<()> {
     let bins = InverseDepthBins::from_depth_range(near, far, args.bins)
         .map_err(|e| flag(if args.bins < 2 { "bins" } else { "depth-range" }, e.to_string()))?;
     let backend = args.backend.resolve()?;
-    let seq = open(&args.sequence)?;
+    let seq = super::mapping_args::open_metric(&args.sequence, args.scale)?;
     preflight(&args, &seq, &kinds, &pixels)?;
     let mut staging = Staging::new();
     let png = staging.file(&args.out)?;

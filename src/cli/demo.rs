@@ -9,7 +9,6 @@ use crate::error::Result;
 use crate::mapping::evaluate::{EvalOptions, Method};
 use crate::mapping::keyframe::Regularizer;
 use crate::mapping::FeatureKind;
-use crate::sequence::open;
 
 use super::eval::{print_table, run_eval};
 use super::mapping_args::MappingArgs;
@@ -39,7 +38,8 @@ pub struct DemoArgs {
 /// # Errors
 /// Reading or writing errors.
 pub fn run(args: DemoArgs) -> Result<()> {
-    let seq = open(&args.sequence)?;
+    let seq = args.mapping.open_sequence(&args.sequence)?;
+    let cfg = args.mapping.config(&seq, args.keyframe, FeatureKind::Rgb, Regularizer::Tv)?;
     println!(
         "demo: {} ({} frames), keyframe {}, window {},{}, {} bins over {}..{} m",
         args.sequence.display(),
@@ -48,10 +48,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
         args.mapping.window.0,
         args.mapping.window.1,
         args.mapping.bins,
-        args.mapping.depth_range.0,
-        args.mapping.depth_range.1
+        cfg.near,
+        cfg.far
     );
-    let cfg = args.mapping.config(args.keyframe, FeatureKind::Rgb, Regularizer::Tv)?;
     let kinds = [FeatureKind::Rgb, FeatureKind::Learned(None)];
     super::validate::mapping_preflight(&seq, &cfg, &[args.keyframe], &kinds, "demo")?;
     let mut staging = crate::io::Staging::new();

@@ -11,7 +11,7 @@ use crate::mapping::evaluate::{evaluate, EvalOptions, EvalTable, Method};
 use crate::mapping::keyframe::Regularizer;
 use crate::mapping::{write_outputs_with, FeatureKind};
 use crate::plot::{line_plot_png, Series};
-use crate::sequence::{open, Sequence};
+use crate::sequence::Sequence;
 
 use super::mapping_args::{parse_keyframes, progress_bar, show_stage, summary, MappingArgs};
 use super::validate::{flag, mapping_preflight, positive};
@@ -59,7 +59,7 @@ pub struct EvalArgs {
 /// # Errors
 /// Bad arguments, missing ground truth, reading or writing errors.
 pub fn run(args: EvalArgs) -> Result<()> {
-    let seq = open(&args.sequence)?;
+    let seq = args.mapping.open_sequence(&args.sequence)?;
     let keyframes = parse_keyframes(&args.keyframes)?;
     preflight(&seq, &args, &keyframes)?;
     let mut lambdas = args.lambda_sweep.clone();
@@ -117,7 +117,7 @@ fn preflight(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<()>
     if args.methods.iter().any(|m| m.learned()) {
         kinds.push(FeatureKind::Learned(args.weights.clone()));
     }
-    let cfg = args.mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv)?;
+    let cfg = args.mapping.config(seq, keyframes[0], FeatureKind::Rgb, Regularizer::Tv)?;
     mapping_preflight(seq, &cfg, keyframes, &kinds, "eval")
 }
 
@@ -182,7 +182,7 @@ pub fn run_eval(
     options: impl FnOnce() -> EvalOptions,
 ) -> Result<EvalTable> {
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    let base = mapping.config(keyframes[0], FeatureKind::Rgb, Regularizer::Tv)?;
+    let base = mapping.config(seq, keyframes[0], FeatureKind::Rgb, Regularizer::Tv)?;
     let bar = progress_bar();
     let result = evaluate(
         seq,

@@ -12,7 +12,8 @@ use crate::sequence::{open_with, CameraChoice, OpenOptions, DEFAULT_MAX_TIME_GAP
 /// Arguments of `densefeat inspect`.
 #[derive(Debug, Args)]
 pub struct InspectArgs {
-    /// Sequence folder (TUM RGB-D / ICL-NUIM, DeepVideoMVS / 7-Scenes, or a rectified stereo pair).
+    /// Sequence folder (TUM RGB-D / ICL-NUIM, DeepVideoMVS, 7-Scenes, COLMAP, transforms.json, or a
+    /// rectified stereo pair).
     pub path: PathBuf,
     /// Camera for formats without one: fr1, fr2, fr3, icl, ros, or a camera file
     /// (`fx fy cx cy [k1 k2 p1 p2 [k3]]`, optional second line `width height`).
@@ -24,6 +25,9 @@ pub struct InspectArgs {
     /// Keep raw distorted frames instead of undistorting them on load.
     #[arg(long)]
     pub no_undistort: bool,
+    /// Metres per unit of the sequence's poses and depths (makes a COLMAP model metric).
+    #[arg(long)]
+    pub scale: Option<f64>,
 }
 
 /// Open the sequence and print its summary to stdout.
@@ -36,6 +40,7 @@ pub fn run(args: InspectArgs) -> Result<()> {
         camera,
         max_time_gap: args.max_gap,
         undistort: !args.no_undistort,
+        scale: args.scale,
         ..OpenOptions::default()
     };
     let seq = open_with(&args.path, &options)?;

@@ -9,9 +9,8 @@ use crate::mapping::keyframe::Regularizer;
 use crate::mapping::keyframe_select::KeyframeRule;
 use crate::mapping::sequence_map::{map_sequence, MapConfig};
 use crate::mapping::FeatureKind;
-use crate::sequence::open;
 
-use super::mapping_args::{progress_bar, MappingArgs};
+use super::mapping_args::{progress_bar, DepthRange, MappingArgs};
 use super::validate::{flag, mapping_preflight};
 
 /// Arguments of `densefeat map`.
@@ -74,8 +73,9 @@ fn parse_frames(text: &str) -> Result<(usize, usize)> {
 /// Bad arguments, reading or writing errors.
 pub fn run(args: MapArgs) -> Result<()> {
     let frames = args.frames.as_deref().map(parse_frames).transpose()?;
-    let seq = open(&args.sequence)?;
-    let keyframe = args.mapping.config(0, args.features.clone(), args.regularizer)?;
+    let seq = args.mapping.open_sequence(&args.sequence)?;
+    let keyframe =
+        args.mapping.config(&seq, frames.map_or(0, |f| f.0), args.features.clone(), args.regularizer)?;
     let cfg = MapConfig {
         keyframe,
         frames: frames.unwrap_or((0, seq.len().saturating_sub(1))),
@@ -90,6 +90,7 @@ pub fn run(args: MapArgs) -> Result<()> {
         max_fusion_depth: args.max_fusion_depth,
         min_confidence: args.mapping.min_confidence,
         fscore_threshold: args.fscore_threshold,
+        auto_depth_range: args.mapping.depth_range == DepthRange::Auto,
     };
     let plan = cfg.plan(&seq)?;
     let keys: Vec<usize> = plan.keyframes.iter().map(|k| k.index).collect();

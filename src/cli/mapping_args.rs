@@ -1,6 +1,7 @@
 //! Flags shared by `reconstruct`, `eval` and `demo`: window, depth range, bins, every DTAM
 //! parameter and the memory limit; and the progress bar.
 
+use std::path::Path;
 use std::time::Duration;
 
 use clap::Args;
@@ -15,6 +16,7 @@ use crate::mapping::keyframe::{
 use crate::mapping::output::DEFAULT_MIN_CONFIDENCE;
 use crate::mapping::photometric::PhotometricMode;
 use crate::mapping::{FeatureKind, KeyframeResult};
+use crate::sequence::{open_with, OpenOptions, Sequence};
 
 /// Mapping flags (SPEC.md §10, §11).
 #[derive(Debug, Clone, Args)]
@@ -22,9 +24,14 @@ pub struct MappingArgs {
     /// Live frames before and after the keyframe, `P,F` (clamped to the sequence).
     #[arg(long, default_value = "30,30", value_parser = parse_pair_usize)]
     pub window: (usize, usize),
-    /// Depth range of the hypotheses, metres, `NEAR,FAR`.
-    #[arg(long, default_value = "0.4,10", value_parser = parse_pair_f64)]
-    pub depth_range: (f64, f64),
+    /// Depth range of the hypotheses, metres, `NEAR,FAR`; or `auto`: per keyframe from the
+    /// sequence's sparse points (COLMAP) or ground-truth depth (SPEC.md §4a).
+    #[arg(long, default_value = "0.4,10", value_parser = parse_depth_range)]
+    pub depth_range: DepthRange,
+    /// Metres per unit of the sequence's poses (and depths): required for sequences without a
+    /// metric scale (COLMAP, transforms.json without depth); `--scale 1` keeps their units.
+    #[arg(long)]
+    pub scale: Option<f64>,
     /// Number of inverse-depth hypotheses.
     #[arg(long, default_value_t = DEFAULT_BINS)]
     pub bins: usize,
@@ -81,24 +88,99 @@ pub struct MappingArgs {
     pub backend: BackendFlag,
 }
 
+/// `--depth-range`: fixed, or estimated per keyframe.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum DepthRange {
+    /// `NEAR,FAR` metres.
+    Fixed(f64, f64),
+    /// `auto`: [`Sequence::estimate_depth_range`] of the keyframe.
+    Auto,
+}
+
+/// Parses `NEAR,FAR` or `auto`.
+///
+/// # Errors
+/// A message for clap.
+pub fn parse_depth_range(s: &str) -> std::result::Result<DepthRange, String> {
+    if s.trim().eq_ignore_ascii_case("auto") {
+        return Ok(DepthRange::Auto);
+    }
+    let (a, b) = super::validate::pair(s).map_err(|e| format!("{e} (or `auto`)"))?;
+    Ok(DepthRange::Fixed(a, b))
+}
+
+/// `keyframe`'s range: the fixed one, or estimated (an error naming `--depth-range` when the frame
+/// has neither sparse points nor ground-truth depth).
+///
+/// # Errors
+/// As described; frame loading errors.
+pub fn resolve_depth_range(range: DepthRange, seq: &Sequence, keyframe: usize) -> Result<(f64, f64)> {
+    match range {
+        DepthRange::Fixed(a, b) => Ok((a, b)),
+        DepthRange::Auto => seq.estimate_depth_range(keyframe)?.ok_or_else(|| {
+            Error::invalid_argument(
+                "--depth-range",
+                format!(
+                    "auto: keyframe {keyframe} has neither sparse points nor ground-truth depth to estimate \
+                     a range from; give NEAR,FAR"
+                ),
+            )
+        }),
+    }
+}
+
+/// Open `path` with `scale` (`--scale`), refusing a sequence without a metric scale when `scale` is
+/// `None` (SPEC.md §4a).
+///
+/// # Errors
+/// Opening errors; [`Error::InvalidArgument`] naming `--scale`.
+pub fn open_metric(path: &Path, scale: Option<f64>) -> Result<Sequence> {
+    let seq = open_with(path, &OpenOptions { scale, ..OpenOptions::default() })?;
+    if !seq.metric {
+        return Err(Error::invalid_argument(
+            "--scale",
+            format!(
+                "{} ({}) has no metric scale: pass --scale METRES_PER_UNIT (--scale 1 keeps the model's \
+                 units, and then --depth-range, --voxel-size and the other lengths are in those units)",
+                path.display(),
+                seq.format
+            ),
+        ));
+    }
+    Ok(seq)
+}
+
 impl MappingArgs {
-    /// A configuration for `keyframe` with these flags.
+    /// Open `path` with `--scale`, refusing a sequence without a metric scale when `--scale` is
+    /// absent (SPEC.md §4a).
     ///
     /// # Errors
-    /// `--backend` names a backend this build does not have.
+    /// Opening errors; [`Error::InvalidArgument`] naming `--scale`.
+    pub fn open_sequence(&self, path: &Path) -> Result<Sequence> {
+        open_metric(path, self.scale)
+    }
+
+    /// A configuration for `keyframe` of `seq` with these flags (`--depth-range auto` resolved at
+    /// `keyframe`).
+    ///
+    /// # Errors
+    /// `--backend` names a backend this build does not have; `--depth-range auto` cannot be
+    /// estimated at `keyframe`.
     pub fn config(
         &self,
+        seq: &Sequence,
         keyframe: usize,
         features: FeatureKind,
         regularizer: Regularizer,
     ) -> Result<KeyframeConfig> {
+        let depth_range = resolve_depth_range(self.depth_range, seq, keyframe)?;
         Ok(KeyframeConfig {
             keyframe,
             past: self.window.0,
             future: self.window.1,
             features,
-            near: self.depth_range.0,
-            far: self.depth_range.1,
+            near: depth_range.0,
+            far: depth_range.1,
             bins: self.bins,
             regularizer,
             dtam: DtamParams {

@@ -8,7 +8,6 @@ use crate::error::Result;
 use crate::eval::DepthMetrics;
 use crate::io::Staging;
 use crate::mapping::{reconstruct, write_outputs_with, FeatureKind, Regularizer};
-use crate::sequence::open;
 
 use super::mapping_args::{progress_bar, show_stage, summary, MappingArgs};
 use super::validate::mapping_preflight;
@@ -41,8 +40,8 @@ pub struct ReconstructArgs {
 /// # Errors
 /// Bad arguments, reading or writing errors.
 pub fn run(args: ReconstructArgs) -> Result<()> {
-    let seq = open(&args.sequence)?;
-    let cfg = args.mapping.config(args.keyframe, args.features.clone(), args.regularizer)?;
+    let seq = args.mapping.open_sequence(&args.sequence)?;
+    let cfg = args.mapping.config(&seq, args.keyframe, args.features.clone(), args.regularizer)?;
     mapping_preflight(&seq, &cfg, &[args.keyframe], std::slice::from_ref(&args.features), "reconstruct")?;
     let mut staging = Staging::new();
     let out = staging.dir(&args.out)?;

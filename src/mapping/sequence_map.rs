@@ -49,6 +49,9 @@ pub struct MapConfig {
     pub min_confidence: f32,
     /// F-score threshold `τ`, metres.
     pub fscore_threshold: f64,
+    /// Estimate each keyframe's depth range ([`Sequence::estimate_depth_range`], `--depth-range
+    /// auto`) instead of the template's `near`, `far`.
+    pub auto_depth_range: bool,
 }
 
 /// One keyframe's plan.
@@ -60,6 +63,8 @@ pub struct PlannedKeyframe {
     pub past: usize,
     /// Live frames after it.
     pub future: usize,
+    /// Its estimated depth range `(near, far)` with `--depth-range auto`.
+    pub depth_range: Option<(f64, f64)>,
 }
 
 /// The keyframes and windows of a run, and the memory bound of its fusion, known before any work.
@@ -158,9 +163,10 @@ impl MapConfig {
             .iter()
             .map(|&k| {
                 let (past, future) = keyframe_window(&cam, &poses, k, self.frames, max, &self.rule);
-                PlannedKeyframe { index: k, past, future }
+                let depth_range = if self.auto_depth_range { Some(auto_range(seq, k)?) } else { None };
+                Ok(PlannedKeyframe { index: k, past, future, depth_range })
             })
-            .collect();
+            .collect::<Result<_>>()?;
         let key_poses: Vec<_> = keys.iter().map(|&k| poses[k]).collect();
         let frusta = Aabb::of_frusta(&cam, &key_poses, self.max_fusion_depth).padded(self.truncation);
         let volumes = if seq.frames[keys[0]].depth.is_some() { 2 } else { 1 };
@@ -171,7 +177,15 @@ impl MapConfig {
 
     /// The configuration of keyframe `k`.
     fn keyframe_config(&self, k: &PlannedKeyframe) -> KeyframeConfig {
-        KeyframeConfig { keyframe: k.index, past: k.past, future: k.future, ..self.keyframe.clone() }
+        let (near, far) = k.depth_range.unwrap_or((self.keyframe.near, self.keyframe.far));
+        KeyframeConfig {
+            keyframe: k.index,
+            past: k.past,
+            future: k.future,
+            near,
+            far,
+            ..self.keyframe.clone()
+        }
     }
 
     /// What makes a keyframe folder reusable: every setting that changes its files.
@@ -427,6 +441,7 @@ fn map_json(
             "regularizer": cfg.keyframe.regularizer,
             "bins": cfg.keyframe.bins,
             "depth_range_m": [cfg.keyframe.near, cfg.keyframe.far],
+            "depth_range_auto": cfg.auto_depth_range,
             "level": cfg.keyframe.level,
             "min_confidence": cfg.min_confidence,
         },
@@ -452,4 +467,14 @@ fn map_json(
 
 fn write_text(path: &Path, text: &str) -> Result<()> {
     write_atomic_with(path, |w| w.write_all(text.as_bytes()))
+}
+
+/// Keyframe `k`'s estimated range, or an error naming `--depth-range`.
+fn auto_range(seq: &Sequence, k: usize) -> Result<(f64, f64)> {
+    seq.estimate_depth_range(k)?.ok_or_else(|| {
+        Error::invalid_argument(
+            "--depth-range",
+            format!("auto: keyframe {k} has neither sparse points nor ground-truth depth; give NEAR,FAR"),
+        )
+    })
 }

@@ -4,11 +4,14 @@
 //! |------------------------------------------------|------------------------------|
 //! | `rgb.txt` or `associations.txt`                | [`Format::Tum`]              |
 //! | `images/` and `poses.txt`                      | [`Format::DeepVideoMvs`]     |
+//! | `transforms.json`                              | [`Format::Nerfstudio`]       |
+//! | `images/` and a COLMAP model in `sparse/0`, `sparse` or `.` | [`Format::Colmap`] |
+//! | `frame-*.color.png`                            | [`Format::SevenScenes`]      |
 //! | `imL.png` + `imR.png`, or `im0.png` + `im1.png` | [`Format::Stereo`]           |
 
 use std::path::Path;
 
-use super::{dvmvs, stereo, tum, CameraChoice, Format, Sequence};
+use super::{colmap, dvmvs, nerfstudio, sevenscenes, stereo, tum, CameraChoice, Format, Sequence};
 use crate::error::{Error, Result};
 
 /// Default largest rgb-depth timestamp difference for TUM association, seconds (TUM's own
@@ -33,6 +36,9 @@ pub struct OpenOptions {
     pub max_pose_gap: f64,
     /// Resample distorted raw images into the pinhole camera on load.
     pub undistort: bool,
+    /// Metres per unit of the sequence's lengths (`--scale`): multiplies translations and depths
+    /// ([`Sequence::rescale`]) and makes a non-metric sequence (COLMAP) metric.
+    pub scale: Option<f64>,
 }
 
 impl Default for OpenOptions {
@@ -42,6 +48,7 @@ impl Default for OpenOptions {
             max_time_gap: DEFAULT_MAX_TIME_GAP,
             max_pose_gap: DEFAULT_MAX_POSE_GAP,
             undistort: true,
+            scale: None,
         }
     }
 }
@@ -70,6 +77,12 @@ pub fn detect(path: &Path) -> Option<Format> {
         Some(Format::Tum)
     } else if path.join("images").is_dir() && has("poses.txt") {
         Some(Format::DeepVideoMvs)
+    } else if has(nerfstudio::FILE) {
+        Some(Format::Nerfstudio)
+    } else if colmap::find_model(path).is_some() {
+        Some(Format::Colmap)
+    } else if sevenscenes::looks_like(path) {
+        Some(Format::SevenScenes)
     } else if stereo_views(path).is_some() {
         Some(Format::Stereo)
     } else {
@@ -94,19 +107,28 @@ pub fn open_with(path: impl AsRef<Path>, options: &OpenOptions) -> Result<Sequen
         let what = if path.exists() { "is not a folder" } else { "does not exist" };
         return Err(Error::bad_sequence(path, format!("sequence folder {what}")));
     }
-    match detect(path) {
+    let mut seq = match detect(path) {
         Some(Format::Tum) => tum::read(path, options),
         Some(Format::DeepVideoMvs) => dvmvs::read(path, options),
         Some(Format::Stereo) => stereo::read(path, options),
+        Some(Format::Nerfstudio) => nerfstudio::read(path, options),
+        Some(Format::Colmap) => colmap::read(path, options),
+        Some(Format::SevenScenes) => sevenscenes::read(path, options),
         _ => Err(no_format(path)),
+    }?;
+    if let Some(s) = options.scale {
+        seq.rescale(s)?;
     }
+    Ok(seq)
 }
 
 fn no_format(path: &Path) -> Error {
     let mut what = String::from(
         "not a sequence in any known format: looked for rgb.txt or associations.txt (TUM RGB-D / \
-         ICL-NUIM), images/ with poses.txt and K.txt (DeepVideoMVS / 7-Scenes), imL.png + imR.png \
-         or im0.png + im1.png, each also as .jpg/.jpeg (rectified stereo pair)",
+         ICL-NUIM), images/ with poses.txt and K.txt (DeepVideoMVS / 7-Scenes), transforms.json \
+         (nerfstudio / instant-ngp), images/ with cameras + images .bin/.txt in sparse/0, sparse or \
+         the folder (COLMAP), frame-*.color.png (7-Scenes), imL.png + imR.png or im0.png + im1.png, \
+         each also as .jpg/.jpeg (rectified stereo pair)",
     );
     let mut subs: Vec<String> = std::fs::read_dir(path)
         .map(|rd| {

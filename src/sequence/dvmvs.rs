@@ -83,7 +83,14 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
         } else {
             None
         };
-        frames.push(FrameInfo { name: stem(&rgb), timestamp: None, pose, rgb, depth });
+        frames.push(FrameInfo {
+            name: stem(&rgb),
+            timestamp: None,
+            pose,
+            rgb,
+            depth,
+            sparse_depth_range: None,
+        });
     }
     let (w, h) = read_dimensions(&frames[0].rgb)?;
     let camera = read_k(&root.join("K.txt"), w, h)?;

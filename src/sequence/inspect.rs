@@ -114,8 +114,38 @@ pub struct Summary {
     pub frame_rate: Option<f64>,
     /// Photometric warp check.
     pub consistency: Option<Consistency>,
+    /// Whether lengths are metres (`false`: COLMAP or `transforms.json` without depth, no `--scale`).
+    pub metric: bool,
+    /// Per-frame depth ranges from sparse points (COLMAP `points3D`).
+    pub sparse_range: Option<SparseRangeStats>,
     /// Reader warnings and the summary's own.
     pub warnings: Vec<String>,
+}
+
+/// The per-frame sparse depth ranges over the sequence (`--depth-range auto`, SPEC.md §4a).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SparseRangeStats {
+    /// Frames that have one.
+    pub frames: usize,
+    /// Smallest and median `near`.
+    pub near: (f64, f64),
+    /// Median and largest `far`.
+    pub far: (f64, f64),
+}
+
+fn sparse_range_stats(seq: &Sequence) -> Option<SparseRangeStats> {
+    let (mut near, mut far): (Vec<f64>, Vec<f64>) =
+        seq.frames.iter().filter_map(|f| f.sparse_depth_range).unzip();
+    if near.is_empty() {
+        return None;
+    }
+    let lo = near.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = far.iter().copied().fold(0.0, f64::max);
+    Some(SparseRangeStats {
+        frames: near.len(),
+        near: (lo, crate::runtime::median(&mut near)),
+        far: (crate::runtime::median(&mut far), hi),
+    })
 }
 
 /// How many frames have each colour image format, in order of first appearance.
@@ -213,6 +243,8 @@ impl Summary {
             stereo: seq.stereo.clone(),
             frame_rate,
             consistency,
+            metric: seq.metric,
+            sparse_range: sparse_range_stats(seq),
             warnings,
         })
     }
@@ -342,7 +374,21 @@ impl fmt::Display for Summary {
             Some(r) => writeln!(f, "frame rate   {r:.1} Hz (median timestamp interval)")?,
             None => writeln!(f, "frame rate   unknown (no timestamps)")?,
         }
-        let unit = if self.stereo.as_ref().is_some_and(|s| !s.calibrated) { "baseline units" } else { "m" };
+        let unit = if self.stereo.as_ref().is_some_and(|s| !s.calibrated) {
+            "baseline units"
+        } else if !self.metric {
+            "model units"
+        } else {
+            "m"
+        };
+        if self.metric {
+            writeln!(f, "scale        metric (lengths in metres)")?;
+        } else {
+            writeln!(
+                f,
+                "scale        NONE: lengths in model units; --scale METRES_PER_UNIT makes them metres"
+            )?;
+        }
         match &self.depth {
             Some(d) => writeln!(
                 f,
@@ -354,6 +400,13 @@ impl fmt::Display for Summary {
                 d.max
             )?,
             None => writeln!(f, "depth        none")?,
+        }
+        if let Some(r) = &self.sparse_range {
+            writeln!(
+                f,
+                "sparse depth {} of {} frames: near min {:.3} / median {:.3}, far median {:.3} / max {:.3} {unit} (--depth-range auto)",
+                r.frames, self.frames, r.near.0, r.near.1, r.far.0, r.far.1
+            )?;
         }
         for (name, lo, hi) in &self.disparity {
             writeln!(f, "disparity    {name}: {lo:.2} .. {hi:.2} px")?;

@@ -25,6 +25,13 @@ pub enum Format {
     DeepVideoMvs,
     /// A rectified stereo pair (Middlebury, ETH3D) read as a two-frame sequence.
     Stereo,
+    /// A COLMAP sparse model (`cameras`, `images`, optional `points3D`; text or binary) with its
+    /// `images/` folder. Poses have no metric scale.
+    Colmap,
+    /// A nerfstudio / instant-ngp `transforms.json` (OpenGL camera axes).
+    Nerfstudio,
+    /// 7-Scenes as distributed: `frame-XXXXXX.color.png`, `.depth.png`, `.pose.txt`.
+    SevenScenes,
 }
 
 impl std::fmt::Display for Format {
@@ -33,6 +40,9 @@ impl std::fmt::Display for Format {
             Format::Tum => "TUM RGB-D",
             Format::DeepVideoMvs => "DeepVideoMVS / 7-Scenes",
             Format::Stereo => "rectified stereo pair",
+            Format::Colmap => "COLMAP sparse model",
+            Format::Nerfstudio => "nerfstudio / instant-ngp transforms.json",
+            Format::SevenScenes => "7-Scenes (native layout)",
         })
     }
 }
@@ -61,6 +71,20 @@ pub enum DepthSource {
         /// An extra "no depth" value (7-Scenes: 65535).
         invalid: Option<u16>,
     },
+    /// A 16-bit grey PNG smaller than the colour images, with their aspect ratio (phone depth in
+    /// `transforms.json`): `z = value * metres_per_unit`, 0 = no depth, upsampled to `width x height`
+    /// by nearest neighbour with pixel centres aligned (colour pixel `x` reads depth pixel
+    /// `round((x + 0.5) w_d / W - 0.5)`, likewise `y`; SPEC.md §4a).
+    Png16Upsampled {
+        /// The file.
+        path: PathBuf,
+        /// Metres per stored unit.
+        metres_per_unit: f64,
+        /// The camera's width.
+        width: usize,
+        /// The camera's height.
+        height: usize,
+    },
     /// A disparity map, converted with `z = focal_baseline / (d + doffs)` (`focal_baseline = f b`, in metres
     /// times pixels, or in baseline units when uncalibrated).
     Disparity {
@@ -79,7 +103,9 @@ impl DepthSource {
     /// The file the depth is read from.
     pub fn path(&self) -> &Path {
         match self {
-            DepthSource::Png16 { path, .. } | DepthSource::Disparity { path, .. } => path,
+            DepthSource::Png16 { path, .. }
+            | DepthSource::Png16Upsampled { path, .. }
+            | DepthSource::Disparity { path, .. } => path,
         }
     }
 }
@@ -97,6 +123,9 @@ pub struct FrameInfo {
     pub rgb: PathBuf,
     /// Ground-truth depth, if any.
     pub depth: Option<DepthSource>,
+    /// Depth range `(near, far)` of the format's sparse points seen in this frame (COLMAP
+    /// `points3D`, SPEC.md §4a), in the sequence's length unit; `None` where the format has none.
+    pub sparse_depth_range: Option<(f64, f64)>,
 }
 
 /// Stereo-specific facts of a two-frame [`Format::Stereo`] sequence (frame 0 = left, 1 = right).
@@ -127,6 +156,9 @@ pub struct Sequence {
     pub frames: Vec<FrameInfo>,
     /// Present for stereo pairs.
     pub stereo: Option<StereoInfo>,
+    /// Whether lengths (pose translations, depths) are metres: `false` for formats without a metric
+    /// scale (COLMAP, `transforms.json` without depth) unless [`OpenOptions::scale`] was given.
+    pub metric: bool,
     /// What the reader decided on the user's behalf (calibration used, frames dropped, ...). Notes
     /// starting with [`WARNING_NOTE`] are warnings.
     pub notes: Vec<String>,
@@ -173,8 +205,10 @@ impl Sequence {
                 files.push(d.path());
             }
             for path in files {
-                if d_is_pfm(path) {
-                    continue; // PFM sizes are checked when loaded
+                if d_is_pfm(path)
+                    || matches!(&f.depth, Some(DepthSource::Png16Upsampled { path: p, .. }) if p == path)
+                {
+                    continue; // PFM sizes are checked when loaded; upsampled depth by its reader
                 }
                 let (w, h) = image::read_dimensions(path)?;
                 if (w, h) != (k.width, k.height) {
@@ -189,7 +223,7 @@ impl Sequence {
             (Some(d), true) if !d.is_identity() => Some(UndistortMap::new(&k, d)),
             _ => None,
         };
-        Ok(Self { format, root, camera: k, raw_camera, frames, stereo, notes, undistort: map })
+        Ok(Self { format, root, camera: k, raw_camera, frames, stereo, metric: true, notes, undistort: map })
     }
 
     /// Number of frames.
@@ -200,6 +234,35 @@ impl Sequence {
     /// Whether there are no frames (never true for a constructed sequence).
     pub fn is_empty(&self) -> bool {
         self.frames.is_empty()
+    }
+
+    /// Multiply every length by `scale` (pose translations, depth units, disparity `f b`, sparse
+    /// depth ranges, stereo baseline) and mark the sequence metric: `--scale` (SPEC.md §4a).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] unless `scale` is finite and positive.
+    pub fn rescale(&mut self, scale: f64) -> Result<()> {
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(Error::invalid_argument("--scale", format!("{scale}: must be a finite number > 0")));
+        }
+        for f in &mut self.frames {
+            f.pose.translation.vector *= scale;
+            f.sparse_depth_range = f.sparse_depth_range.map(|(a, b)| (a * scale, b * scale));
+            match &mut f.depth {
+                Some(
+                    DepthSource::Png16 { metres_per_unit, .. }
+                    | DepthSource::Png16Upsampled { metres_per_unit, .. },
+                ) => *metres_per_unit *= scale,
+                Some(DepthSource::Disparity { focal_baseline, .. }) => *focal_baseline *= scale,
+                None => {}
+            }
+        }
+        if let Some(s) = &mut self.stereo {
+            s.baseline *= scale;
+        }
+        self.metric = true;
+        self.notes.push(format!("lengths scaled by {scale} (--scale): poses and depths are in metres"));
+        Ok(())
     }
 
     /// Whether frames are undistorted on load.
@@ -275,6 +338,10 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
         DepthSource::Png16 { path, metres_per_unit, invalid } => {
             image::load_depth_png(path, *metres_per_unit, *invalid)
         }
+        DepthSource::Png16Upsampled { path, metres_per_unit, width, height } => {
+            let d = image::load_depth_png(path, *metres_per_unit, None)?;
+            Ok(upsample_nearest(&d, *width, *height))
+        }
         DepthSource::Disparity { path, encoding, focal_baseline, doffs } => {
             let d = disparity::load_disparity(path, *encoding)?;
             Ok(d.mapv(|v| {
@@ -289,12 +356,29 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
     }
 }
 
+/// `d` resampled to `width x height` by nearest neighbour with pixel centres aligned: output pixel
+/// `x` reads `round((x + 0.5) w_d / width - 0.5)` (half away from zero, clamped), likewise `y`.
+pub fn upsample_nearest(d: &DepthMap, width: usize, height: usize) -> DepthMap {
+    let (hd, wd) = d.dim();
+    let src = |x: usize, n_out: usize, n_in: usize| {
+        let s = ((x as f64 + 0.5) * n_in as f64 / n_out as f64 - 0.5).round();
+        (s.max(0.0) as usize).min(n_in - 1)
+    };
+    Array2::from_shape_fn((height, width), |(y, x)| d[[src(y, height, hd), src(x, width, wd)]])
+}
+
 pub mod calib;
+pub mod colmap;
+pub mod depth_range;
 mod detect;
 pub mod disparity;
 mod dvmvs;
 mod dvmvs_write;
 pub mod inspect;
+mod nerfstudio;
+pub mod nerfstudio_write;
+mod sevenscenes;
+pub mod sevenscenes_write;
 mod stereo;
 mod text;
 mod tum;

@@ -110,8 +110,16 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             pose: Pose::identity(),
             rgb: left,
             depth: left_depth,
+            sparse_depth_range: None,
         },
-        FrameInfo { name: "right".into(), timestamp: None, pose: right_pose, rgb: right, depth: right_depth },
+        FrameInfo {
+            name: "right".into(),
+            timestamp: None,
+            pose: right_pose,
+            rgb: right,
+            depth: right_depth,
+            sparse_depth_range: None,
+        },
     ];
     let stereo = StereoInfo { baseline, calibrated, doffs };
     Sequence::from_parts(

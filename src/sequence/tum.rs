@@ -110,7 +110,14 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
                 })
             }
         };
-        frames.push(FrameInfo { name: stem(&rgb_path), timestamp: Some(rgb.t), pose, rgb: rgb_path, depth });
+        frames.push(FrameInfo {
+            name: stem(&rgb_path),
+            timestamp: Some(rgb.t),
+            pose,
+            rgb: rgb_path,
+            depth,
+            sparse_depth_range: None,
+        });
     }
     if frames.is_empty() {
         let (g0, g1) = (gt.first().map_or(0.0, |g| g.0), gt.last().map_or(0.0, |g| g.0));

@@ -1,0 +1,10 @@
+//! Pose-format readers (SPEC.md §4a) on sequences our renderer writes in each format: COLMAP text
+//! and binary, nerfstudio `transforms.json`, native 7-Scenes. Each reader is checked for a round
+//! trip (camera and poses within 1e-12, frames reprojecting as the renderer's ground truth does
+//! within 1e-6 px), its `inspect` summary, and malformed input (errors naming file and line, or
+//! record and byte offset).
+
+mod colmap;
+mod nerfstudio;
+mod render;
+mod sevenscenes;

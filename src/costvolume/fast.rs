@@ -78,9 +78,19 @@ pub(super) fn add_frame(
     let (w, k_count) = (geo.camera.width, rhos.len());
     let row_cells = w * k_count;
     let use_avx512 = dispatch && has_avx512();
+    #[cfg(target_arch = "x86_64")]
+    let use_blocks = use_avx512
+        && super::fast_avx512::available()
+        && super::fast_avx512::fits_i32(w, geo.camera.height, feats.channels);
     sums.par_chunks_mut(row_cells).zip(counts.par_chunks_mut(row_cells)).enumerate().for_each_init(
         || Scratch::new(k_count),
         |scratch, (y, (sum_row, count_row))| {
+            #[cfg(target_arch = "x86_64")]
+            if use_blocks {
+                // SAFETY: `available()` checked the CPU features, `fits_i32` the offsets.
+                unsafe { super::fast_avx512::row(geo, feats, rhos, y, sum_row, count_row) };
+                return;
+            }
             #[cfg(target_arch = "x86_64")]
             if use_avx512 {
                 // SAFETY: `has_avx512()` reported AVX-512F on this CPU.

@@ -49,6 +49,8 @@
 
 pub mod curve;
 mod fast;
+#[cfg(target_arch = "x86_64")]
+mod fast_avx512;
 mod reference;
 mod wta;
 

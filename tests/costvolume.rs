@@ -92,8 +92,8 @@ proptest! {
         seed: u64,
         h in 1usize..20,
         w in 1usize..20,
-        c in prop::sample::select(vec![1usize, 3, 32, 35]),
-        k in prop::sample::select(vec![2usize, 3, 17]),
+        c in prop::sample::select(vec![1usize, 3, 16, 32, 35, 64]),
+        k in prop::sample::select(vec![2usize, 3, 17, 40]),
         frames in 1usize..4,
     ) {
         let case = Case::from_seed(seed, h, w, c, k, frames);
@@ -119,14 +119,24 @@ fn fast_kernel_reports_which_path_ran() {
 
 #[test]
 fn output_independent_of_thread_count() {
-    let case = Case::from_seed(7, 37, 45, 32, 17, 3);
-    let run = |n| thread_pool(n).install(|| case.run(CostVolumeImpl::Fast));
-    let one = run(1);
-    assert!(one.counts().iter().any(|&n| n == 3), "some cells must be seen by every frame");
-    for n in [2, 3, 8] {
-        let other = run(n);
-        assert_eq!(bits(&other.costs()), bits(&one.costs()), "threads = {n}");
-        assert_eq!(other.counts(), one.counts(), "threads = {n}");
+    // Every kernel of the fast path: the RGB gather kernel, the 16·N-channel block kernel, the
+    // per-lane channel loop (35), the portable kernel.
+    for (c, imp) in [
+        (3, CostVolumeImpl::Fast),
+        (32, CostVolumeImpl::Fast),
+        (35, CostVolumeImpl::Fast),
+        (3, CostVolumeImpl::FastPortable),
+        (32, CostVolumeImpl::FastPortable),
+    ] {
+        let case = Case::from_seed(7, 37, 45, c, 17, 3);
+        let run = |n| thread_pool(n).install(|| case.run(imp));
+        let one = run(1);
+        assert!(one.counts().iter().any(|&n| n == 3), "some cells must be seen by every frame");
+        for n in [2, 3, 8] {
+            let other = run(n);
+            assert_eq!(bits(&other.costs()), bits(&one.costs()), "C = {c}, {imp:?}, threads = {n}");
+            assert_eq!(other.counts(), one.counts(), "C = {c}, {imp:?}, threads = {n}");
+        }
     }
 }
 

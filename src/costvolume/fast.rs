@@ -82,6 +82,17 @@ pub(super) fn add_frame(
     let use_blocks = use_avx512
         && super::fast_avx512::available()
         && super::fast_avx512::fits_i32(w, geo.camera.height, feats.channels);
+    // The block kernel loads whole 64-byte channel chunks of 16·N-channel maps: from a
+    // cache-line-aligned copy no load straddles two lines (a copy changes no value).
+    #[cfg(target_arch = "x86_64")]
+    let aligned;
+    #[cfg(target_arch = "x86_64")]
+    let feats = if use_blocks && feats.channels % 16 == 0 && feats.live.as_ptr() as usize % 64 != 0 {
+        aligned = super::fast_avx512::AlignedCopy::new(feats.live);
+        &Slices { reference: feats.reference, live: aligned.as_slice(), channels: feats.channels }
+    } else {
+        feats
+    };
     sums.par_chunks_mut(row_cells).zip(counts.par_chunks_mut(row_cells)).enumerate().for_each_init(
         || Scratch::new(k_count),
         |scratch, (y, (sum_row, count_row))| {

@@ -37,6 +37,33 @@ pub(super) fn fits_i32(w: usize, h: usize, c: usize) -> bool {
     w.checked_mul(h).and_then(|n| n.checked_mul(c)).is_some_and(|n| n <= i32::MAX as usize)
 }
 
+/// A copy of a feature map starting on a 64-byte boundary.
+pub(super) struct AlignedCopy {
+    chunks: Vec<Chunk>,
+    len: usize,
+}
+
+/// 16 `f32`, aligned as one cache line.
+#[derive(Clone, Copy)]
+#[repr(C, align(64))]
+struct Chunk([f32; 16]);
+
+impl AlignedCopy {
+    pub(super) fn new(data: &[f32]) -> Self {
+        let mut chunks = vec![Chunk([0.0; 16]); data.len().div_ceil(16)];
+        for (dst, src) in chunks.iter_mut().zip(data.chunks(16)) {
+            dst.0[..src.len()].copy_from_slice(src);
+        }
+        Self { chunks, len: data.len() }
+    }
+
+    pub(super) fn as_slice(&self) -> &[f32] {
+        // SAFETY: `Chunk` is `repr(C)` of 16 `f32` with no padding (64 bytes), so the vector is
+        // `16·chunks` contiguous, initialised `f32`s; `len` of them are the data.
+        unsafe { std::slice::from_raw_parts(self.chunks.as_ptr().cast::<f32>(), self.len) }
+    }
+}
+
 /// Validity, corner offsets (`i32`, the top-left corner's first channel) and the four `f32`
 /// bilinear weights of 16 hypotheses.
 struct Block {
@@ -162,9 +189,16 @@ pub(super) unsafe fn row(
             if b.ok == 0 {
                 continue;
             }
+            // SAFETY (all three): valid lanes' corners lie inside `live` (x0 <= W-2 or W = 1,
+            // likewise y0).
             let l1 = if c == 3 {
-                // SAFETY: valid lanes' corners lie inside `live` (x0 <= W-2 or W = 1, likewise y0).
                 unsafe { l1_rgb16(feats.live, &b, dx as i32, dy as i32, r) }
+            } else if c == 32 {
+                unsafe { l1_chunks16::<2>(feats.live, &b, dx, dy, r) }
+            } else if c == 16 {
+                unsafe { l1_chunks16::<1>(feats.live, &b, dx, dy, r) }
+            } else if c == 64 {
+                unsafe { l1_chunks16::<4>(feats.live, &b, dx, dy, r) }
             } else {
                 // SAFETY: as above.
                 unsafe { l1_any16(feats.live, &b, dx, dy, r) }
@@ -303,4 +337,86 @@ unsafe fn l1_zmm(p: *const f32, o: usize, dx: usize, dy: usize, r: &[f32], w: [f
     let s4 = _mm_add_ps(_mm256_castps256_ps128(s8), _mm256_extractf128_ps::<1>(s8));
     let s2 = _mm_add_ps(s4, _mm_movehl_ps(s4, s4));
     _mm_cvtss_f32(_mm_add_ss(s2, _mm_shuffle_ps::<0b01>(s2, s2)))
+}
+
+/// `N·16` channels, 16 hypotheses: per hypothesis the 16-lane partial sums of `l1_distance` (lane
+/// `l` holds channels `l, l+16, ...`, added in that order), then the pairwise fold `acc[l] +=
+/// acc[l + width]`, width 8, 4, 2, 1, done for the 16 hypotheses at once: each fold level adds the
+/// same pairs of lanes as the one-hypothesis fold, two hypotheses' halves per instruction, so every
+/// result has the bits of `l1_distance`. Invalid lanes read the map at offset 0 (in bounds) and are
+/// discarded by the caller.
+///
+/// The fold leaves hypothesis `4q + r` in lane `4r + q`, so slot `s` is computed for hypothesis
+/// `4(s mod 4) + s/4` and the result comes out in hypothesis order.
+///
+/// # Safety
+/// Every valid lane's corners `o + {0, dx, dy, dy + dx} + [0, 16N)` must lie inside `live`, and so
+/// must `{0, dx, dy, dy + dx} + [0, 16N)`.
+#[inline]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq")]
+unsafe fn l1_chunks16<const N: usize>(live: &[f32], b: &Block, dx: usize, dy: usize, r: &[f32]) -> __m512 {
+    debug_assert_eq!(r.len(), 16 * N);
+    let mut offsets = [0i32; BLOCK];
+    let mut weights = [[0.0f32; BLOCK]; 4];
+    let mut refs = [_mm512_setzero_ps(); N];
+    // SAFETY: whole-vector stores into arrays of their size; `r` has 16N elements.
+    unsafe {
+        _mm512_storeu_si512(offsets.as_mut_ptr().cast(), _mm512_maskz_mov_epi32(b.ok, b.offset));
+        for (dst, src) in weights.iter_mut().zip(&b.w) {
+            _mm512_storeu_ps(dst.as_mut_ptr(), *src);
+        }
+        for (i, v) in refs.iter_mut().enumerate() {
+            *v = _mm512_loadu_ps(r.as_ptr().add(16 * i));
+        }
+    }
+    let abs_mask = _mm512_set1_epi32(0x7fff_ffff);
+    let p = live.as_ptr();
+    let mut acc = [_mm512_setzero_ps(); BLOCK];
+    for (s, acc) in acc.iter_mut().enumerate() {
+        let j = 4 * (s % 4) + s / 4;
+        let o = offsets[j] as usize;
+        let wv = [0, 1, 2, 3].map(|i| _mm512_set1_ps(weights[i][j]));
+        for (i, rv) in refs.iter().enumerate() {
+            // SAFETY: corner reads of hypothesis `j` (valid) or of offset 0 (the caller's contract).
+            let (a, bb, cc, d) = unsafe {
+                let q = p.add(o + 16 * i);
+                (_mm512_loadu_ps(q), _mm512_loadu_ps(q.add(dx)), _mm512_loadu_ps(q.add(dy)), _mm512_loadu_ps(q.add(dy + dx)))
+            };
+            let sum = _mm512_add_ps(
+                _mm512_add_ps(
+                    _mm512_add_ps(_mm512_mul_ps(wv[0], a), _mm512_mul_ps(wv[1], bb)),
+                    _mm512_mul_ps(wv[2], cc),
+                ),
+                _mm512_mul_ps(wv[3], d),
+            );
+            let dist = _mm512_castsi512_ps(_mm512_and_si512(_mm512_castps_si512(_mm512_sub_ps(*rv, sum)), abs_mask));
+            // `0 + dist` is `dist` (never -0, quiet if NaN), so the first chunk starts the sum.
+            *acc = if i == 0 { dist } else { _mm512_add_ps(*acc, dist) };
+        }
+    }
+    fold16(acc)
+}
+
+/// Width 8, 4, 2, 1 of the pairwise fold for 16 vectors at once (see [`l1_chunks16`]): lane
+/// `4r + q` of the result is vector `4q + r`'s fold.
+#[inline]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq")]
+fn fold16(v: [__m512; BLOCK]) -> __m512 {
+    // Width 8: quarters (0,1) + (2,3) of two vectors.
+    let u: [__m512; 8] = std::array::from_fn(|i| {
+        let (a, b) = (v[2 * i], v[2 * i + 1]);
+        _mm512_add_ps(_mm512_shuffle_f32x4::<0b01_00_01_00>(a, b), _mm512_shuffle_f32x4::<0b11_10_11_10>(a, b))
+    });
+    // Width 4: quarter 0 + quarter 1, quarter 2 + quarter 3.
+    let z: [__m512; 4] = std::array::from_fn(|i| {
+        let (a, b) = (u[2 * i], u[2 * i + 1]);
+        _mm512_add_ps(_mm512_shuffle_f32x4::<0b10_00_10_00>(a, b), _mm512_shuffle_f32x4::<0b11_01_11_01>(a, b))
+    });
+    // Width 2, inside each quarter: lanes (0,1) + (2,3).
+    let y: [__m512; 2] = std::array::from_fn(|i| {
+        let (a, b) = (z[2 * i], z[2 * i + 1]);
+        _mm512_add_ps(_mm512_shuffle_ps::<0b01_00_01_00>(a, b), _mm512_shuffle_ps::<0b11_10_11_10>(a, b))
+    });
+    // Width 1: lane 0 + lane 1.
+    _mm512_add_ps(_mm512_shuffle_ps::<0b10_00_10_00>(y[0], y[1]), _mm512_shuffle_ps::<0b11_01_11_01>(y[0], y[1]))
 }

@@ -2,7 +2,10 @@
 //! counts, thread-count independence, ρ = 0 hypotheses, winner-take-all, and depth recovered from
 //! rendered scenes.
 
-use densefeat::costvolume::{fast_kernel_name, parabola_offset, CostVolume, CostVolumeImpl, UNSEEN_COST};
+use densefeat::costvolume::{
+    confidence, confidence_and_scale, cost_scale, fast_kernel_name, filter_evidence, parabola_offset, CostVolume,
+    CostVolumeImpl, UNSEEN_COST,
+};
 use densefeat::eval::depth_metrics;
 use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
 use densefeat::image::{to_gray, RgbImage};
@@ -107,6 +110,30 @@ proptest! {
         let rel = (c + frames + 8) as f32 * f32::EPSILON;
         let res = within_budget(fast.costs().view(), oracle.costs().view(), magnitude.view(), rel);
         prop_assert!(res.is_ok(), "{}", res.unwrap_err());
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 32, ..ProptestConfig::default() })]
+    /// The one-pass confidence and scale are the two separate functions' bits, on volumes with
+    /// unseen and evidence-filtered cells.
+    #[test]
+    fn confidence_and_scale_in_one_pass(
+        seed: u64,
+        h in 1usize..12,
+        w in 1usize..12,
+        k in prop::sample::select(vec![2usize, 3, 17]),
+        frames in 1usize..4,
+        fraction in prop::sample::select(vec![0.0f64, 0.5, 1.0]),
+    ) {
+        let case = Case::from_seed(seed, h, w, 3, k, frames);
+        let cv = case.run(CostVolumeImpl::Fast);
+        let mut costs = cv.costs();
+        filter_evidence(&mut costs, cv.counts_view(), fraction);
+        let (conf, scale) = confidence_and_scale(costs.view(), cv.counts_view(), cv.frames());
+        let want = confidence(costs.view(), cv.counts_view(), cv.frames());
+        prop_assert_eq!(conf.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+        prop_assert_eq!(scale.to_bits(), cost_scale(costs.view()).to_bits());
     }
 }
 

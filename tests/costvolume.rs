@@ -3,8 +3,8 @@
 //! rendered scenes.
 
 use densefeat::costvolume::{
-    confidence, confidence_and_scale, cost_scale, fast_kernel_name, filter_evidence, parabola_offset, CostVolume,
-    CostVolumeImpl, UNSEEN_COST,
+    confidence, confidence_and_scale, cost_scale, fast_kernel_name, filter_evidence, parabola_offset,
+    CostVolume, CostVolumeImpl, UNSEEN_COST,
 };
 use densefeat::eval::depth_metrics;
 use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};

@@ -108,7 +108,11 @@ pub fn cost_scale(costs: ArrayView3<f32>) -> f64 {
 ///
 /// # Panics
 /// If the shapes differ.
-pub fn confidence_and_scale(costs: ArrayView3<f32>, counts: ArrayView3<u16>, frames: usize) -> (Array2<f32>, f64) {
+pub fn confidence_and_scale(
+    costs: ArrayView3<f32>,
+    counts: ArrayView3<u16>,
+    frames: usize,
+) -> (Array2<f32>, f64) {
     assert_eq!(costs.dim(), counts.dim(), "costs and counts must agree");
     let (h, w, _) = costs.dim();
     let mut out = Array2::<f32>::zeros((h, w));
@@ -119,11 +123,11 @@ pub fn confidence_and_scale(costs: ArrayView3<f32>, counts: ArrayView3<u16>, fra
         .map(|(y, row)| {
             let mut scratch = Vec::new();
             let mut spreads = Vec::new();
-            for x in 0..w {
+            for (x, out) in row.iter_mut().enumerate() {
                 let curve = costs.slice(ndarray::s![y, x, ..]);
                 let Some((lo, med)) = min_median(curve, &mut scratch) else { continue };
                 spreads.push(med - lo);
-                row[x] = pixel_confidence(curve, counts, (y, x), (lo, med), frames);
+                *out = pixel_confidence(curve, counts, (y, x), (lo, med), frames);
             }
             spreads
         })
@@ -174,10 +178,10 @@ pub fn confidence(costs: ArrayView3<f32>, counts: ArrayView3<u16>, frames: usize
     let slice = out.as_slice_mut().expect("owned arrays are contiguous");
     slice.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
         let mut scratch = Vec::new();
-        for x in 0..w {
+        for (x, out) in row.iter_mut().enumerate() {
             let curve = costs.slice(ndarray::s![y, x, ..]);
             let Some((lo, med)) = min_median(curve, &mut scratch) else { continue };
-            row[x] = pixel_confidence(curve, counts, (y, x), (lo, med), frames);
+            *out = pixel_confidence(curve, counts, (y, x), (lo, med), frames);
         }
     });
     out

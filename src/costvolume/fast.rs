@@ -87,7 +87,10 @@ pub(super) fn add_frame(
     #[cfg(target_arch = "x86_64")]
     let aligned;
     #[cfg(target_arch = "x86_64")]
-    let feats = if use_blocks && feats.channels % 16 == 0 && feats.live.as_ptr() as usize % 64 != 0 {
+    let feats = if use_blocks
+        && feats.channels.is_multiple_of(16)
+        && !(feats.live.as_ptr() as usize).is_multiple_of(64)
+    {
         aligned = super::fast_avx512::AlignedCopy::new(feats.live);
         &Slices { reference: feats.reference, live: aligned.as_slice(), channels: feats.channels }
     } else {

@@ -237,9 +237,10 @@ unsafe fn l1_rgb16(live: &[f32], b: &Block, dx: i32, dy: i32, r: &[f32]) -> __m5
     ];
     let mut d = [zero; 3];
     for (ch, d) in d.iter_mut().enumerate() {
-        let at: [__m512; 4] = std::array::from_fn(|i| _mm512_add_epi32(corners[i], _mm512_set1_epi32(ch as i32)))
-            // SAFETY: only valid lanes load, inside `live` (the caller's contract).
-            .map(|o| unsafe { gather(b.ok, o, p) });
+        let at: [__m512; 4] =
+            std::array::from_fn(|i| _mm512_add_epi32(corners[i], _mm512_set1_epi32(ch as i32)))
+                // SAFETY: only valid lanes load, inside `live` (the caller's contract).
+                .map(|o| unsafe { gather(b.ok, o, p) });
         let s = _mm512_add_ps(
             _mm512_add_ps(
                 _mm512_add_ps(_mm512_mul_ps(b.w[0], at[0]), _mm512_mul_ps(b.w[1], at[1])),
@@ -380,7 +381,12 @@ unsafe fn l1_chunks16<const N: usize>(live: &[f32], b: &Block, dx: usize, dy: us
             // SAFETY: corner reads of hypothesis `j` (valid) or of offset 0 (the caller's contract).
             let (a, bb, cc, d) = unsafe {
                 let q = p.add(o + 16 * i);
-                (_mm512_loadu_ps(q), _mm512_loadu_ps(q.add(dx)), _mm512_loadu_ps(q.add(dy)), _mm512_loadu_ps(q.add(dy + dx)))
+                (
+                    _mm512_loadu_ps(q),
+                    _mm512_loadu_ps(q.add(dx)),
+                    _mm512_loadu_ps(q.add(dy)),
+                    _mm512_loadu_ps(q.add(dy + dx)),
+                )
             };
             let sum = _mm512_add_ps(
                 _mm512_add_ps(
@@ -389,7 +395,8 @@ unsafe fn l1_chunks16<const N: usize>(live: &[f32], b: &Block, dx: usize, dy: us
                 ),
                 _mm512_mul_ps(wv[3], d),
             );
-            let dist = _mm512_castsi512_ps(_mm512_and_si512(_mm512_castps_si512(_mm512_sub_ps(*rv, sum)), abs_mask));
+            let dist =
+                _mm512_castsi512_ps(_mm512_and_si512(_mm512_castps_si512(_mm512_sub_ps(*rv, sum)), abs_mask));
             // `0 + dist` is `dist` (never -0, quiet if NaN), so the first chunk starts the sum.
             *acc = if i == 0 { dist } else { _mm512_add_ps(*acc, dist) };
         }
@@ -405,12 +412,18 @@ fn fold16(v: [__m512; BLOCK]) -> __m512 {
     // Width 8: quarters (0,1) + (2,3) of two vectors.
     let u: [__m512; 8] = std::array::from_fn(|i| {
         let (a, b) = (v[2 * i], v[2 * i + 1]);
-        _mm512_add_ps(_mm512_shuffle_f32x4::<0b01_00_01_00>(a, b), _mm512_shuffle_f32x4::<0b11_10_11_10>(a, b))
+        _mm512_add_ps(
+            _mm512_shuffle_f32x4::<0b01_00_01_00>(a, b),
+            _mm512_shuffle_f32x4::<0b11_10_11_10>(a, b),
+        )
     });
     // Width 4: quarter 0 + quarter 1, quarter 2 + quarter 3.
     let z: [__m512; 4] = std::array::from_fn(|i| {
         let (a, b) = (u[2 * i], u[2 * i + 1]);
-        _mm512_add_ps(_mm512_shuffle_f32x4::<0b10_00_10_00>(a, b), _mm512_shuffle_f32x4::<0b11_01_11_01>(a, b))
+        _mm512_add_ps(
+            _mm512_shuffle_f32x4::<0b10_00_10_00>(a, b),
+            _mm512_shuffle_f32x4::<0b11_01_11_01>(a, b),
+        )
     });
     // Width 2, inside each quarter: lanes (0,1) + (2,3).
     let y: [__m512; 2] = std::array::from_fn(|i| {
@@ -418,5 +431,8 @@ fn fold16(v: [__m512; BLOCK]) -> __m512 {
         _mm512_add_ps(_mm512_shuffle_ps::<0b01_00_01_00>(a, b), _mm512_shuffle_ps::<0b11_10_11_10>(a, b))
     });
     // Width 1: lane 0 + lane 1.
-    _mm512_add_ps(_mm512_shuffle_ps::<0b10_00_10_00>(y[0], y[1]), _mm512_shuffle_ps::<0b11_01_11_01>(y[0], y[1]))
+    _mm512_add_ps(
+        _mm512_shuffle_ps::<0b10_00_10_00>(y[0], y[1]),
+        _mm512_shuffle_ps::<0b11_01_11_01>(y[0], y[1]),
+    )
 }

@@ -276,7 +276,7 @@ fn l1_rgb(live: &[f32], o: usize, dx: usize, dy: usize, r: &[f32], w: [f32; 4]) 
 /// `Σ_c |r_c - (w0 p00_c + w1 p10_c + w2 p01_c + w3 p11_c)|` in `f32`, with [`LANES`] partial sums
 /// (channel `c` goes to lane `c mod LANES`) folded pairwise.
 #[inline(always)]
-fn l1_distance(r: &[f32], p00: &[f32], p10: &[f32], p01: &[f32], p11: &[f32], w: [f32; 4]) -> f32 {
+pub(super) fn l1_distance(r: &[f32], p00: &[f32], p10: &[f32], p01: &[f32], p11: &[f32], w: [f32; 4]) -> f32 {
     let mut acc = [0.0f32; LANES];
     let n = r.len();
     let full = n - n % LANES;

@@ -436,3 +436,83 @@ fn fold16(v: [__m512; BLOCK]) -> __m512 {
         _mm512_shuffle_ps::<0b11_01_11_01>(y[0], y[1]),
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::costvolume::fast::l1_distance;
+    use proptest::prelude::*;
+
+    fn value() -> impl Strategy<Value = f32> {
+        prop_oneof![
+            8 => -300.0f32..300.0,
+            1 => Just(0.0f32),
+            1 => Just(-0.0f32),
+            1 => prop::num::f32::ANY,
+        ]
+    }
+
+    fn same(a: f32, b: f32) -> bool {
+        a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
+    }
+
+    /// Block kernels against `l1_distance` on each valid lane, special values included.
+    fn check(c: usize, live: &[f32], r: &[f32], lanes: &[(usize, [f32; 4])], ok: u16, dx: usize, dy: usize) {
+        if !available() {
+            eprintln!("no AVX-512 F/BW/VL/DQ: block kernel not tested on this CPU");
+            return;
+        }
+        let offsets: [i32; BLOCK] = std::array::from_fn(|j| lanes[j].0 as i32);
+        let w: [[f32; BLOCK]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| lanes[j].1[i]));
+        let mut got = [0.0f32; BLOCK];
+        // SAFETY: `available()` holds; offsets plus corners plus C lie in `live` (the strategies).
+        unsafe {
+            let b = Block {
+                ok,
+                offset: _mm512_loadu_si512(offsets.as_ptr().cast()),
+                w: w.map(|v| _mm512_loadu_ps(v.as_ptr())),
+            };
+            let v = match c {
+                3 => l1_rgb16(live, &b, dx as i32, dy as i32, r),
+                32 => l1_chunks16::<2>(live, &b, dx, dy, r),
+                _ => l1_any16(live, &b, dx, dy, r),
+            };
+            _mm512_storeu_ps(got.as_mut_ptr(), v);
+        }
+        for (j, &(o, wj)) in lanes.iter().enumerate() {
+            if ok >> j & 1 == 0 {
+                continue;
+            }
+            let want = l1_distance(
+                r,
+                &live[o..o + c],
+                &live[o + dx..o + dx + c],
+                &live[o + dy..o + dy + c],
+                &live[o + dy + dx..o + dy + dx + c],
+                wj,
+            );
+            assert!(same(got[j], want), "C = {c}, lane {j}: {} vs {want}", got[j]);
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+        /// Each block kernel gives `l1_distance`'s bits on every valid lane (NaN: any NaN).
+        #[test]
+        fn block_kernels_equal_l1_distance(
+            c in prop::sample::select(vec![3usize, 32, 35]),
+            seed in prop::collection::vec(value(), 4 * 35 * 4),
+            r in prop::collection::vec(value(), 35),
+            lanes in prop::collection::vec((0usize..4, prop::array::uniform4(0.0f32..1.0)), BLOCK),
+            ok: u16,
+        ) {
+            // A 4x4-pixel map of C channels; corners (x0, y0) in 0..3 so the 2x2 stencil fits.
+            let (w, h) = (4, 4);
+            let live: Vec<f32> = (0..w * h * c).map(|i| seed[i % seed.len()]).collect();
+            let (dx, dy) = (c, w * c);
+            let lanes: Vec<(usize, [f32; 4])> =
+                lanes.iter().enumerate().map(|(j, &(x, wt))| (((j % 3) * w + x.min(2)) * c, wt)).collect();
+            check(c, &live, &r[..c], &lanes, ok, dx, dy);
+        }
+    }
+}

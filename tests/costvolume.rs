@@ -2,7 +2,10 @@
 //! counts, thread-count independence, ρ = 0 hypotheses, winner-take-all, and depth recovered from
 //! rendered scenes.
 
-use densefeat::costvolume::{fast_kernel_name, parabola_offset, CostVolume, CostVolumeImpl, UNSEEN_COST};
+use densefeat::costvolume::{
+    confidence, confidence_and_scale, cost_scale, fast_kernel_name, filter_evidence, parabola_offset,
+    CostVolume, CostVolumeImpl, UNSEEN_COST,
+};
 use densefeat::eval::depth_metrics;
 use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
 use densefeat::image::{to_gray, RgbImage};
@@ -92,8 +95,8 @@ proptest! {
         seed: u64,
         h in 1usize..20,
         w in 1usize..20,
-        c in prop::sample::select(vec![1usize, 3, 32, 35]),
-        k in prop::sample::select(vec![2usize, 3, 17]),
+        c in prop::sample::select(vec![1usize, 3, 16, 32, 35, 64]),
+        k in prop::sample::select(vec![2usize, 3, 17, 40]),
         frames in 1usize..4,
     ) {
         let case = Case::from_seed(seed, h, w, c, k, frames);
@@ -110,6 +113,30 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 32, ..ProptestConfig::default() })]
+    /// The one-pass confidence and scale are the two separate functions' bits, on volumes with
+    /// unseen and evidence-filtered cells.
+    #[test]
+    fn confidence_and_scale_in_one_pass(
+        seed: u64,
+        h in 1usize..12,
+        w in 1usize..12,
+        k in prop::sample::select(vec![2usize, 3, 17]),
+        frames in 1usize..4,
+        fraction in prop::sample::select(vec![0.0f64, 0.5, 1.0]),
+    ) {
+        let case = Case::from_seed(seed, h, w, 3, k, frames);
+        let cv = case.run(CostVolumeImpl::Fast);
+        let mut costs = cv.costs();
+        filter_evidence(&mut costs, cv.counts_view(), fraction);
+        let (conf, scale) = confidence_and_scale(costs.view(), cv.counts_view(), cv.frames());
+        let want = confidence(costs.view(), cv.counts_view(), cv.frames());
+        prop_assert_eq!(conf.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+        prop_assert_eq!(scale.to_bits(), cost_scale(costs.view()).to_bits());
+    }
+}
+
 #[test]
 fn fast_kernel_reports_which_path_ran() {
     let name = fast_kernel_name();
@@ -119,14 +146,24 @@ fn fast_kernel_reports_which_path_ran() {
 
 #[test]
 fn output_independent_of_thread_count() {
-    let case = Case::from_seed(7, 37, 45, 32, 17, 3);
-    let run = |n| thread_pool(n).install(|| case.run(CostVolumeImpl::Fast));
-    let one = run(1);
-    assert!(one.counts().iter().any(|&n| n == 3), "some cells must be seen by every frame");
-    for n in [2, 3, 8] {
-        let other = run(n);
-        assert_eq!(bits(&other.costs()), bits(&one.costs()), "threads = {n}");
-        assert_eq!(other.counts(), one.counts(), "threads = {n}");
+    // Every kernel of the fast path: the RGB gather kernel, the 16·N-channel block kernel, the
+    // per-lane channel loop (35), the portable kernel.
+    for (c, imp) in [
+        (3, CostVolumeImpl::Fast),
+        (32, CostVolumeImpl::Fast),
+        (35, CostVolumeImpl::Fast),
+        (3, CostVolumeImpl::FastPortable),
+        (32, CostVolumeImpl::FastPortable),
+    ] {
+        let case = Case::from_seed(7, 37, 45, c, 17, 3);
+        let run = |n| thread_pool(n).install(|| case.run(imp));
+        let one = run(1);
+        assert!(one.counts().iter().any(|&n| n == 3), "some cells must be seen by every frame");
+        for n in [2, 3, 8] {
+            let other = run(n);
+            assert_eq!(bits(&other.costs()), bits(&one.costs()), "C = {c}, {imp:?}, threads = {n}");
+            assert_eq!(other.counts(), one.counts(), "C = {c}, {imp:?}, threads = {n}");
+        }
     }
 }
 

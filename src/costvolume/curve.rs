@@ -89,7 +89,7 @@ fn min_median(curve: ndarray::ArrayView1<f32>, scratch: &mut Vec<f32>) -> Option
 /// `C / s` unchanged. 1 when no pixel has a positive spread.
 pub fn cost_scale(costs: ArrayView3<f32>) -> f64 {
     let (h, w, _) = costs.dim();
-    let mut spreads: Vec<f32> = (0..h)
+    let spreads: Vec<f32> = (0..h)
         .into_par_iter()
         .flat_map_iter(|y| {
             let mut scratch = Vec::new();
@@ -100,6 +100,58 @@ pub fn cost_scale(costs: ArrayView3<f32>) -> f64 {
                 .collect::<Vec<_>>()
         })
         .collect();
+    scale_of(spreads)
+}
+
+/// [`confidence`] and [`cost_scale`] of the same costs from one pass: each pixel's minimum and
+/// median are computed once and feed both. Bit-identical to calling the two functions.
+///
+/// # Panics
+/// If the shapes differ.
+pub fn confidence_and_scale(
+    costs: ArrayView3<f32>,
+    counts: ArrayView3<u16>,
+    frames: usize,
+) -> (Array2<f32>, f64) {
+    assert_eq!(costs.dim(), counts.dim(), "costs and counts must agree");
+    let (h, w, _) = costs.dim();
+    let mut out = Array2::<f32>::zeros((h, w));
+    let slice = out.as_slice_mut().expect("owned arrays are contiguous");
+    let rows: Vec<Vec<f32>> = slice
+        .par_chunks_mut(w.max(1))
+        .enumerate()
+        .map(|(y, row)| {
+            let mut scratch = Vec::new();
+            let mut spreads = Vec::new();
+            for (x, out) in row.iter_mut().enumerate() {
+                let curve = costs.slice(ndarray::s![y, x, ..]);
+                let Some((lo, med)) = min_median(curve, &mut scratch) else { continue };
+                spreads.push(med - lo);
+                *out = pixel_confidence(curve, counts, (y, x), (lo, med), frames);
+            }
+            spreads
+        })
+        .collect();
+    (out, scale_of(rows.into_iter().flatten().collect()))
+}
+
+/// One pixel's confidence from its minimum and median (see [`confidence`]).
+#[inline]
+fn pixel_confidence(
+    curve: ndarray::ArrayView1<f32>,
+    counts: ArrayView3<u16>,
+    (y, x): (usize, usize),
+    (lo, med): (f32, f32),
+    frames: usize,
+) -> f32 {
+    let sharp = if med > 0.0 { 1.0 - f64::from(lo) / f64::from(med) } else { 0.0 };
+    let k = curve.iter().position(|&c| c == lo).expect("the minimum is a seen cell");
+    let evidence = f64::from(counts[[y, x, k]]) / frames.max(1) as f64;
+    (sharp.clamp(0.0, 1.0) * evidence.min(1.0)) as f32
+}
+
+/// [`cost_scale`] from the per-pixel spreads.
+fn scale_of(mut spreads: Vec<f32>) -> f64 {
     if spreads.is_empty() {
         return 1.0;
     }
@@ -126,13 +178,10 @@ pub fn confidence(costs: ArrayView3<f32>, counts: ArrayView3<u16>, frames: usize
     let slice = out.as_slice_mut().expect("owned arrays are contiguous");
     slice.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
         let mut scratch = Vec::new();
-        for x in 0..w {
+        for (x, out) in row.iter_mut().enumerate() {
             let curve = costs.slice(ndarray::s![y, x, ..]);
             let Some((lo, med)) = min_median(curve, &mut scratch) else { continue };
-            let sharp = if med > 0.0 { 1.0 - f64::from(lo) / f64::from(med) } else { 0.0 };
-            let k = curve.iter().position(|&c| c == lo).expect("the minimum is a seen cell");
-            let evidence = f64::from(counts[[y, x, k]]) / frames.max(1) as f64;
-            row[x] = (sharp.clamp(0.0, 1.0) * evidence.min(1.0)) as f32;
+            *out = pixel_confidence(curve, counts, (y, x), (lo, med), frames);
         }
     });
     out

@@ -78,9 +78,33 @@ pub(super) fn add_frame(
     let (w, k_count) = (geo.camera.width, rhos.len());
     let row_cells = w * k_count;
     let use_avx512 = dispatch && has_avx512();
+    #[cfg(target_arch = "x86_64")]
+    let use_blocks = use_avx512
+        && super::fast_avx512::available()
+        && super::fast_avx512::fits_i32(w, geo.camera.height, feats.channels);
+    // The block kernel loads whole 64-byte channel chunks of 16·N-channel maps: from a
+    // cache-line-aligned copy no load straddles two lines (a copy changes no value).
+    #[cfg(target_arch = "x86_64")]
+    let aligned;
+    #[cfg(target_arch = "x86_64")]
+    let feats = if use_blocks
+        && feats.channels.is_multiple_of(16)
+        && !(feats.live.as_ptr() as usize).is_multiple_of(64)
+    {
+        aligned = super::fast_avx512::AlignedCopy::new(feats.live);
+        &Slices { reference: feats.reference, live: aligned.as_slice(), channels: feats.channels }
+    } else {
+        feats
+    };
     sums.par_chunks_mut(row_cells).zip(counts.par_chunks_mut(row_cells)).enumerate().for_each_init(
         || Scratch::new(k_count),
         |scratch, (y, (sum_row, count_row))| {
+            #[cfg(target_arch = "x86_64")]
+            if use_blocks {
+                // SAFETY: `available()` checked the CPU features, `fits_i32` the offsets.
+                unsafe { super::fast_avx512::row(geo, feats, rhos, y, sum_row, count_row) };
+                return;
+            }
             #[cfg(target_arch = "x86_64")]
             if use_avx512 {
                 // SAFETY: `has_avx512()` reported AVX-512F on this CPU.
@@ -252,7 +276,7 @@ fn l1_rgb(live: &[f32], o: usize, dx: usize, dy: usize, r: &[f32], w: [f32; 4]) 
 /// `Σ_c |r_c - (w0 p00_c + w1 p10_c + w2 p01_c + w3 p11_c)|` in `f32`, with [`LANES`] partial sums
 /// (channel `c` goes to lane `c mod LANES`) folded pairwise.
 #[inline(always)]
-fn l1_distance(r: &[f32], p00: &[f32], p10: &[f32], p01: &[f32], p11: &[f32], w: [f32; 4]) -> f32 {
+pub(super) fn l1_distance(r: &[f32], p00: &[f32], p10: &[f32], p01: &[f32], p11: &[f32], w: [f32; 4]) -> f32 {
     let mut acc = [0.0f32; LANES];
     let n = r.len();
     let full = n - n % LANES;

@@ -49,15 +49,18 @@
 
 pub mod curve;
 mod fast;
+#[cfg(target_arch = "x86_64")]
+mod fast_avx512;
 mod reference;
 mod wta;
 
 use ndarray::{Array3, ArrayView3};
+use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
 
-pub use curve::{confidence, cost_scale, filter_evidence, winner_take_all_costs};
+pub use curve::{confidence, confidence_and_scale, cost_scale, filter_evidence, winner_take_all_costs};
 pub use fast::fast_kernel_name;
 pub(crate) use wta::MAX_OFFSET as MAX_PARABOLA_OFFSET;
 pub use wta::{parabola_offset, WtaDepth};
@@ -281,7 +284,14 @@ impl CostVolume {
 
     /// Every mean cost `[H, W, K]`; [`UNSEEN_COST`] where the count is 0.
     pub fn costs(&self) -> Array3<f32> {
-        let v = (0..self.counts.len()).map(|i| self.mean(i).unwrap_or(UNSEEN_COST)).collect();
+        // Per cell, so the rows can be filled in parallel with the same bits.
+        let mut v = vec![0.0f32; self.counts.len()];
+        let row = (self.camera.width * self.bins.count).max(1);
+        v.par_chunks_mut(row).enumerate().for_each(|(y, out)| {
+            for (j, c) in out.iter_mut().enumerate() {
+                *c = self.mean(y * row + j).unwrap_or(UNSEEN_COST);
+            }
+        });
         Array3::from_shape_vec(self.dim(), v).expect("length is H·W·K")
     }
 

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::backend::Backend;
-use crate::costvolume::{confidence, cost_scale, filter_evidence};
+use crate::costvolume::{confidence_and_scale, filter_evidence};
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
@@ -420,9 +420,8 @@ pub fn reconstruct(
     let cv = cv.finish()?;
     let mut costs: Array3<f32> = cv.costs();
     filter_evidence(&mut costs, cv.counts_view(), cfg.min_evidence);
-    let conf = confidence(costs.view(), cv.counts_view(), cv.frames());
+    let (conf, scale) = confidence_and_scale(costs.view(), cv.counts_view(), cv.frames());
     drop(cv);
-    let scale = cost_scale(costs.view());
     let w = backend.winner_take_all(costs.view(), &bins)?;
     timings.wta = t.elapsed().as_secs_f64();
     progress(Stage::Wta, 1, 1);

@@ -53,8 +53,14 @@ impl Scratch {
 }
 
 /// Which kernel [`CostVolumeImpl::Fast`](super::CostVolumeImpl::Fast) runs on this CPU:
-/// `"avx512"` or `"portable"`.
+/// `"avx512-blocks"` (AVX-512 F/BW/VL/DQ: the 16-hypothesis block kernels for RGB and 16·N
+/// channels, the per-hypothesis row kernel otherwise), `"avx512"` (AVX-512F only: the row kernel)
+/// or `"portable"`. Maps too large for 32-bit gather offsets fall back to the row kernel.
 pub fn fast_kernel_name() -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx512() && super::fast_avx512::available() {
+        return "avx512-blocks";
+    }
     if has_avx512() {
         "avx512"
     } else {

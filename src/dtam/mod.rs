@@ -138,7 +138,7 @@ pub const MAPPING_DEFAULTS: DtamParams = DtamParams {
     theta_start: 1.0,
     theta_end: 1e-6,
     iterations: 200,
-    steps_per_search: 1,
+    steps_per_search: 4,
     max_iterations: 500,
     tolerance: 1e-3,
 };

@@ -76,8 +76,8 @@ pub struct MappingArgs {
     /// DTAM convergence: relative change of energy and d-a gap per iteration.
     #[arg(long, default_value_t = MAPPING_DEFAULTS.tolerance)]
     pub tolerance: f64,
-    /// Photometric calibration before matching: none, affine (per-frame gain and offset) or
-    /// affine-vignetting (plus one shared vignetting strength), SPEC.md §11.9.
+    /// Photometric calibration before matching: none, or affine (per-frame gain and offset of each
+    /// live frame relative to the keyframe, fitted from a coarse first pass), SPEC.md §11.9.
     #[arg(long, default_value = "none")]
     pub photometric: PhotometricMode,
     /// Refuse to run when the estimated memory exceeds this many MiB.

@@ -317,11 +317,13 @@ pub(super) fn l1_distance(r: &[f32], p00: &[f32], p10: &[f32], p01: &[f32], p11:
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::{l1_distance, l1_rgb};
     use proptest::prelude::*;
 
-    fn value() -> impl Strategy<Value = f32> {
+    /// Feature values for the kernels' property tests: ordinary values plus ±0 and any `f32`
+    /// (NaN, ±∞, subnormals).
+    pub(in crate::costvolume) fn value() -> impl Strategy<Value = f32> {
         prop_oneof![
             8 => -300.0f32..300.0,
             1 => Just(0.0f32),

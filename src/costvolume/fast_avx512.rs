@@ -441,16 +441,8 @@ fn fold16(v: [__m512; BLOCK]) -> __m512 {
 mod tests {
     use super::*;
     use crate::costvolume::fast::l1_distance;
+    use crate::costvolume::fast::tests::value;
     use proptest::prelude::*;
-
-    fn value() -> impl Strategy<Value = f32> {
-        prop_oneof![
-            8 => -300.0f32..300.0,
-            1 => Just(0.0f32),
-            1 => Just(-0.0f32),
-            1 => prop::num::f32::ANY,
-        ]
-    }
 
     fn same(a: f32, b: f32) -> bool {
         a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())

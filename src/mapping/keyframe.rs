@@ -345,22 +345,6 @@ pub fn reconstruct(
     let t = Instant::now();
     let key = seq.load_frame(cfg.keyframe)?;
     timings.load += t.elapsed().as_secs_f64();
-    let photo = if cfg.photometric == PhotometricMode::None {
-        PhotometricFit::identity(live.len())
-    } else {
-        let t = Instant::now();
-        // Each live frame is loaded and reduced to the coarse level at once (only the coarse
-        // images are kept).
-        let lc = photometric::coarse_level(&seq.camera, level);
-        let coarse = |rgb: &RgbImage| downsample_to(rgb.view(), lc);
-        let all = live
-            .par_iter()
-            .map(|&m| seq.load_frame(m).and_then(|f| Ok((coarse(&f.rgb)?, f.pose))))
-            .collect::<Result<Vec<_>>>()?;
-        let fit = photometric::fit((&coarse(&key.rgb)?, &key.pose), &all, &seq.camera, &bins, lc)?;
-        timings.photometric = t.elapsed().as_secs_f64();
-        fit
-    };
     let t = Instant::now();
     let key_features = extractor.extract(&key.rgb)?.data;
     timings.features += t.elapsed().as_secs_f64();
@@ -381,6 +365,22 @@ pub fn reconstruct(
             ),
         ));
     }
+    let photo = if cfg.photometric == PhotometricMode::None {
+        PhotometricFit::identity(live.len())
+    } else {
+        let t = Instant::now();
+        // After the memory check: each live frame is loaded and reduced to the coarse level at
+        // once (only the coarse images are kept; the volume loop loads them again).
+        let lc = photometric::coarse_level(&seq.camera, level);
+        let coarse = |rgb: &RgbImage| downsample_to(rgb.view(), lc);
+        let all = live
+            .par_iter()
+            .map(|&m| seq.load_frame(m).and_then(|f| Ok((coarse(&f.rgb)?, f.pose))))
+            .collect::<Result<Vec<_>>>()?;
+        let fit = photometric::fit((&coarse(&key.rgb)?, &key.pose), &all, &seq.camera, &bins, lc)?;
+        timings.photometric = t.elapsed().as_secs_f64();
+        fit
+    };
     let colour = downsample_to(key.rgb.view(), level)?;
     let gt_depth = key.depth.as_ref().map(|d| depth_at_level(d, level));
     progress(Stage::Keyframe, 1, 1);
@@ -403,11 +403,7 @@ pub fn reconstruct(
         let frame = loaded.pop_front().expect("a batch was just loaded");
         debug_assert_eq!(frame.index, n);
         let t = Instant::now();
-        let f = if cfg.photometric == PhotometricMode::None {
-            extractor.extract(&frame.rgb)?.data
-        } else {
-            extractor.extract(&photo.correct_live(i, &frame.rgb))?.data
-        };
+        let f = extractor.extract(&photo.correct_live(i, &frame.rgb))?.data;
         timings.features += t.elapsed().as_secs_f64();
         let t = Instant::now();
         cv.add_frame(&backend.upload_owned(f)?, &relative_pose(&key.pose, &frame.pose))?;

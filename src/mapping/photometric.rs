@@ -15,7 +15,9 @@
 //! row-major order and every sum runs in that order in `f64`, so the fit does not depend on the
 //! thread count.
 
-use ndarray::{Array2, Array3, ArrayView2, ArrayView3};
+use std::borrow::Cow;
+
+use ndarray::{Array2, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -62,13 +64,16 @@ impl PhotometricFit {
     }
 
     /// Live frame `i`'s (window order) corrected colour `a_i I - e_i`, computed in `f64` and rounded
-    /// to `f32` per value.
+    /// to `f32` per value; the image itself (no copy) for the identity `(1, 0)`, which that formula
+    /// maps to the same bits.
     ///
     /// # Panics
     /// If `i` is not a frame of the fit.
-    pub fn correct_live(&self, i: usize, rgb: &RgbImage) -> RgbImage {
-        let (a, e) = self.frames[i];
-        rgb.mapv(|v| (a * f64::from(v) - e) as f32)
+    pub fn correct_live<'a>(&self, i: usize, rgb: &'a RgbImage) -> Cow<'a, RgbImage> {
+        match self.frames[i] {
+            (1.0, 0.0) => Cow::Borrowed(rgb),
+            (a, e) => Cow::Owned(rgb.mapv(|v| (a * f64::from(v) - e) as f32)),
+        }
     }
 }
 
@@ -112,13 +117,13 @@ pub fn fit(
     }
     let cam = camera.at_level(lc);
     let key_c = key.0;
-    let live_c: Vec<Array3<f32>> = live.iter().map(|(rgb, _)| rgb.clone()).collect();
+    let live_c: Vec<ArrayView3<f32>> = live.iter().map(|(rgb, _)| rgb.view()).collect();
     let poses: Vec<Pose> = live.iter().map(|(_, p)| relative_pose(key.1, p)).collect();
     let coarse_bins = InverseDepthBins::new(bins.rho_min, bins.rho_max, COARSE_BINS)?;
     let mut current = PhotometricFit::identity(n);
     for _ in 0..ROUNDS {
         let mut cv = CostVolume::new(key_c.clone(), cam, coarse_bins)?;
-        for (i, (img, pose)) in live_c.iter().zip(&poses).enumerate() {
+        for (i, ((img, _), pose)) in live.iter().zip(&poses).enumerate() {
             cv.add_frame(current.correct_live(i, img).view(), pose)?;
         }
         let mut costs = cv.costs();
@@ -135,7 +140,7 @@ pub fn fit(
 /// fewer than two distinct pairs keeps the identity.
 pub fn fit_from_depth(
     key: ArrayView3<f32>,
-    live: &[Array3<f32>],
+    live: &[ArrayView3<f32>],
     poses: &[Pose],
     camera: &PinholeCamera,
     inverse_depth: ArrayView2<f32>,
@@ -145,7 +150,7 @@ pub fn fit_from_depth(
         .par_iter()
         .zip(poses)
         .map(|(img, pose)| {
-            let pairs = collect_pairs(key, img.view(), camera, pose, inverse_depth, valid);
+            let pairs = collect_pairs(key, *img, camera, pose, inverse_depth, valid);
             (fit_affine(&pairs), pairs.len())
         })
         .collect();

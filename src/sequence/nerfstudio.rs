@@ -131,7 +131,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
     } else {
         notes.push(format!("{WARNING_NOTE}{NO_SCALE_WARNING}"));
     }
-    let (camera, _) = camera.expect("frames is not empty");
+    let (camera, _) = camera.ok_or_else(|| bad("\"frames\" is empty".into()))?;
     let mut seq = Sequence::from_parts(
         Format::Nerfstudio,
         root.to_path_buf(),

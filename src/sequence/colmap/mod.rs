@@ -174,5 +174,5 @@ fn shared_camera(
             Some(_) => {}
         }
     }
-    used.expect("images is not empty").to_camera(cam_path)
+    used.ok_or_else(|| Error::bad_file(img_path, "the model has no registered images"))?.to_camera(cam_path)
 }

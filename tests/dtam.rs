@@ -147,7 +147,7 @@ fn fused_solve_equals_the_reference_on_every_thread_count() {
     // A bench-like volume (smooth valleys, an unseen band) and a random one with odd values, with
     // the normalised mapping schedule's wide first searches and the raw defaults.
     let (h, w, k) = (37, 53, 48);
-    let bench = densefeat::cli::bench_tv::tv_inputs(w, h, k).unwrap();
+    let bench = densefeat::perf::tv_inputs(w, h, k).unwrap();
     let odd = odd_volume(h, w, k, 21, 0.2, 0.02);
     let mut r = stream(22);
     let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);

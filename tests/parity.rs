@@ -526,7 +526,14 @@ fn dtam_one_iteration_matches_within_budget() {
 #[test]
 fn dtam_solve_matches_within_budget_on_one_cost_array() {
     let (costs, bins, grey, init) = dtam_case(32);
-    let params = densefeat::dtam::DtamParams { iterations: 20, max_iterations: 40, ..Default::default() };
+    // The mapping default's primal-dual steps per a-search (SPEC §10.1), so the schedule the product
+    // runs is the one compared.
+    let params = densefeat::dtam::DtamParams {
+        iterations: 20,
+        max_iterations: 40,
+        steps_per_search: densefeat::dtam::MAPPING_DEFAULTS.steps_per_search,
+        ..Default::default()
+    };
     let (want, wr) = reference().dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params).unwrap();
     let step = bins.step() as f32;
     for b in backends() {

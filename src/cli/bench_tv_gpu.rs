@@ -2,17 +2,14 @@
 //! with the uploads (cost array, edge weights, initial depth, constants), the iterations (including
 //! the energy read-backs of the stopping rule) and the download of `d` and `a` timed separately.
 
-use super::bench_tv::{tv_inputs, BenchTvArgs, TvInputs};
+use super::bench_tv::{median_ms, BenchTvArgs};
+use crate::perf::{tv_inputs, TvInputs};
 use crate::backend::{Backend, GpuBackend};
 use crate::dtam::DtamParams;
 use crate::error::Result;
 
 /// Solves timed per part, after one warm-up solve (pipeline compilation).
 const REPEATS: usize = 3;
-
-fn median_ms(mut v: Vec<f64>) -> f64 {
-    crate::runtime::median(&mut v) * 1e3
-}
 
 /// Runs the GPU benchmark and prints it.
 ///

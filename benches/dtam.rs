@@ -7,11 +7,11 @@
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use densefeat::perf::{tv_inputs, TvInputs};
 use densefeat::dtam::{
     edge_weights, exhaustive_search, search_with_energy, solve, total_energy, CostRange, Dispatch,
     DtamParams, HuberTv,
 };
+use densefeat::perf::{tv_inputs, TvInputs};
 
 fn dtam(c: &mut Criterion) {
     let TvInputs { costs, bins, grey, init } = tv_inputs(320, 240, 64).expect("valid bench shape");

@@ -4,7 +4,7 @@
 
 use densefeat::costvolume::{
     confidence, confidence_and_scale, cost_scale, fast_kernel_name, filter_evidence, parabola_offset,
-    CostVolume, CostVolumeImpl, UNSEEN_COST,
+    CostVolume, CostVolumeImpl, NO_TRUNCATION, UNSEEN_COST,
 };
 use densefeat::eval::depth_metrics;
 use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
@@ -24,6 +24,8 @@ struct Case {
     live: Vec<(Array3<f32>, Pose)>,
     camera: PinholeCamera,
     bins: InverseDepthBins,
+    /// Per-frame truncation `τ` (SPEC.md §9.13).
+    truncation: f32,
 }
 
 impl Case {
@@ -57,11 +59,14 @@ impl Case {
                 (feats(&mut rng), Pose::from_parts(t, r))
             })
             .collect();
-        Self { reference, live, camera, bins }
+        Self { reference, live, camera, bins, truncation: NO_TRUNCATION }
     }
 
     fn run(&self, imp: CostVolumeImpl) -> CostVolume {
-        let mut cv = CostVolume::with_impl(self.reference.clone(), self.camera, self.bins, imp).unwrap();
+        let mut cv = CostVolume::with_impl(self.reference.clone(), self.camera, self.bins, imp)
+            .unwrap()
+            .with_truncation(self.truncation)
+            .unwrap();
         for (f, t) in &self.live {
             cv.add_frame(f.view(), t).unwrap();
         }
@@ -70,8 +75,11 @@ impl Case {
 
     /// The same problem with reference `|f_r|` and live `-|f_n|`: every per-channel distance is then
     /// `|f_r| + Σ w |f_n|` exactly, so the reference computes the magnitude `M̄` of SPEC.md §9.6.
+    /// Untruncated: `min(·, τ)` is 1-Lipschitz, so the untruncated budget bounds the truncated
+    /// costs too (§9.13).
     fn magnitude(&self) -> Self {
         let mut m = self.clone();
+        m.truncation = NO_TRUNCATION;
         m.reference.mapv_inplace(f32::abs);
         for (f, _) in &mut m.live {
             f.mapv_inplace(|v| -v.abs());
@@ -98,8 +106,12 @@ proptest! {
         c in prop::sample::select(vec![1usize, 3, 16, 32, 35, 64]),
         k in prop::sample::select(vec![2usize, 3, 17, 40]),
         frames in 1usize..4,
+        tau_per_channel in prop::sample::select(vec![f32::INFINITY, 0.5, 1.0]),
     ) {
-        let case = Case::from_seed(seed, h, w, c, k, frames);
+        // Features are uniform in [-2, 2]: a channel's |difference| averages about 4/3, so τ = c
+        // truncates most per-frame costs and τ = c/2 nearly all.
+        let tau = if tau_per_channel.is_finite() { tau_per_channel * c as f32 } else { NO_TRUNCATION };
+        let case = Case { truncation: tau, ..Case::from_seed(seed, h, w, c, k, frames) };
         let oracle = case.run(CostVolumeImpl::Reference);
         let fast = case.run(CostVolumeImpl::Fast);
         let portable = case.run(CostVolumeImpl::FastPortable);
@@ -148,20 +160,26 @@ fn fast_kernel_reports_which_path_ran() {
 fn output_independent_of_thread_count() {
     // Every kernel of the fast path: the RGB gather kernel, the 16·N-channel block kernel, the
     // per-lane channel loop (35), the portable kernel.
-    for (c, imp) in [
-        (3, CostVolumeImpl::Fast),
-        (32, CostVolumeImpl::Fast),
-        (35, CostVolumeImpl::Fast),
-        (3, CostVolumeImpl::FastPortable),
-        (32, CostVolumeImpl::FastPortable),
+    for (c, imp, tau) in [
+        (3, CostVolumeImpl::Fast, NO_TRUNCATION),
+        (32, CostVolumeImpl::Fast, NO_TRUNCATION),
+        (35, CostVolumeImpl::Fast, NO_TRUNCATION),
+        (3, CostVolumeImpl::FastPortable, NO_TRUNCATION),
+        (32, CostVolumeImpl::FastPortable, NO_TRUNCATION),
+        (3, CostVolumeImpl::Fast, 3.0),
+        (32, CostVolumeImpl::Fast, 32.0),
     ] {
-        let case = Case::from_seed(7, 37, 45, c, 17, 3);
+        let case = Case { truncation: tau, ..Case::from_seed(7, 37, 45, c, 17, 3) };
         let run = |n| thread_pool(n).install(|| case.run(imp));
         let one = run(1);
         assert!(one.counts().iter().any(|&n| n == 3), "some cells must be seen by every frame");
         for n in [2, 3, 8] {
             let other = run(n);
-            assert_eq!(bits(&other.costs()), bits(&one.costs()), "C = {c}, {imp:?}, threads = {n}");
+            assert_eq!(
+                bits(&other.costs()),
+                bits(&one.costs()),
+                "C = {c}, {imp:?}, τ = {tau}, threads = {n}"
+            );
             assert_eq!(other.counts(), one.counts(), "C = {c}, {imp:?}, threads = {n}");
         }
     }
@@ -343,4 +361,51 @@ fn bench_costvolume_cli_runs() {
     densefeat::cli::run(<densefeat::cli::Cli as clap::Parser>::try_parse_from(args).unwrap()).unwrap();
     let bad = ["densefeat", "bench", "costvolume", "--runs", "3"];
     assert!(densefeat::cli::run(<densefeat::cli::Cli as clap::Parser>::try_parse_from(bad).unwrap()).is_err());
+}
+
+/// SPEC.md §9.13: a frame adds `min(l1, τ)`. Reference 0 against a live frame of constant 50 in
+/// every channel: each frame's RGB distance is 150, so with `τ = 30` every seen cell's mean cost is
+/// exactly 30 (and 150 untruncated), on every implementation; the counts do not change.
+#[test]
+fn truncation_caps_each_frames_cost() {
+    let (h, w) = (6, 8);
+    let cam = PinholeCamera::new(8.0, 8.0, 3.5, 2.5, w, h).unwrap();
+    let bins = InverseDepthBins::new(0.2, 1.0, 5).unwrap();
+    let live = Array3::from_elem((h, w, 3), 50.0f32);
+    let t = Pose::from_parts(Translation3::new(0.05, 0.0, 0.0), UnitQuaternion::identity());
+    for imp in [CostVolumeImpl::Reference, CostVolumeImpl::Fast, CostVolumeImpl::FastPortable] {
+        let run = |tau: f32| {
+            let mut cv = CostVolume::with_impl(Array3::zeros((h, w, 3)), cam, bins, imp)
+                .unwrap()
+                .with_truncation(tau)
+                .unwrap();
+            cv.add_frame(live.view(), &t).unwrap();
+            cv.add_frame(live.view(), &t).unwrap();
+            cv
+        };
+        let (plain, cut) = (run(NO_TRUNCATION), run(30.0));
+        assert_eq!(plain.counts(), cut.counts(), "{imp:?}: counts");
+        assert!(plain.counts().iter().any(|&n| n == 2), "{imp:?}: some cells seen");
+        for ((&a, &b), &n) in plain.costs().iter().zip(cut.costs().iter()).zip(plain.counts().iter()) {
+            if n > 0 {
+                assert_eq!((a, b), (150.0, 30.0), "{imp:?}");
+            }
+        }
+        assert_eq!(cut.truncation(), 30.0);
+    }
+}
+
+/// A truncation must be positive, and is set before the first frame.
+#[test]
+fn truncation_must_be_positive_and_set_first() {
+    let cam = PinholeCamera::new(8.0, 8.0, 3.5, 2.5, 8, 6).unwrap();
+    let bins = InverseDepthBins::new(0.2, 1.0, 5).unwrap();
+    let cv = || CostVolume::new(Array3::zeros((6, 8, 3)), cam, bins).unwrap();
+    for bad in [0.0, -1.0, f32::NAN] {
+        let e = cv().with_truncation(bad).unwrap_err().to_string();
+        assert!(e.contains("--truncate") && e.contains("positive"), "{e}");
+    }
+    let mut started = cv();
+    started.add_frame(Array3::zeros((6, 8, 3)).view(), &Pose::identity()).unwrap();
+    assert!(started.with_truncation(10.0).is_err());
 }

@@ -280,6 +280,40 @@ fn cli_reconstruct_rejects_bad_flags() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("sift"));
     let out = run(&["--keyframe", "1", "--window", "3"]);
     assert!(!out.status.success());
+    for bad in ["0", "-5", "nan", "lots"] {
+        let out = run(&["--keyframe", "1", &format!("--truncate-rgb={bad}")]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("--truncate-rgb") && err.contains("positive"), "{err}");
+    }
+}
+
+/// SPEC.md §9.13: a per-frame truncation is recorded in the result and in metrics.json, changes the
+/// volume (the fixture has occlusions), and `none` / the default is the plain L1.
+#[test]
+fn truncation_reaches_the_volume_and_the_outputs() {
+    let seq = fixture();
+    let mut cfg = small_config();
+    let plain = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    assert_eq!(plain.truncation, densefeat::costvolume::NO_TRUNCATION, "the default is none");
+    cfg.truncation.rgb = 30.0;
+    let cut = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    assert_eq!(cut.truncation, 30.0);
+    assert_ne!(cut.wta.inverse_depth, plain.wta.inverse_depth, "a 30-grey-level cap changes some winners");
+    cfg.truncation.rgb = 0.0;
+    let (name, _) = invalid_argument(reconstruct(&seq, &cfg, |_, _, _| {}).unwrap_err());
+    assert_eq!(name, "truncate-rgb");
+
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["reconstruct", "--sequence", FIXTURE, "--keyframe", "20", "--window", "2,2", "--bins", "16"])
+        .args(["--level", "2", "--regularizer", "none", "--truncate-rgb", "80", "--out"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(json["truncation"], 80.0, "{json}");
 }
 
 #[test]

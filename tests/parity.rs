@@ -14,7 +14,7 @@ use std::sync::Arc;
 use ndarray::{Array1, Array3, Array4};
 
 use densefeat::backend::{self, Backend, CpuBackend, Tensor};
-use densefeat::costvolume::UNSEEN_COST;
+use densefeat::costvolume::{NO_TRUNCATION, UNSEEN_COST};
 use densefeat::error::Error;
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use densefeat::mapping::keyframe::{reconstruct, KeyframeConfig, Regularizer};
@@ -249,6 +249,8 @@ struct VolumeCase {
     live: Vec<(Array3<f32>, Pose)>,
     camera: PinholeCamera,
     bins: InverseDepthBins,
+    /// Per-frame truncation `τ` (SPEC.md §9.13).
+    truncation: f32,
 }
 
 /// `h x w` maps with `c` channels, `k` hypotheses over `[0.1, 2]` 1/m, three live frames up to
@@ -273,7 +275,7 @@ fn volume_case_sized(seed: u64, (h, w): (usize, usize), c: usize, k: usize) -> V
             (random_map(&mut rng, (h, w, c)), Pose::from_parts(nalgebra::Translation3::from(t), r))
         })
         .collect();
-    VolumeCase { reference: random_map(&mut rng, (h, w, c)), live, camera, bins }
+    VolumeCase { reference: random_map(&mut rng, (h, w, c)), live, camera, bins, truncation: NO_TRUNCATION }
 }
 
 fn try_build(
@@ -283,7 +285,10 @@ fn try_build(
 ) -> densefeat::error::Result<densefeat::costvolume::CostVolume> {
     let f = |x: &Array3<f32>, sign: f32| if abs { x.mapv(|v| sign * v.abs()) } else { x.clone() };
     let r = b.upload_owned(f(&case.reference, 1.0))?;
-    let mut v = b.cost_volume(&r, case.camera, case.bins)?;
+    // The magnitude run (§9.6's M̄) bounds the untruncated terms; `min(·, τ)` is 1-Lipschitz, so the
+    // same budget holds for the truncated costs (§9.13).
+    let tau = if abs { NO_TRUNCATION } else { case.truncation };
+    let mut v = b.cost_volume(&r, case.camera, case.bins, tau)?;
     for (x, pose) in &case.live {
         v.add_frame(&b.upload_owned(f(x, -1.0))?, pose)?;
     }
@@ -343,20 +348,23 @@ fn assert_same_bits<D: ndarray::Dimension>(
 
 #[test]
 fn cost_volume_counts_exact_costs_within_the_9_6_budget_and_wta_exact() {
-    // (seed, (H, W), C, K): 1-pixel-wide and -high maps alias the bilinear corners; K = 2 has no
-    // inner hypothesis for the parabola.
+    // (seed, (H, W), C, K, τ): 1-pixel-wide and -high maps alias the bilinear corners; K = 2 has no
+    // inner hypothesis for the parabola; the τ cases truncate about half the per-frame costs (the
+    // features are uniform in [-1, 1], so a channel's |difference| averages about 2/3).
     let cases = [
-        (21, (11, 14), 3, 9),
-        (22, (11, 14), 32, 9),
-        (23, (11, 14), 5, 9),
-        (24, (1, 9), 3, 5),
-        (25, (8, 1), 4, 2),
-        (26, (7, 10), 35, 17),
+        (21, (11, 14), 3, 9, NO_TRUNCATION),
+        (22, (11, 14), 32, 9, NO_TRUNCATION),
+        (23, (11, 14), 5, 9, NO_TRUNCATION),
+        (24, (1, 9), 3, 5, NO_TRUNCATION),
+        (25, (8, 1), 4, 2, NO_TRUNCATION),
+        (26, (7, 10), 35, 17, NO_TRUNCATION),
+        (28, (11, 14), 3, 9, 2.0),
+        (29, (11, 14), 32, 9, 20.0),
     ];
     for b in backends() {
-        for &(seed, hw, c, k) in &cases {
-            let case = volume_case_sized(seed, hw, c, k);
-            let label = format!("{} volume {}x{}, C = {c}, K = {k}", b.name(), hw.0, hw.1);
+        for &(seed, hw, c, k, tau) in &cases {
+            let case = VolumeCase { truncation: tau, ..volume_case_sized(seed, hw, c, k) };
+            let label = format!("{} volume {}x{}, C = {c}, K = {k}, τ = {tau:e}", b.name(), hw.0, hw.1);
             let want = build(&reference(), &case, false);
             // WTA on one cost array is exact on every backend (argmin and parabola in f64).
             let wts = want.costs();
@@ -425,7 +433,7 @@ fn volume_snapshots_match_and_runs_repeat_bit_for_bit() {
     let case = volume_case_sized(27, (9, 12), 16, 7);
     for b in backends() {
         let run = || -> densefeat::error::Result<(Vec<densefeat::costvolume::CostVolume>, densefeat::costvolume::CostVolume)> {
-            let mut v = b.cost_volume(&b.upload(case.reference.view())?, case.camera, case.bins)?;
+            let mut v = b.cost_volume(&b.upload(case.reference.view())?, case.camera, case.bins, NO_TRUNCATION)?;
             let mut snaps = Vec::new();
             for (x, pose) in &case.live {
                 v.add_frame(&b.upload(x.view())?, pose)?;
@@ -591,7 +599,7 @@ fn device_mapping_ops_refuse_host_tensors_and_non_finite_costs() {
         let wta = b.winner_take_all(costs.view(), &case.bins);
         let dtam = b.dtam_solve(costs.view(), &case.bins, grey.view(), init.view(), &params);
         if b.name() == "cpu" {
-            assert!(b.cost_volume(&host, case.camera, case.bins).is_ok());
+            assert!(b.cost_volume(&host, case.camera, case.bins, NO_TRUNCATION).is_ok());
             assert!(wta.is_ok() && dtam.is_ok(), "cpu takes NaN costs");
             continue;
         }
@@ -599,8 +607,13 @@ fn device_mapping_ops_refuse_host_tensors_and_non_finite_costs() {
             Err(Error::Unsupported { what: w, .. }) => eprintln!("{} {what}: refused ({w})", b.name()),
             other => panic!("{} {what}: expected Unsupported, got {other:?}", b.name()),
         };
-        unsupported(b.cost_volume(&host, case.camera, case.bins).map(|_| ()), "host reference");
-        if let Ok(mut v) = b.cost_volume(&b.upload(case.reference.view()).unwrap(), case.camera, case.bins) {
+        unsupported(
+            b.cost_volume(&host, case.camera, case.bins, NO_TRUNCATION).map(|_| ()),
+            "host reference",
+        );
+        if let Ok(mut v) =
+            b.cost_volume(&b.upload(case.reference.view()).unwrap(), case.camera, case.bins, NO_TRUNCATION)
+        {
             unsupported(
                 v.add_frame(&Tensor::host(case.live[0].0.clone()), &case.live[0].1),
                 "host live frame",
@@ -706,7 +719,14 @@ fn fixture_cost_volume_and_wta_match_reference() {
             (f, densefeat::geometry::relative_pose(&key_pose, &pose))
         })
         .collect();
-    let case = VolumeCase { reference: key, live, camera, bins };
+    let case = VolumeCase {
+        reference: key,
+        live,
+        camera,
+        bins,
+        // A truncation that cuts the fixture's occlusion outliers (SPEC.md §9.13's example value).
+        truncation: 100.0,
+    };
     let want = build(&reference(), &case, false);
     // RGB is non-negative, so the magnitude run is the reference on `f_r` and `-f_n` (§9.6).
     let mag = build(&reference(), &case, true);

@@ -140,9 +140,12 @@ impl Backend for CpuBackend {
         reference: &Tensor,
         camera: PinholeCamera,
         bins: InverseDepthBins,
+        truncation: f32,
     ) -> Result<Box<dyn VolumeBuilder>> {
         let r = host(self.name(), reference)?.clone();
-        Ok(Box::new(CpuVolume(CostVolume::with_impl(r, camera, bins, self.volume)?)))
+        Ok(Box::new(CpuVolume(
+            CostVolume::with_impl(r, camera, bins, self.volume)?.with_truncation(truncation)?,
+        )))
     }
 
     fn winner_take_all(&self, costs: ArrayView3<f32>, bins: &InverseDepthBins) -> Result<WtaDepth> {

@@ -144,15 +144,18 @@ pub trait Backend: Send + Sync + Debug {
         Ok(levels)
     }
 
-    /// An empty cost volume for `reference` features seen by `camera`, hypotheses `bins` (SPEC.md §9).
+    /// An empty cost volume for `reference` features seen by `camera`, hypotheses `bins`, each
+    /// frame's cost truncated at `truncation` (SPEC.md §9, §9.13;
+    /// [`crate::costvolume::NO_TRUNCATION`] for the plain L1).
     ///
     /// # Errors
-    /// Shape errors; [`Error::Unsupported`].
+    /// Shape errors, a truncation that is not positive; [`Error::Unsupported`].
     fn cost_volume(
         &self,
         reference: &Tensor,
         camera: PinholeCamera,
         bins: InverseDepthBins,
+        truncation: f32,
     ) -> Result<Box<dyn VolumeBuilder>>;
     /// Winner-take-all inverse depth with sub-bin parabola refinement on a finalised cost array
     /// (`[H, W, K]`, unseen cells `>=` [`crate::costvolume::UNSEEN_COST`]; SPEC.md §9.5).

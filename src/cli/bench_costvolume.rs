@@ -75,7 +75,8 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     let live = backend.upload_owned(live)?;
     backend.synchronize()?;
     let upload = t.elapsed().as_secs_f64();
-    let mut cv = backend.cost_volume(&reference, cam, bins)?;
+    // Untruncated (SPEC.md §9.13): the truncation is one `min` per hypothesis block either way.
+    let mut cv = backend.cost_volume(&reference, cam, bins, crate::costvolume::NO_TRUNCATION)?;
     let mut times = Vec::with_capacity(args.runs);
     let mut cpu_start = None;
     pool.install(|| -> Result<()> {

@@ -8,6 +8,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::backend_flag::BackendFlag;
+use crate::costvolume::NO_TRUNCATION;
 use crate::dtam::{DtamParams, MAPPING_DEFAULTS};
 use crate::error::{Error, Result};
 use crate::mapping::keyframe::{
@@ -15,7 +16,7 @@ use crate::mapping::keyframe::{
 };
 use crate::mapping::output::DEFAULT_MIN_CONFIDENCE;
 use crate::mapping::photometric::PhotometricMode;
-use crate::mapping::{FeatureKind, KeyframeResult};
+use crate::mapping::{FeatureKind, KeyframeResult, Truncation};
 use crate::sequence::{open_with, OpenOptions, Sequence};
 
 /// Mapping flags (SPEC.md §10, §11).
@@ -80,6 +81,13 @@ pub struct MappingArgs {
     /// live frame relative to the keyframe, fitted from a coarse first pass), SPEC.md §11.9.
     #[arg(long, default_value = "none")]
     pub photometric: PhotometricMode,
+    /// Per-frame truncation of the RGB cost (each live frame adds at most this to a cell; grey levels
+    /// summed over R, G, B; e.g. 100), or `none` for the plain L1 (SPEC.md §9.13).
+    #[arg(long, default_value = "none", value_parser = parse_truncation)]
+    pub truncate_rgb: f32,
+    /// Per-frame truncation of the learned-feature cost (L1 over the channels), or `none`.
+    #[arg(long, default_value = "none", value_parser = parse_truncation)]
+    pub truncate_learned: f32,
     /// Refuse to run when the estimated memory exceeds this many MiB.
     #[arg(long, default_value_t = DEFAULT_MAX_MEMORY_MB)]
     pub max_memory_mb: usize,
@@ -201,7 +209,22 @@ impl MappingArgs {
             lambda_sweep: Vec::new(),
             backend: self.backend.resolve()?,
             photometric: self.photometric,
+            truncation: Truncation { rgb: self.truncate_rgb, learned: self.truncate_learned },
         })
+    }
+}
+
+/// Parses a per-frame truncation: a positive number, or `none` ([`NO_TRUNCATION`]).
+///
+/// # Errors
+/// A message for clap.
+pub fn parse_truncation(s: &str) -> std::result::Result<f32, String> {
+    if s.trim().eq_ignore_ascii_case("none") {
+        return Ok(NO_TRUNCATION);
+    }
+    match s.trim().parse::<f32>() {
+        Ok(t) if t > 0.0 && t.is_finite() => Ok(t),
+        _ => Err(format!("{s:?}: expected a positive number or `none`")),
     }
 }
 

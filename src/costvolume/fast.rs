@@ -34,6 +34,8 @@ pub(super) struct Slices<'a> {
     pub reference: &'a [f32],
     pub live: &'a [f32],
     pub channels: usize,
+    /// Per-frame truncation `τ` (SPEC.md §9.13): a frame adds `min(l1, τ)`.
+    pub truncation: f32,
 }
 
 /// Per-hypothesis scratch of one pixel (length `K` each): validity, the flat offset of the
@@ -98,7 +100,12 @@ pub(super) fn add_frame(
         && !(feats.live.as_ptr() as usize).is_multiple_of(64)
     {
         aligned = super::fast_avx512::AlignedCopy::new(feats.live);
-        &Slices { reference: feats.reference, live: aligned.as_slice(), channels: feats.channels }
+        &Slices {
+            reference: feats.reference,
+            live: aligned.as_slice(),
+            channels: feats.channels,
+            truncation: feats.truncation,
+        }
     } else {
         feats
     };
@@ -227,7 +234,7 @@ fn row<const CH: usize>(
                     wk,
                 )
             };
-            sums[k] += l1;
+            sums[k] += l1.min(feats.truncation);
             counts[k] += 1;
         }
     }

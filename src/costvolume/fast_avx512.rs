@@ -203,6 +203,7 @@ pub(super) unsafe fn row(
                 // SAFETY: as above.
                 unsafe { l1_any16(feats.live, &b, dx, dy, r) }
             };
+            let l1 = _mm512_min_ps(l1, _mm512_set1_ps(feats.truncation));
             let n = (k_count - k).min(BLOCK);
             let store = if n == BLOCK { u16::MAX } else { (1u16 << n) - 1 };
             // SAFETY: lanes below `n` are cells `base + k .. base + k + n` of this row.

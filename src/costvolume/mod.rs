@@ -69,6 +69,10 @@ pub use wta::{parabola_offset, WtaDepth};
 /// NaN-free; [`CostVolume::winner_take_all`] never reads it (it skips count-0 cells).
 pub const UNSEEN_COST: f32 = f32::MAX;
 
+/// The per-frame truncation that leaves every cost unchanged (`min(l1, f32::MAX) = l1` for the finite
+/// distances of finite features): the default of [`CostVolume::with_impl`].
+pub const NO_TRUNCATION: f32 = f32::MAX;
+
 /// Which cost-volume implementation to run. Every variant is always compiled and always tested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[non_exhaustive]
@@ -102,6 +106,8 @@ pub struct CostVolume {
     sums: Sums,
     counts: Vec<u16>,
     frames: usize,
+    /// Per-frame truncation `τ`: each frame adds `min(l1, τ)` (SPEC.md §9.13).
+    truncation: f32,
 }
 
 impl CostVolume {
@@ -141,25 +147,51 @@ impl CostVolume {
             sums,
             counts: vec![0; cells],
             frames: 0,
+            truncation: NO_TRUNCATION,
         })
+    }
+
+    /// The same volume with every frame's cost truncated at `tau`: a frame adds `min(l1, τ)` to a cell
+    /// instead of `l1` (SPEC.md §9.13; OpenDTAM's L1T). [`NO_TRUNCATION`] is the plain L1.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] unless `tau > 0` (NaN included), or if frames were already added.
+    pub fn with_truncation(mut self, tau: f32) -> Result<Self> {
+        if tau.is_nan() || tau <= 0.0 {
+            return Err(Error::invalid_argument("--truncate", format!("{tau}: must be positive")));
+        }
+        if self.frames > 0 {
+            return Err(Error::invalid_argument(
+                "cost volume",
+                "the truncation is set before the first frame",
+            ));
+        }
+        self.truncation = tau;
+        Ok(self)
+    }
+
+    /// The per-frame truncation `τ` ([`NO_TRUNCATION`] when none).
+    pub fn truncation(&self) -> f32 {
+        self.truncation
     }
 
     /// A volume from running sums and counts accumulated elsewhere (a device backend's
     /// [`crate::backend::VolumeBuilder::finish`]), `[H, W, K]` hypothesis fastest, after `frames`
-    /// frames. The sums are `f32`, so it continues as a [`CostVolumeImpl::Fast`] volume.
+    /// frames with per-frame truncation `truncation`. The sums are `f32`, so it continues as a
+    /// [`CostVolumeImpl::Fast`] volume.
     ///
     /// # Errors
     /// As [`CostVolume::with_impl`]; [`Error::InvalidArgument`] if `sums` or `counts` is not
-    /// `H·W·K` long or `frames` exceeds [`MAX_FRAMES`].
+    /// `H·W·K` long or `frames` exceeds [`MAX_FRAMES`]; as [`CostVolume::with_truncation`].
     pub fn from_sums(
         reference: Array3<f32>,
         camera: PinholeCamera,
         bins: InverseDepthBins,
-        sums: Vec<f32>,
-        counts: Vec<u16>,
-        frames: usize,
+        (sums, counts, frames): (Vec<f32>, Vec<u16>, usize),
+        truncation: f32,
     ) -> Result<Self> {
-        let mut cv = Self::with_impl(reference, camera, bins, CostVolumeImpl::Fast)?;
+        let mut cv =
+            Self::with_impl(reference, camera, bins, CostVolumeImpl::Fast)?.with_truncation(truncation)?;
         if sums.len() != cv.counts.len() || counts.len() != cv.counts.len() || frames > MAX_FRAMES {
             return Err(Error::invalid_argument(
                 "cost volume",
@@ -197,6 +229,7 @@ impl CostVolume {
                 &live.view(),
                 &warp,
                 &self.rhos,
+                f64::from(self.truncation),
                 sums,
                 &mut self.counts,
             ),
@@ -205,6 +238,7 @@ impl CostVolume {
                     reference: self.reference.as_slice().expect("standard layout"),
                     live: live.as_slice().expect("standard layout"),
                     channels: self.reference.dim().2,
+                    truncation: self.truncation,
                 };
                 fast::add_frame(
                     &geo,

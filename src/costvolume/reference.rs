@@ -1,5 +1,6 @@
 //! The oracle: for every cell, warp with [`Warp::apply`], sample with [`sample_bilinear`], and add
-//! the `f64` L1 distance to an `f64` running sum. One thread, no hoisting. Keep it naive.
+//! the `f64` L1 distance, truncated at `τ` (SPEC.md §9.13), to an `f64` running sum. One thread, no
+//! hoisting. Keep it naive.
 
 use ndarray::ArrayView3;
 
@@ -12,6 +13,7 @@ pub(super) fn add_frame(
     live: &ArrayView3<f32>,
     warp: &Warp,
     rhos: &[f64],
+    truncation: f64,
     sums: &mut [f64],
     counts: &mut [u16],
 ) {
@@ -30,7 +32,7 @@ pub(super) fn add_frame(
                 let l1: f64 =
                     (0..c).map(|ch| (f64::from(reference[[y, x, ch]]) - f64::from(sample[ch])).abs()).sum();
                 let i = (y * w + x) * k_count + k;
-                sums[i] += l1;
+                sums[i] += l1.min(truncation);
                 counts[i] += 1;
             }
         }

@@ -106,8 +106,14 @@ pub fn cost_curves(
         let camera = ex.camera(&seq.camera);
         let grid: Vec<_> =
             pixels.iter().map(|&p| grid_pixel(p, ex.level(), (camera.width, camera.height))).collect();
-        let mut builder =
-            backend.cost_volume(&backend.upload_owned(ex.extract(&key.rgb)?.data)?, camera, bins)?;
+        // The default per-frame truncation (SPEC.md §9.13): the curves the mapper sees.
+        let truncation = crate::mapping::Truncation::DEFAULT.of(kind);
+        let mut builder = backend.cost_volume(
+            &backend.upload_owned(ex.extract(&key.rgb)?.data)?,
+            camera,
+            bins,
+            truncation,
+        )?;
         for (i, &n) in order[..last].iter().enumerate() {
             let live = seq.load_frame(n)?;
             builder.add_frame(

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::backend::Backend;
-use crate::costvolume::{confidence_and_scale, filter_evidence};
+use crate::costvolume::{confidence_and_scale, filter_evidence, NO_TRUNCATION};
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
@@ -46,6 +46,39 @@ impl std::str::FromStr for Regularizer {
         }
     }
 }
+
+/// Per-frame cost truncation `τ` per feature kind (SPEC.md §9.13): each live frame adds
+/// `min(l1, τ)` to a cell, so a frame in which the reference pixel is occluded or specular adds at
+/// most `τ` to the wrong hypothesis (OpenDTAM's L1T). In the feature's own cost units (the L1 over
+/// its channels); [`NO_TRUNCATION`] is the plain L1.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Truncation {
+    /// `τ` for RGB, grey levels summed over the three channels.
+    pub rgb: f32,
+    /// `τ` for learned features (any weights), L1 over their channels.
+    pub learned: f32,
+}
+
+impl Truncation {
+    /// The defaults (none for either kind), chosen on validation and training scenes (SPEC.md §9.13).
+    pub const DEFAULT: Self = Self { rgb: DEFAULT_TRUNCATION_RGB, learned: DEFAULT_TRUNCATION_LEARNED };
+    /// No truncation for either kind.
+    pub const NONE: Self = Self { rgb: NO_TRUNCATION, learned: NO_TRUNCATION };
+
+    /// `τ` for `kind`.
+    pub fn of(&self, kind: &FeatureKind) -> f32 {
+        match kind {
+            FeatureKind::Rgb => self.rgb,
+            FeatureKind::Learned(_) => self.learned,
+        }
+    }
+}
+
+/// Default RGB truncation: none (SPEC.md §9.13: it helped one real scene and hurt two others).
+pub const DEFAULT_TRUNCATION_RGB: f32 = NO_TRUNCATION;
+/// Default learned-feature truncation: none (SPEC.md §9.13: it lowered δ on the real validation
+/// scene).
+pub const DEFAULT_TRUNCATION_LEARNED: f32 = NO_TRUNCATION;
 
 /// Everything [`reconstruct`] needs.
 #[derive(Clone, Debug)]
@@ -83,6 +116,8 @@ pub struct KeyframeConfig {
     pub backend: Arc<dyn Backend>,
     /// Photometric calibration of the window before matching (SPEC.md §11.9).
     pub photometric: PhotometricMode,
+    /// Per-frame cost truncation per feature kind (SPEC.md §9.13).
+    pub truncation: Truncation,
 }
 
 /// Default of [`KeyframeConfig::bins`].
@@ -114,6 +149,7 @@ impl KeyframeConfig {
             lambda_sweep: Vec::new(),
             backend: crate::backend::default_backend(),
             photometric: PhotometricMode::None,
+            truncation: Truncation::DEFAULT,
         }
     }
 
@@ -159,6 +195,13 @@ impl KeyframeConfig {
         }
         if self.level > 8 {
             return Err(Error::invalid_argument("level", format!("{}: at most 8", self.level)));
+        }
+        for (flag, t) in
+            [("truncate-rgb", self.truncation.rgb), ("truncate-learned", self.truncation.learned)]
+        {
+            if t.is_nan() || t <= 0.0 {
+                return Err(Error::invalid_argument(flag, format!("{t}: must be positive (or none)")));
+            }
         }
         if let Some(l) = self.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
             return Err(Error::invalid_argument("lambda-sweep", format!("λ = {l}: must be positive")));
@@ -273,6 +316,8 @@ pub struct KeyframeResult {
     pub memory_estimate: u64,
     /// The photometric fit used (the identity without calibration).
     pub photometric: PhotometricFit,
+    /// The per-frame truncation `τ` the volume was built with ([`NO_TRUNCATION`] for none).
+    pub truncation: f32,
 }
 
 impl KeyframeResult {
@@ -385,7 +430,8 @@ pub fn reconstruct(
     let gt_depth = key.depth.as_ref().map(|d| depth_at_level(d, level));
     progress(Stage::Keyframe, 1, 1);
 
-    let mut cv = backend.cost_volume(&backend.upload_owned(key_features)?, camera, bins)?;
+    let truncation = cfg.truncation.of(&cfg.features);
+    let mut cv = backend.cost_volume(&backend.upload_owned(key_features)?, camera, bins, truncation)?;
     // Frames are decoded a few at a time in parallel (decoding is exact, so this changes no bits)
     // and added in window order.
     let batch = rayon::current_num_threads().clamp(1, 8);
@@ -467,6 +513,7 @@ pub fn reconstruct(
         sweep,
         memory_estimate: estimate,
         photometric: photo,
+        truncation,
     })
 }
 

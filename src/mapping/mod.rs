@@ -16,6 +16,6 @@ pub use evaluate::{evaluate, EvalOptions, EvalTable, Method};
 pub use features::{FeatureExtractor, FeatureKind, FeatureMap};
 pub use keyframe::{
     memory_estimate, reconstruct, DepthEstimate, KeyframeConfig, KeyframeResult, Regularizer, Stage,
-    StageTimings,
+    StageTimings, Truncation, DEFAULT_TRUNCATION_LEARNED, DEFAULT_TRUNCATION_RGB,
 };
 pub use output::{write_outputs, write_outputs_with};

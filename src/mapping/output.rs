@@ -88,6 +88,7 @@ pub fn write_outputs_with(result: &KeyframeResult, dir: &Path, min_confidence: f
             "metrics": metrics,
             "min_confidence": min_confidence,
             "cost_scale": result.cost_scale,
+            "truncation": (result.truncation < crate::costvolume::NO_TRUNCATION).then_some(result.truncation),
             "timings_s": result.timings,
             "dtam": result.dtam.as_ref().map(|r| json!({
                 "iterations": r.iterations,

@@ -553,8 +553,9 @@ impl Backend for GpuBackend {
         reference: &Tensor,
         camera: PinholeCamera,
         bins: InverseDepthBins,
+        truncation: f32,
     ) -> Result<Box<dyn VolumeBuilder>> {
-        Ok(Box::new(volume::GpuVolume::new(self.arc()?, reference, camera, bins)?))
+        Ok(Box::new(volume::GpuVolume::new(self.arc()?, reference, camera, bins, truncation)?))
     }
 
     fn winner_take_all(&self, costs: ArrayView3<f32>, bins: &InverseDepthBins) -> Result<WtaDepth> {

@@ -31,19 +31,26 @@ pub(super) struct GpuVolume {
     counts: wgpu::Buffer,
     cells: usize,
     frames: usize,
+    /// Per-frame truncation `τ` (SPEC.md §9.13).
+    truncation: f32,
 }
 
 impl GpuVolume {
     /// An empty volume for device features `reference` (`[H, W, C]`, `H x W` the camera's).
     ///
     /// # Errors
-    /// A host tensor or a shape mismatch; no shader f64; a volume over the adapter's binding limit.
+    /// A host tensor or a shape mismatch; no shader f64; a volume over the adapter's binding limit; a
+    /// truncation that is not positive.
     pub(super) fn new(
         gpu: Arc<GpuBackend>,
         reference: &Tensor,
         camera: PinholeCamera,
         bins: InverseDepthBins,
+        truncation: f32,
     ) -> Result<Self> {
+        if truncation.is_nan() || truncation <= 0.0 {
+            return Err(Error::invalid_argument("--truncate", format!("{truncation}: must be positive")));
+        }
         gpu.buffer(reference)?;
         gpu.require_f64("cost_volume", "the warp and the bounds test are the CPU's f64 expressions")?;
         let (h, w, c) = reference.dim();
@@ -51,7 +58,17 @@ impl GpuVolume {
         let cells = h * w * bins.count;
         let bytes = gpu.check_size(cells)?;
         let (sums, counts) = (gpu.storage_zeroed(bytes)?, gpu.storage_zeroed(bytes)?);
-        Ok(Self { gpu, reference: reference.clone(), camera, bins, sums, counts, cells, frames: 0 })
+        Ok(Self {
+            gpu,
+            reference: reference.clone(),
+            camera,
+            bins,
+            sums,
+            counts,
+            cells,
+            frames: 0,
+            truncation,
+        })
     }
 
     /// The volume so far on the host.
@@ -64,12 +81,12 @@ impl GpuVolume {
             .into_iter()
             .map(|n| u16::try_from(n).map_err(|_| unsupported(format!("a cell count of {n} (> 65535)"))))
             .collect::<Result<Vec<u16>>>()?;
-        CostVolume::from_sums(reference, self.camera, self.bins, sums, counts, self.frames)
+        CostVolume::from_sums(reference, self.camera, self.bins, (sums, counts, self.frames), self.truncation)
     }
 }
 
-/// The geometry `volume.wgsl` reads (see its header): `R K⁻¹`, `t`, intrinsics, bounds, `ρ_k`.
-fn geometry(camera: &PinholeCamera, bins: &InverseDepthBins, t_nr: &Pose) -> Vec<f64> {
+/// The geometry `volume.wgsl` reads (see its header): `R K⁻¹`, `t`, intrinsics, bounds, `τ`, `ρ_k`.
+fn geometry(camera: &PinholeCamera, bins: &InverseDepthBins, t_nr: &Pose, truncation: f32) -> Vec<f64> {
     let warp = Warp::new(camera, camera, t_nr);
     let rk = warp.rotation_k_inv();
     let t = warp.translation();
@@ -77,6 +94,8 @@ fn geometry(camera: &PinholeCamera, bins: &InverseDepthBins, t_nr: &Pose) -> Vec
     let mut g: Vec<f64> = (0..3).flat_map(|r| (0..3).map(move |c| rk[(r, c)])).collect();
     g.extend([t.x, t.y, t.z, camera.fx, camera.fy, camera.cx, camera.cy]);
     g.extend([(w - 1) as f64, (h - 1) as f64, w.saturating_sub(2) as f64, h.saturating_sub(2) as f64]);
+    // f32::MAX, never infinity, when untruncated: WGSL need not preserve infinities.
+    g.push(f64::from(truncation.min(f32::MAX)));
     g.extend(bins.values());
     g
 }
@@ -95,7 +114,12 @@ impl VolumeBuilder for GpuVolume {
         let (h, w, c) = live.dim();
         let p = super::params([self.cells, h, w, c, self.bins.count]);
         let pb = gpu.storage_bytes(bytemuck::cast_slice(&p));
-        let gb = gpu.storage_bytes(bytemuck::cast_slice(&geometry(&self.camera, &self.bins, t_nr)));
+        let gb = gpu.storage_bytes(bytemuck::cast_slice(&geometry(
+            &self.camera,
+            &self.bins,
+            t_nr,
+            self.truncation,
+        )));
         let pipeline = gpu.pipeline_entry(MODULE, "add_frame", || SOURCE.to_string())?;
         let rb = &gpu.buffer(&self.reference)?.buffer;
         let group = gpu.bind(

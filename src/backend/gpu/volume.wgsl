@@ -4,8 +4,9 @@
 // after run.
 //
 // p = [cells, h, w, c, k]
-// g = [R K⁻¹ row-major (9), t_nr (3), fx, fy, cx, cy, x_max, y_max, x_cap, y_cap, ρ_0 .. ρ_{K-1}]
-// (x_max = W-1, x_cap = max(W-2, 0), likewise for y).
+// g = [R K⁻¹ row-major (9), t_nr (3), fx, fy, cx, cy, x_max, y_max, x_cap, y_cap, τ, ρ_0 .. ρ_{K-1}]
+// (x_max = W-1, x_cap = max(W-2, 0), likewise for y; τ the per-frame truncation, SPEC.md §9.13,
+// f32::MAX for none).
 
 @group(0) @binding(0) var<storage, read> p: array<u32>;
 @group(0) @binding(1) var<storage, read> g: array<f64>;
@@ -14,7 +15,8 @@
 @group(0) @binding(4) var<storage, read_write> sums: array<f32>;
 @group(0) @binding(5) var<storage, read_write> counts: array<u32>;
 
-const RHO0: u32 = 20u;
+const TAU: u32 = 20u;
+const RHO0: u32 = 21u;
 
 @compute @workgroup_size(64)
 fn add_frame(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -62,6 +64,6 @@ fn add_frame(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
             + w11 * live[o + dy + dx + ch];
         l1 += abs(reference[r + ch] - s);
     }
-    sums[i] += l1;
+    sums[i] += min(l1, f32(g[TAU]));
     counts[i] += 1u;
 }

@@ -364,7 +364,8 @@ fn cost_volume_counts_exact_costs_within_the_9_6_budget_and_wta_exact() {
     for b in backends() {
         for &(seed, hw, c, k, tau) in &cases {
             let case = VolumeCase { truncation: tau, ..volume_case_sized(seed, hw, c, k) };
-            let label = format!("{} volume {}x{}, C = {c}, K = {k}, τ = {tau:e}", b.name(), hw.0, hw.1);
+            let tau_text = if tau == NO_TRUNCATION { "none".to_string() } else { tau.to_string() };
+            let label = format!("{} volume {}x{}, C = {c}, K = {k}, τ = {tau_text}", b.name(), hw.0, hw.1);
             let want = build(&reference(), &case, false);
             // WTA on one cost array is exact on every backend (argmin and parabola in f64).
             let wts = want.costs();

@@ -110,6 +110,11 @@ pub trait Executor {
     }
     /// The top-left `h x w` window (takes the map, so nothing is copied when it already fits).
     fn crop(&mut self, x: Self::Map, h: usize, w: usize) -> Self::Map;
+    /// Hands back a map the pass no longer needs, so that the executor may reuse its storage for a
+    /// later op's output ([`PooledExecutor`]). The default drops it.
+    fn release(&mut self, map: Self::Map) {
+        drop(map);
+    }
 }
 
 /// The validated geometry of `layer` (a 3x3 conv, weight `[c_out, c_in, 3, 3]`) applied to a map
@@ -169,6 +174,81 @@ impl Executor for BackendExecutor<'_> {
     fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
         // The network only crops to the sizes of SPEC.md §8.2, inside every map.
         self.0.crop(x, h, w).expect("network crops fit their maps")
+    }
+}
+
+/// [`BackendExecutor`] with an arena: the maps [`run_network`] releases (a block's concatenated
+/// input and its first two convolutions' outputs) are kept and handed to later convolutions and
+/// concatenations as output storage ([`Backend::conv3x3_reusing`]), so a forward pass allocates
+/// (and the OS zero-fills) far fewer fresh maps (SPEC.md §8.9). The arena lives as long as the
+/// executor: one forward pass in [`FeatureNet::forward`].
+#[derive(Debug)]
+pub struct PooledExecutor<'a> {
+    backend: &'a dyn Backend,
+    spare: Vec<Tensor>,
+}
+
+impl<'a> PooledExecutor<'a> {
+    /// An executor on `backend` with an empty arena.
+    pub fn new(backend: &'a dyn Backend) -> Self {
+        Self { backend, spare: Vec::new() }
+    }
+
+    /// Drops every map kept in the arena.
+    pub fn clear_arena(&mut self) {
+        self.spare.clear();
+    }
+
+    /// The smallest spare map holding at least `len` values, taken out of the arena.
+    fn take_spare(&mut self, len: usize) -> Option<Tensor> {
+        let size = |t: &Tensor| {
+            let (h, w, c) = t.dim();
+            h * w * c
+        };
+        let best = (0..self.spare.len())
+            .filter(|&i| size(&self.spare[i]) >= len)
+            .min_by_key(|&i| size(&self.spare[i]))?;
+        Some(self.spare.swap_remove(best))
+    }
+}
+
+impl Executor for PooledExecutor<'_> {
+    type Map = Tensor;
+    fn image(&mut self, image: &Array3<f32>) -> Result<Tensor> {
+        BackendExecutor(self.backend).image(image)
+    }
+    fn pyramid(
+        &mut self,
+        config: &NetworkConfig,
+        image: ArrayView3<f32>,
+        max_level: usize,
+    ) -> Result<Vec<Tensor>> {
+        self.backend.image_pyramid(config, image, max_level)
+    }
+    fn conv(&mut self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+        let [h, w, c] = conv_geometry(x.dim(), l, stride)?.output_shape();
+        let spare = self.take_spare(h * w * c);
+        self.backend.conv3x3_reusing(x, l, stride, act, spare)
+    }
+    fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+        self.backend.deconv5x5s2(x, l)
+    }
+    fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
+        let spare = self.take_spare(h * w * (ca + cb));
+        self.backend.concat_reusing(a, b, spare)
+    }
+    fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        self.backend.add(a, b)
+    }
+    fn deconv_add(&mut self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+        self.backend.deconv5x5s2_add(x, l, skip)
+    }
+    fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
+        BackendExecutor(self.backend).crop(x, h, w)
+    }
+    fn release(&mut self, map: Tensor) {
+        self.spare.push(map);
     }
 }
 
@@ -249,9 +329,15 @@ pub fn run_network<E: Executor>(
             None => pyramid[0].clone(),
             Some(prev) => exec.concat(prev, &pyramid[config.block_level(k - 1)])?,
         };
-        let x = exec.conv(&input, &block.conv1, config.block_stride(k), Activation::Relu)?;
-        let x = exec.conv(&x, &block.conv2, 1, Activation::Relu)?;
-        outs.push(exec.conv(&x, &block.conv3, 1, Activation::None)?);
+        let x1 = exec.conv(&input, &block.conv1, config.block_stride(k), Activation::Relu)?;
+        if k > 0 {
+            exec.release(input); // The concatenation (block 0's input is the pyramid's level 0).
+        }
+        let x2 = exec.conv(&x1, &block.conv2, 1, Activation::Relu)?;
+        exec.release(x1);
+        let out = exec.conv(&x2, &block.conv3, 1, Activation::None)?;
+        exec.release(x2);
+        outs.push(out);
     }
     // Decoder, coarse to fine: a_k = out_k + deconv_k(a_{k+1}).
     let mut aggregated: Vec<E::Map> = Vec::with_capacity(config.blocks);
@@ -327,7 +413,7 @@ impl FeatureNet {
         image: ArrayView3<f32>,
         backend: &dyn Backend,
     ) -> Result<ForwardOutput<Tensor>> {
-        run_network(&mut BackendExecutor(backend), &self.weights, image)
+        run_network(&mut PooledExecutor::new(backend), &self.weights, image)
     }
 
     /// Floating-point operations of one forward pass on an `h x w` image (multiply and add each

@@ -368,3 +368,22 @@ fn packed_weights_follow_in_place_updates() {
     assert_ne!(bits(&before), bits(&after));
     assert_eq!(bits(&after), bits(&fresh));
 }
+
+#[test]
+fn repeated_forward_calls_are_bit_identical_to_fresh_ones() {
+    // SPEC §8.9: a FeatureNet reuses the last pass's leftover buffers; sizes that shrink and grow
+    // between calls must not change any value.
+    let net = FeatureNet::new(weights(&NetworkConfig::default(), 13)).unwrap();
+    let cpu = CpuBackend::default();
+    let (big, small) = (image(67, 83, 13), image(19, 23, 14));
+    let fresh = |img: &Array3<f32>| net.clone().forward(img.view(), &cpu).unwrap();
+    let (want_big, want_small) = (fresh(&big), fresh(&small));
+    for img_want in [(&big, &want_big), (&small, &want_small), (&big, &want_big), (&big, &want_big)] {
+        let (img, want) = img_want;
+        let got = net.forward(img.view(), &cpu).unwrap();
+        for (a, b) in got.blocks.iter().chain(&got.aggregated).zip(want.blocks.iter().chain(&want.aggregated))
+        {
+            assert_eq!(bits(a), bits(b));
+        }
+    }
+}

@@ -44,20 +44,21 @@ impl CpuBackend {
 }
 
 /// A `shape` array for an op's output: `spare`'s storage when it is a host map with a single
-/// handle (truncated or grown to the new length; the op overwrites every value), else a new one.
+/// handle and room for the new length (truncated, or grown inside its capacity; the op overwrites
+/// every value), else a new zeroed one (`calloc`: fresh pages come zeroed from the OS, no memset).
 fn output_array(shape: [usize; 3], spare: Option<Tensor>) -> Array3<f32> {
     let n = shape.iter().product();
-    let mut v = match spare.map(Tensor::into_unique_host) {
+    let reused = match spare.map(Tensor::into_unique_host) {
         Some(Ok(a)) => match a.into_raw_vec_and_offset() {
-            (v, Some(0) | None) => v,
-            _ => Vec::new(),
+            (mut v, Some(0) | None) if v.capacity() >= n => {
+                v.resize(n, 0.0);
+                Some(v)
+            }
+            _ => None,
         },
-        _ => Vec::new(),
+        _ => None,
     };
-    if v.capacity() < n {
-        v = Vec::new(); // Growing would copy the old values: allocate instead.
-    }
-    v.resize(n, 0.0);
+    let v = reused.unwrap_or_else(|| vec![0.0; n]);
     let Ok(a) = Array3::from_shape_vec(shape, v) else { unreachable!("length is the shape's product") };
     a
 }

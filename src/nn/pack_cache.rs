@@ -31,12 +31,15 @@ struct Entry<P> {
 static CONV: Mutex<Vec<Entry<PackedConv2d>>> = Mutex::new(Vec::new());
 static DECONV: Mutex<Vec<Entry<PackedDeconv2d>>> = Mutex::new(Vec::new());
 
-fn bits(v: &[f32]) -> Vec<u32> {
-    v.iter().map(|x| x.to_bits()).collect()
+/// The bit patterns of `v`, without a copy.
+fn bits(v: &[f32]) -> &[u32] {
+    // SAFETY: `u32` has the size and alignment of `f32` and every bit pattern is a valid `u32`.
+    unsafe { std::slice::from_raw_parts(v.as_ptr().cast::<u32>(), v.len()) }
 }
 
+/// Whether `v` has exactly the bits `stored` (one `memcmp`).
 fn same_bits(stored: &[u32], v: &[f32]) -> bool {
-    stored.len() == v.len() && stored.iter().zip(v).all(|(&a, b)| a == b.to_bits())
+    stored == bits(v)
 }
 
 /// The cached packing of `(weight, bias)` (re-targeted with `retarget`), or `pack()` stored.
@@ -65,7 +68,7 @@ fn lookup<P: Clone>(
     if entries.len() >= MAX_LAYERS {
         entries.clear();
     }
-    entries.push(Entry { key, weight: bits(w), bias: bits(b), packed: packed.clone() });
+    entries.push(Entry { key, weight: bits(w).to_vec(), bias: bits(b).to_vec(), packed: packed.clone() });
     Ok(packed)
 }
 

@@ -318,3 +318,72 @@ fn profile_counts_every_operation_of_the_paper_network() {
     assert!(accounted <= total_ms * 1.001 && accounted > 0.0, "{accounted} of {total_ms} ms");
     assert!(rows.iter().filter(|(k, _)| k.starts_with("conv")).all(|(_, t)| t.flops > 0.0));
 }
+
+#[test]
+fn pooled_forward_is_bit_identical_to_unpooled() {
+    // SPEC §8.9: the arena changes where maps are stored, never their values. Odd sizes so that
+    // recycled buffers are truncated and regrown; every configuration, 1 and 2 threads.
+    use densefeat::nn::network::{BackendExecutor, PooledExecutor};
+    let cpu = CpuBackend::default();
+    for config in every_config(6) {
+        let w = weights(&config, 21);
+        let img = image(37, 29, 21);
+        for n in [1, 2] {
+            let (plain, pooled) = thread_pool(n).install(|| {
+                let plain = run_network(&mut BackendExecutor(&cpu), &w, img.view()).unwrap();
+                let mut exec = PooledExecutor::new(&cpu);
+                let pooled = run_network(&mut exec, &w, img.view()).unwrap();
+                (plain, pooled)
+            });
+            for (a, b) in plain
+                .blocks
+                .iter()
+                .chain(&plain.aggregated)
+                .zip(pooled.blocks.iter().chain(&pooled.aggregated))
+            {
+                let (a, b) = (a.as_host().unwrap(), b.as_host().unwrap());
+                assert_eq!(bits(a), bits(b), "{config:?}, threads = {n}");
+            }
+        }
+    }
+}
+
+#[test]
+fn packed_weights_follow_in_place_updates() {
+    // SPEC §7.9: the pack cache is keyed by address but checked by content, so a weight changed in
+    // place (as training does) is repacked: the forward pass sees the new values.
+    let config = NetworkConfig { channels: 32, blocks: 2, ..NetworkConfig::default() };
+    let mut w = weights(&config, 5);
+    let img = image(20, 24, 5);
+    let cpu = CpuBackend::default();
+    let run = |w: &NetworkWeights| {
+        let out = run_network(&mut densefeat::nn::network::BackendExecutor(&cpu), w, img.view()).unwrap();
+        out.aggregated[0].as_host().unwrap().clone()
+    };
+    let before = run(&w);
+    w.blocks[0].conv1.weight.mapv_inplace(|v| v * 0.5);
+    w.deconvs[0].weight.mapv_inplace(|v| v * 0.5);
+    let after = run(&w);
+    let fresh = run(&w.clone());
+    assert_ne!(bits(&before), bits(&after));
+    assert_eq!(bits(&after), bits(&fresh));
+}
+
+#[test]
+fn repeated_forward_calls_are_bit_identical_to_fresh_ones() {
+    // SPEC §8.9: a FeatureNet reuses the last pass's leftover buffers; sizes that shrink and grow
+    // between calls must not change any value.
+    let net = FeatureNet::new(weights(&NetworkConfig::default(), 13)).unwrap();
+    let cpu = CpuBackend::default();
+    let (big, small) = (image(67, 83, 13), image(19, 23, 14));
+    let fresh = |img: &Array3<f32>| net.clone().forward(img.view(), &cpu).unwrap();
+    let (want_big, want_small) = (fresh(&big), fresh(&small));
+    for img_want in [(&big, &want_big), (&small, &want_small), (&big, &want_big), (&big, &want_big)] {
+        let (img, want) = img_want;
+        let got = net.forward(img.view(), &cpu).unwrap();
+        for (a, b) in got.blocks.iter().chain(&got.aggregated).zip(want.blocks.iter().chain(&want.aggregated))
+        {
+            assert_eq!(bits(a), bits(b));
+        }
+    }
+}

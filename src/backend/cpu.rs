@@ -8,12 +8,11 @@ use crate::costvolume::{winner_take_all_costs, CostVolume, CostVolumeImpl, WtaDe
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
-use crate::nn::deconv2d::{deconv2d_direct, direct::supported as direct_deconv_supported, PackedDeconv2d};
 use crate::nn::network::{conv_geometry, deconv_geometry};
 use crate::nn::weights::LayerParams;
 use crate::nn::{
-    add, concat_channels, conv2d, deconv2d, downsample2x, expect_shape, Activation, Conv2dImpl, Deconv2dImpl,
-    NetworkImpl,
+    add, concat_channels_into, conv2d_into, deconv2d_into, downsample2x, expect_shape, Activation,
+    Conv2dImpl, NetworkImpl,
 };
 
 /// Kernel choices of the CPU backend. [`CpuBackend::default`] is the fast one; tests build others
@@ -42,6 +41,26 @@ impl CpuBackend {
     pub fn reference() -> Self {
         Self { network: NetworkImpl::REFERENCE, volume: CostVolumeImpl::Reference }
     }
+}
+
+/// A `shape` array for an op's output: `spare`'s storage when it is a host map with a single
+/// handle and room for the new length (truncated, or grown inside its capacity; the op overwrites
+/// every value), else a new zeroed one (`calloc`: fresh pages come zeroed from the OS, no memset).
+fn output_array(shape: [usize; 3], spare: Option<Tensor>) -> Array3<f32> {
+    let n = shape.iter().product();
+    let reused = match spare.map(Tensor::into_unique_host) {
+        Some(Ok(a)) => match a.into_raw_vec_and_offset() {
+            (mut v, Some(0) | None) if v.capacity() >= n => {
+                v.resize(n, 0.0);
+                Some(v)
+            }
+            _ => None,
+        },
+        _ => None,
+    };
+    let v = reused.unwrap_or_else(|| vec![0.0; n]);
+    let Ok(a) = Array3::from_shape_vec(shape, v) else { unreachable!("length is the shape's product") };
+    a
 }
 
 /// The host array of a tensor, or [`Error::Unsupported`] naming where it lives.
@@ -78,37 +97,48 @@ impl Backend for CpuBackend {
     }
 
     fn conv3x3(&self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+        self.conv3x3_reusing(x, l, stride, act, None)
+    }
+
+    fn conv3x3_reusing(
+        &self,
+        x: &Tensor,
+        l: &LayerParams,
+        stride: usize,
+        act: Activation,
+        spare: Option<Tensor>,
+    ) -> Result<Tensor> {
         let x = host(self.name(), x)?;
         let g = conv_geometry(x.dim(), l, stride)?;
         let imp = match self.network.conv {
             Conv2dImpl::Direct => Conv2dImpl::fastest_for(&g),
             other => other,
         };
-        Ok(Tensor::host(conv2d(imp, &g, x.view(), l.weight.view(), l.bias.view(), act)?))
+        let mut out = output_array(g.output_shape(), spare);
+        let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
+        conv2d_into(imp, &g, x.view(), l.weight.view(), l.bias.view(), act, o)?;
+        Ok(Tensor::host(out))
     }
 
     fn deconv5x5s2(&self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
         let x = host(self.name(), x)?;
         let g = deconv_geometry(x.dim(), l)?;
-        Ok(Tensor::host(deconv2d(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view())?))
+        let mut out = output_array(g.output_shape(), None);
+        let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
+        deconv2d_into(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view(), None, o)?;
+        Ok(Tensor::host(out))
     }
 
-    fn deconv5x5s2_add(&self, x_map: &Tensor, l: &LayerParams, skip_map: &Tensor) -> Result<Tensor> {
-        let (x, skip) = (host(self.name(), x_map)?, host(self.name(), skip_map)?);
+    fn deconv5x5s2_add(&self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+        let (x, skip) = (host(self.name(), x)?, host(self.name(), skip)?);
         let g = deconv_geometry(x.dim(), l)?;
-        if self.network.deconv != Deconv2dImpl::Direct || !direct_deconv_supported(&g) {
-            // The unfused ops, as the trait's default.
-            let up = self.deconv5x5s2(x_map, l)?;
-            return self.add(skip_map, &up);
-        }
         expect_shape("U-Net skip map", skip.shape(), &g.output_shape())?;
-        let packed = PackedDeconv2d::new(&g, l.weight.view(), l.bias.view())?;
-        let (x, skip) = (x.as_standard_layout(), skip.as_standard_layout());
-        let mut out = Array3::zeros(g.output_shape());
-        let (Some(xs), Some(ss), Some(o)) = (x.as_slice(), skip.as_slice(), out.as_slice_mut()) else {
-            unreachable!("standard-layout arrays are contiguous")
-        };
-        deconv2d_direct(&packed, xs, Some(ss), o)?;
+        let skip = skip.as_standard_layout();
+        let Some(ss) = skip.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
+        let mut out = output_array(g.output_shape(), None);
+        let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
+        // Direct fuses the sum into its store; the others add in a second pass (same bits).
+        deconv2d_into(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view(), Some(ss), o)?;
         Ok(Tensor::host(out))
     }
 
@@ -117,7 +147,22 @@ impl Backend for CpuBackend {
     }
 
     fn concat(&self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
-        Ok(Tensor::host(concat_channels(host(self.name(), a)?.view(), host(self.name(), b)?.view())?))
+        self.concat_reusing(a, b, None)
+    }
+
+    fn concat_reusing(&self, a: &Tensor, b: &Tensor, spare: Option<Tensor>) -> Result<Tensor> {
+        let (a, b) = (host(self.name(), a)?, host(self.name(), b)?);
+        let ((h, w, ca), (hb, wb, cb)) = (a.dim(), b.dim());
+        if (h, w) != (hb, wb) {
+            return Err(Error::invalid_argument(
+                "concat_channels",
+                format!("spatial sizes differ: {:?} and {:?}", a.shape(), b.shape()),
+            ));
+        }
+        let mut out = output_array([h, w, ca + cb], spare);
+        let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
+        concat_channels_into(a.view(), b.view(), o)?;
+        Ok(Tensor::host(out))
     }
 
     fn add(&self, a: &Tensor, b: &Tensor) -> Result<Tensor> {

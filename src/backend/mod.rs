@@ -87,6 +87,24 @@ pub trait Backend: Send + Sync + Debug {
     /// # Errors
     /// Shape errors; [`Error::Unsupported`].
     fn conv3x3(&self, x: &Tensor, layer: &LayerParams, stride: usize, act: Activation) -> Result<Tensor>;
+    /// [`Backend::conv3x3`] that may write its output into `spare`'s storage: a map of any shape
+    /// the caller no longer needs (its values are overwritten; a shared or foreign one is dropped).
+    /// The network's forward pass recycles its dead maps so (SPEC.md §8.9). The default drops
+    /// `spare`.
+    ///
+    /// # Errors
+    /// As [`Backend::conv3x3`].
+    fn conv3x3_reusing(
+        &self,
+        x: &Tensor,
+        layer: &LayerParams,
+        stride: usize,
+        act: Activation,
+        spare: Option<Tensor>,
+    ) -> Result<Tensor> {
+        drop(spare);
+        self.conv3x3(x, layer, stride, act)
+    }
     /// 5x5 stride-2 transposed convolution (padding 2, output padding 1; SPEC.md §7.3); weight
     /// `[c_in, c_out, 5, 5]`.
     ///
@@ -112,6 +130,14 @@ pub trait Backend: Send + Sync + Debug {
     /// # Errors
     /// Mismatched `H, W`; [`Error::Unsupported`].
     fn concat(&self, a: &Tensor, b: &Tensor) -> Result<Tensor>;
+    /// [`Backend::concat`] that may write into `spare`'s storage, as [`Backend::conv3x3_reusing`].
+    ///
+    /// # Errors
+    /// As [`Backend::concat`].
+    fn concat_reusing(&self, a: &Tensor, b: &Tensor, spare: Option<Tensor>) -> Result<Tensor> {
+        drop(spare);
+        self.concat(a, b)
+    }
     /// Elementwise sum.
     ///
     /// # Errors
@@ -136,7 +162,7 @@ pub trait Backend: Send + Sync + Debug {
         max_level: usize,
     ) -> Result<Vec<Tensor>> {
         let level0 = crate::nn::network::padded_input(config, image)?;
-        let mut levels = vec![self.upload(level0.view())?];
+        let mut levels = vec![self.upload_owned(level0)?];
         for l in 0..max_level {
             let next = self.downsample2x(&levels[l])?;
             levels.push(next);

@@ -27,9 +27,10 @@ pub struct Tensor {
 }
 
 impl Tensor {
-    /// A host map (the CPU backend's tensors).
+    /// A host map (the CPU backend's tensors). A standard-layout array is moved in, not copied.
     pub fn host(a: Array3<f32>) -> Self {
-        Self { dim: a.dim(), storage: Storage::Host(Arc::new(a.as_standard_layout().into_owned())) }
+        let a = if a.is_standard_layout() { a } else { a.as_standard_layout().into_owned() };
+        Self { dim: a.dim(), storage: Storage::Host(Arc::new(a)) }
     }
 
     /// A device map owned by backend `backend` (its [`super::Backend::name`]).
@@ -56,6 +57,20 @@ impl Tensor {
         match self.storage {
             Storage::Host(a) => Some(Arc::try_unwrap(a).unwrap_or_else(|a| (*a).clone())),
             Storage::Device { .. } => None,
+        }
+    }
+
+    /// The host array moved out when this is its only handle, for reusing its storage; otherwise
+    /// (shared, or a device tensor) the tensor itself, unchanged.
+    ///
+    /// # Errors
+    /// Returns `self` when it is not a host map with a single handle.
+    pub fn into_unique_host(self) -> std::result::Result<Array3<f32>, Tensor> {
+        match self.storage {
+            Storage::Host(a) => {
+                Arc::try_unwrap(a).map_err(|a| Tensor { dim: self.dim, storage: Storage::Host(a) })
+            }
+            storage @ Storage::Device { .. } => Err(Tensor { dim: self.dim, storage }),
         }
     }
 

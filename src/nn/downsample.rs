@@ -70,6 +70,19 @@ pub fn downsample2x(input: ArrayView3<f32>) -> Result<Array3<f32>> {
 /// # Errors
 /// [`Error::InvalidArgument`] if the heights or widths differ.
 pub fn concat_channels(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<f32>> {
+    let (h, w, ca) = a.dim();
+    let mut out = Array3::<f32>::zeros((h, w, ca + b.dim().2));
+    let Some(dst) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
+    concat_channels_into(a, b, dst)?;
+    Ok(out)
+}
+
+/// [`concat_channels`] into a caller-provided slice (`[h, w, ca + cb]`, row-major, every value
+/// overwritten).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if the heights or widths differ or `out` has the wrong length.
+pub fn concat_channels_into(a: ArrayView3<f32>, b: ArrayView3<f32>, out: &mut [f32]) -> Result<()> {
     if a.shape()[..2] != b.shape()[..2] {
         return Err(Error::invalid_argument(
             "concat_channels",
@@ -78,17 +91,15 @@ pub fn concat_channels(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<
     }
     let (h, w, ca) = a.dim();
     let cb = b.dim().2;
-    let (a, b) = (a.as_standard_layout(), b.as_standard_layout());
-    let (sa, sb) = (
-        a.as_slice().expect("standard layout is contiguous"),
-        b.as_slice().expect("standard layout is contiguous"),
-    );
-    let mut out = Array3::<f32>::zeros((h, w, ca + cb));
     let c = ca + cb;
+    crate::nn::expect_len("concat_channels output", out.len(), h * w * c)?;
+    let (a, b) = (a.as_standard_layout(), b.as_standard_layout());
+    let (Some(sa), Some(sb)) = (a.as_slice(), b.as_slice()) else {
+        unreachable!("standard layout is contiguous")
+    };
     if w * c > 0 {
         // Each output row is written by one task: a pure copy of contiguous channel runs.
-        let dst = out.as_slice_mut().expect("freshly allocated arrays are contiguous");
-        dst.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
+        out.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
             for (x, px) in row.chunks_exact_mut(c).enumerate() {
                 let p = y * w + x;
                 px[..ca].copy_from_slice(&sa[p * ca..(p + 1) * ca]);
@@ -96,7 +107,7 @@ pub fn concat_channels(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<
             }
         });
     }
-    Ok(out)
+    Ok(())
 }
 
 /// Elementwise sum of two maps of the same shape.

@@ -18,14 +18,17 @@ pub mod deconv2d;
 pub mod downsample;
 pub mod geometry;
 pub mod network;
+pub mod pack_cache;
 pub mod profile;
 pub mod viz;
 pub mod weights;
 
 pub use config::NetworkConfig;
-pub use conv2d::{conv2d, Conv2dImpl};
-pub use deconv2d::{deconv2d, Deconv2dImpl};
-pub use downsample::{add, concat_channels, concat_channels_backward, downsample2x, downsample2x_backward};
+pub use conv2d::{conv2d, conv2d_into, Conv2dImpl};
+pub use deconv2d::{deconv2d, deconv2d_into, Deconv2dImpl};
+pub use downsample::{
+    add, concat_channels, concat_channels_backward, concat_channels_into, downsample2x, downsample2x_backward,
+};
 pub use geometry::{Conv2dGeometry, Deconv2dGeometry, DownsampleGeometry};
 pub use network::{FeatureNet, ForwardOutput, NetworkImpl};
 pub use profile::{profile_forward, OpTotals};

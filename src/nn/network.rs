@@ -16,6 +16,8 @@
 //! (`crate::train::backprop`), the per-op profiler and the error-bound propagation of
 //! [`crate::nn::budget`].
 
+use std::sync::Mutex;
+
 use ndarray::{Array3, ArrayView3};
 use rayon::prelude::*;
 
@@ -110,6 +112,11 @@ pub trait Executor {
     }
     /// The top-left `h x w` window (takes the map, so nothing is copied when it already fits).
     fn crop(&mut self, x: Self::Map, h: usize, w: usize) -> Self::Map;
+    /// Hands back a map the pass no longer needs, so that the executor may reuse its storage for a
+    /// later op's output ([`PooledExecutor`]). The default drops it.
+    fn release(&mut self, map: Self::Map) {
+        drop(map);
+    }
 }
 
 /// The validated geometry of `layer` (a 3x3 conv, weight `[c_out, c_in, 3, 3]`) applied to a map
@@ -169,6 +176,90 @@ impl Executor for BackendExecutor<'_> {
     fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
         // The network only crops to the sizes of SPEC.md §8.2, inside every map.
         self.0.crop(x, h, w).expect("network crops fit their maps")
+    }
+}
+
+/// [`BackendExecutor`] with an arena: the maps [`run_network`] releases (a block's concatenated
+/// input and its first two convolutions' outputs) are kept and handed to later convolutions and
+/// concatenations as output storage ([`Backend::conv3x3_reusing`]), so a forward pass allocates
+/// (and the OS zero-fills) far fewer fresh maps (SPEC.md §8.9). The arena lives as long as the
+/// executor: one forward pass in [`FeatureNet::forward`], which seeds it with the previous pass's
+/// leftovers ([`PooledExecutor::with_spares`], [`PooledExecutor::into_spares`]).
+#[derive(Debug)]
+pub struct PooledExecutor<'a> {
+    backend: &'a dyn Backend,
+    spare: Vec<Tensor>,
+}
+
+impl<'a> PooledExecutor<'a> {
+    /// An executor on `backend` with an empty arena.
+    pub fn new(backend: &'a dyn Backend) -> Self {
+        Self { backend, spare: Vec::new() }
+    }
+
+    /// A spare map for an output of `len` values, taken out of the arena: the smallest holding at
+    /// least `len` values, else the largest (a map whose storage was truncated by an earlier reuse
+    /// may still have the room; the backend checks and allocates if not).
+    fn take_spare(&mut self, len: usize) -> Option<Tensor> {
+        let size = |t: &Tensor| {
+            let (h, w, c) = t.dim();
+            h * w * c
+        };
+        let fits = (0..self.spare.len())
+            .filter(|&i| size(&self.spare[i]) >= len)
+            .min_by_key(|&i| size(&self.spare[i]));
+        let best = fits.or_else(|| (0..self.spare.len()).max_by_key(|&i| size(&self.spare[i])))?;
+        Some(self.spare.swap_remove(best))
+    }
+
+    /// The maps left in the arena (host maps only), to seed another pass's arena.
+    pub fn into_spares(self) -> Vec<Tensor> {
+        self.spare.into_iter().filter(|t| t.as_host().is_some()).collect()
+    }
+
+    /// An executor on `backend` whose arena starts with `spares` (from [`PooledExecutor::into_spares`]).
+    pub fn with_spares(backend: &'a dyn Backend, spares: Vec<Tensor>) -> Self {
+        Self { backend, spare: spares }
+    }
+}
+
+impl Executor for PooledExecutor<'_> {
+    type Map = Tensor;
+    fn image(&mut self, image: &Array3<f32>) -> Result<Tensor> {
+        BackendExecutor(self.backend).image(image)
+    }
+    fn pyramid(
+        &mut self,
+        config: &NetworkConfig,
+        image: ArrayView3<f32>,
+        max_level: usize,
+    ) -> Result<Vec<Tensor>> {
+        self.backend.image_pyramid(config, image, max_level)
+    }
+    fn conv(&mut self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+        let [h, w, c] = conv_geometry(x.dim(), l, stride)?.output_shape();
+        let spare = self.take_spare(h * w * c);
+        self.backend.conv3x3_reusing(x, l, stride, act, spare)
+    }
+    fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+        self.backend.deconv5x5s2(x, l)
+    }
+    fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
+        let spare = self.take_spare(h * w * (ca + cb));
+        self.backend.concat_reusing(a, b, spare)
+    }
+    fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
+        self.backend.add(a, b)
+    }
+    fn deconv_add(&mut self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+        self.backend.deconv5x5s2_add(x, l, skip)
+    }
+    fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
+        BackendExecutor(self.backend).crop(x, h, w)
+    }
+    fn release(&mut self, map: Tensor) {
+        self.spare.push(map);
     }
 }
 
@@ -249,9 +340,15 @@ pub fn run_network<E: Executor>(
             None => pyramid[0].clone(),
             Some(prev) => exec.concat(prev, &pyramid[config.block_level(k - 1)])?,
         };
-        let x = exec.conv(&input, &block.conv1, config.block_stride(k), Activation::Relu)?;
-        let x = exec.conv(&x, &block.conv2, 1, Activation::Relu)?;
-        outs.push(exec.conv(&x, &block.conv3, 1, Activation::None)?);
+        let x1 = exec.conv(&input, &block.conv1, config.block_stride(k), Activation::Relu)?;
+        if k > 0 {
+            exec.release(input); // The concatenation (block 0's input is the pyramid's level 0).
+        }
+        let x2 = exec.conv(&x1, &block.conv2, 1, Activation::Relu)?;
+        exec.release(x1);
+        let out = exec.conv(&x2, &block.conv3, 1, Activation::None)?;
+        exec.release(x2);
+        outs.push(out);
     }
     // Decoder, coarse to fine: a_k = out_k + deconv_k(a_{k+1}).
     let mut aggregated: Vec<E::Map> = Vec::with_capacity(config.blocks);
@@ -274,9 +371,19 @@ pub fn run_network<E: Executor>(
 }
 
 /// The feature network with its weights.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct FeatureNet {
     weights: NetworkWeights,
+    /// Host buffers left over by the last forward pass, reused by the next one (SPEC.md §8.9): at
+    /// most the few intermediates of one pass, never the maps a pass returns.
+    spares: Mutex<Vec<Tensor>>,
+}
+
+impl Clone for FeatureNet {
+    /// The same weights, with an empty buffer arena.
+    fn clone(&self) -> Self {
+        FeatureNet { weights: self.weights.clone(), spares: Mutex::new(Vec::new()) }
+    }
 }
 
 impl FeatureNet {
@@ -286,7 +393,7 @@ impl FeatureNet {
     /// [`Error::InvalidArgument`] if a tensor's shape disagrees with the configuration.
     pub fn new(weights: NetworkWeights) -> Result<Self> {
         weights.validate()?;
-        Ok(FeatureNet { weights })
+        Ok(FeatureNet { weights, spares: Mutex::new(Vec::new()) })
     }
 
     /// The configuration.
@@ -327,7 +434,13 @@ impl FeatureNet {
         image: ArrayView3<f32>,
         backend: &dyn Backend,
     ) -> Result<ForwardOutput<Tensor>> {
-        run_network(&mut BackendExecutor(backend), &self.weights, image)
+        // The arena starts with the last pass's leftovers (a concurrent pass on the same network
+        // simply starts with an empty one) and hands its own leftovers back.
+        let spares = std::mem::take(&mut *self.spares.lock().unwrap_or_else(|e| e.into_inner()));
+        let mut exec = PooledExecutor::with_spares(backend, spares);
+        let out = run_network(&mut exec, &self.weights, image)?;
+        *self.spares.lock().unwrap_or_else(|e| e.into_inner()) = exec.into_spares();
+        Ok(out)
     }
 
     /// Floating-point operations of one forward pass on an `h x w` image (multiply and add each

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use ndarray::{Array3, ArrayView3};
 
-use super::network::{conv_geometry, deconv_geometry, run_network, BackendExecutor, Executor};
+use super::network::{conv_geometry, deconv_geometry, run_network, Executor, PooledExecutor};
 use super::weights::LayerParams;
 use super::{Activation, FeatureNet};
 use crate::backend::{Backend, Tensor};
@@ -26,7 +26,7 @@ pub struct OpTotals {
 /// Times every operation of the fast kernels.
 #[derive(Debug)]
 pub struct ProfileExecutor<'a> {
-    inner: BackendExecutor<'a>,
+    inner: PooledExecutor<'a>,
     /// Totals per operation kind (e.g. `conv s1 32->32`).
     pub totals: BTreeMap<String, OpTotals>,
 }
@@ -34,10 +34,10 @@ pub struct ProfileExecutor<'a> {
 impl<'a> ProfileExecutor<'a> {
     /// A profiler around `backend`'s ops.
     pub fn new(backend: &'a dyn Backend) -> Self {
-        Self { inner: BackendExecutor(backend), totals: BTreeMap::new() }
+        Self { inner: PooledExecutor::new(backend), totals: BTreeMap::new() }
     }
 
-    fn record<T>(&mut self, kind: String, flops: f64, f: impl FnOnce(&mut BackendExecutor<'a>) -> T) -> T {
+    fn record<T>(&mut self, kind: String, flops: f64, f: impl FnOnce(&mut PooledExecutor<'a>) -> T) -> T {
         let start = Instant::now();
         let out = f(&mut self.inner);
         let e = self.totals.entry(kind).or_default();
@@ -87,6 +87,9 @@ impl Executor for ProfileExecutor<'_> {
     fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
         self.record("crop".into(), 0.0, |e| e.crop(x, h, w))
     }
+    fn release(&mut self, map: Tensor) {
+        self.inner.release(map);
+    }
 }
 
 /// Run `runs` forward passes under the profiler; returns the per-kind totals divided by `runs`
@@ -106,6 +109,7 @@ pub fn profile_forward(
     let start = Instant::now();
     for _ in 0..runs {
         std::hint::black_box(run_network(&mut exec, net.weights(), image)?);
+        // The arena carries over from pass to pass, as in `FeatureNet::forward`.
     }
     let total = start.elapsed().as_secs_f64() * 1e3 / runs as f64;
     let n = runs as f64;

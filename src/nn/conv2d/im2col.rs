@@ -11,6 +11,8 @@
 //! one block, and sgemm's summation order for a value depends only on `k` (not on the block's row
 //! count or on the thread running it), so the result is bit-identical for any thread count.
 
+use std::sync::Arc;
+
 use ndarray::{ArrayView1, ArrayView4};
 use rayon::prelude::*;
 
@@ -22,13 +24,14 @@ use crate::nn::{expect_len, expect_shape, scratch_lanes, split_lanes, Activation
 /// im2col block (`pixels · 9 c_in` floats) to stay in L2.
 const TARGET_BLOCK_PIXELS: usize = 256;
 
-/// Convolution weights and bias repacked for the GEMM (see the module docs). Pack once per layer.
+/// Convolution weights and bias repacked for the GEMM (see the module docs). Pack once per layer;
+/// clones share the packed values.
 #[derive(Clone, Debug)]
 pub struct PackedConv2d {
     geom: Conv2dGeometry,
     /// `[k, c_out]`, row-major.
-    weights: Vec<f32>,
-    bias: Vec<f32>,
+    weights: Arc<[f32]>,
+    bias: Arc<[f32]>,
 }
 
 impl PackedConv2d {
@@ -51,7 +54,16 @@ impl PackedConv2d {
                 }
             }
         }
-        Ok(PackedConv2d { geom: *geom, weights, bias: bias.to_vec() })
+        Ok(PackedConv2d { geom: *geom, weights: weights.into(), bias: bias.to_vec().into() })
+    }
+    /// The same packed weights for another geometry with the same `c_in`, `c_out` (another map
+    /// size or stride); no copy.
+    ///
+    /// # Errors
+    /// [`crate::Error::InvalidArgument`] if `geom`'s channel counts differ.
+    pub fn with_geometry(&self, geom: &Conv2dGeometry) -> Result<Self> {
+        expect_shape("conv2d weight", &self.geom.weight_shape(), &geom.weight_shape())?;
+        Ok(PackedConv2d { geom: *geom, ..self.clone() })
     }
     /// The geometry the weights were packed for.
     pub fn geometry(&self) -> &Conv2dGeometry {

@@ -48,7 +48,8 @@ pub use im2col::{conv2d_im2col, scratch_len, PackedConv2d};
 pub use reference::conv2d_reference;
 
 use crate::error::Result;
-use crate::nn::{default_lanes, expect_shape, Activation, Conv2dGeometry};
+use crate::nn::pack_cache::packed_conv;
+use crate::nn::{default_lanes, expect_len, expect_shape, Activation, Conv2dGeometry};
 
 /// Which conv2d implementation to run. Every variant is always compiled and always tested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -115,39 +116,56 @@ pub fn conv2d(
     bias: ArrayView1<f32>,
     activation: Activation,
 ) -> Result<Array3<f32>> {
+    let mut out = Array3::zeros(geom.output_shape());
+    let Some(y) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
+    conv2d_into(imp, geom, input, weight, bias, activation, y)?;
+    Ok(out)
+}
+
+/// [`conv2d`] into a caller-provided output slice (`[h_out, w_out, c_out]`, row-major, every value
+/// overwritten; its previous contents do not matter). The fast implementations take their packed
+/// weights from [`crate::nn::pack_cache`], so a layer is repacked once, not once per call.
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] if an array's shape or `out`'s length disagrees with `geom`.
+pub fn conv2d_into(
+    imp: Conv2dImpl,
+    geom: &Conv2dGeometry,
+    input: ArrayView3<f32>,
+    weight: ArrayView4<f32>,
+    bias: ArrayView1<f32>,
+    activation: Activation,
+    out: &mut [f32],
+) -> Result<()> {
     expect_shape("conv2d input", input.shape(), &geom.input_shape())?;
+    expect_len("conv2d output", out.len(), geom.output_shape().iter().product())?;
     match imp {
         Conv2dImpl::Reference => {
-            let out = conv2d_reference(
+            let r = conv2d_reference(
                 geom,
                 input.mapv(f64::from).view(),
                 weight.mapv(f64::from).view(),
                 bias.mapv(f64::from).view(),
                 activation,
             )?;
-            Ok(out.mapv(|v| v as f32))
+            for (o, v) in out.iter_mut().zip(r.iter()) {
+                *o = *v as f32;
+            }
+            Ok(())
         }
         Conv2dImpl::Im2colGemm => {
-            let packed = PackedConv2d::new(geom, weight, bias)?;
+            let packed = packed_conv(geom, weight, bias)?;
             let input = input.as_standard_layout();
-            let mut out = Array3::zeros(geom.output_shape());
             let lanes = default_lanes(im2col::n_blocks(geom));
             let mut scratch = vec![0.0; lanes * scratch_len(geom)];
-            let (Some(x), Some(y)) = (input.as_slice(), out.as_slice_mut()) else {
-                unreachable!("standard-layout arrays are contiguous")
-            };
-            conv2d_im2col(&packed, x, activation, &mut scratch, y)?;
-            Ok(out)
+            let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
+            conv2d_im2col(&packed, x, activation, &mut scratch, out)
         }
         Conv2dImpl::Direct => {
-            let packed = PackedConv2d::new(geom, weight, bias)?;
+            let packed = packed_conv(geom, weight, bias)?;
             let input = input.as_standard_layout();
-            let mut out = Array3::zeros(geom.output_shape());
-            let (Some(x), Some(y)) = (input.as_slice(), out.as_slice_mut()) else {
-                unreachable!("standard-layout arrays are contiguous")
-            };
-            conv2d_direct(&packed, x, activation, y)?;
-            Ok(out)
+            let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
+            conv2d_direct(&packed, x, activation, out).map(|_| ())
         }
     }
 }

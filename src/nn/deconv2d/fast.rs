@@ -14,6 +14,8 @@
 //! Determinism: each output value is written by exactly one GEMM (that of its row and parity)
 //! whose summation order depends only on its inner dimension; tasks own disjoint output rows.
 
+use std::sync::Arc;
+
 use ndarray::{ArrayView1, ArrayView4};
 use rayon::prelude::*;
 
@@ -35,15 +37,16 @@ fn parity_taps(q: usize) -> Vec<(isize, usize)> {
         .collect()
 }
 
-/// Transposed-convolution weights repacked per output parity (see the module docs).
+/// Transposed-convolution weights repacked per output parity (see the module docs). Clones share
+/// the packed values.
 #[derive(Clone, Debug)]
 pub struct PackedDeconv2d {
     geom: Deconv2dGeometry,
     /// `taps[q]`: `(d, k)` pairs for parity `q`.
     taps: [Vec<(isize, usize)>; PARITIES],
     /// `weights[PARITIES · qy + qx]`: `[ty, tx, ci] × [co]`, row-major.
-    weights: Vec<Vec<f32>>,
-    bias: Vec<f32>,
+    weights: Arc<[Vec<f32>]>,
+    bias: Arc<[f32]>,
 }
 
 impl PackedDeconv2d {
@@ -70,7 +73,15 @@ impl PackedDeconv2d {
                 weights.push(packed);
             }
         }
-        Ok(PackedDeconv2d { geom: *geom, taps, weights, bias: bias.to_vec() })
+        Ok(PackedDeconv2d { geom: *geom, taps, weights: weights.into(), bias: bias.to_vec().into() })
+    }
+    /// The same packed weights for another input size with the same `c_in`, `c_out`; no copy.
+    ///
+    /// # Errors
+    /// [`crate::Error::InvalidArgument`] if `geom`'s channel counts differ.
+    pub fn with_geometry(&self, geom: &Deconv2dGeometry) -> Result<Self> {
+        expect_shape("deconv2d weight", &self.geom.weight_shape(), &geom.weight_shape())?;
+        Ok(PackedDeconv2d { geom: *geom, ..self.clone() })
     }
     /// The geometry the weights were packed for.
     pub fn geometry(&self) -> &Deconv2dGeometry {

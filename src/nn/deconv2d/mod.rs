@@ -39,7 +39,8 @@ pub use fast::{deconv2d_fast, scratch_len, PackedDeconv2d};
 pub use reference::deconv2d_reference;
 
 use crate::error::Result;
-use crate::nn::{default_lanes, expect_shape, Deconv2dGeometry};
+use crate::nn::pack_cache::packed_deconv;
+use crate::nn::{default_lanes, expect_len, expect_shape, Deconv2dGeometry};
 
 /// Which transposed-convolution implementation to run. Every variant is always compiled and tested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -74,38 +75,67 @@ pub fn deconv2d(
     weight: ArrayView4<f32>,
     bias: ArrayView1<f32>,
 ) -> Result<Array3<f32>> {
+    let mut out = Array3::zeros(geom.output_shape());
+    let Some(y) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
+    deconv2d_into(imp, geom, input, weight, bias, None, y)?;
+    Ok(out)
+}
+
+/// [`deconv2d`] into a caller-provided output slice (`[2h, 2w, c_out]`, row-major, every value
+/// overwritten), plus `skip` (same length) when given: `out = skip + deconv` (the U-Net sum, one
+/// f32 addition per value, fused into the store by [`Deconv2dImpl::Direct`], a second pass
+/// otherwise; the same bits either way). The fast implementations take their packed weights from
+/// [`crate::nn::pack_cache`].
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] if an array's shape or a slice's length disagrees with `geom`.
+pub fn deconv2d_into(
+    imp: Deconv2dImpl,
+    geom: &Deconv2dGeometry,
+    input: ArrayView3<f32>,
+    weight: ArrayView4<f32>,
+    bias: ArrayView1<f32>,
+    skip: Option<&[f32]>,
+    out: &mut [f32],
+) -> Result<()> {
     expect_shape("deconv2d input", input.shape(), &geom.input_shape())?;
+    expect_len("deconv2d output", out.len(), geom.output_shape().iter().product())?;
+    if let Some(s) = skip {
+        expect_len("deconv2d skip", s.len(), out.len())?;
+    }
     match imp {
         Deconv2dImpl::Reference => {
-            let out = deconv2d_reference(
+            let r = deconv2d_reference(
                 geom,
                 input.mapv(f64::from).view(),
                 weight.mapv(f64::from).view(),
                 bias.mapv(f64::from).view(),
             )?;
-            Ok(out.mapv(|v| v as f32))
+            for (o, v) in out.iter_mut().zip(r.iter()) {
+                *o = *v as f32;
+            }
         }
         Deconv2dImpl::Direct if direct::supported(geom) => {
-            let packed = PackedDeconv2d::new(geom, weight, bias)?;
+            let packed = packed_deconv(geom, weight, bias)?;
             let input = input.as_standard_layout();
-            let mut out = Array3::zeros(geom.output_shape());
-            let (Some(x), Some(y)) = (input.as_slice(), out.as_slice_mut()) else {
-                unreachable!("standard-layout arrays are contiguous")
-            };
-            deconv2d_direct(&packed, x, None, y)?;
-            Ok(out)
+            let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
+            return deconv2d_direct(&packed, x, skip, out);
         }
         Deconv2dImpl::ParityGemm | Deconv2dImpl::Direct => {
-            let packed = PackedDeconv2d::new(geom, weight, bias)?;
+            let packed = packed_deconv(geom, weight, bias)?;
             let input = input.as_standard_layout();
-            let mut out = Array3::zeros(geom.output_shape());
             let lanes = default_lanes(geom.h());
             let mut scratch = vec![0.0; lanes * scratch_len(geom)];
-            let (Some(x), Some(y)) = (input.as_slice(), out.as_slice_mut()) else {
-                unreachable!("standard-layout arrays are contiguous")
-            };
-            deconv2d_fast(&packed, x, &mut scratch, y)?;
-            Ok(out)
+            let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
+            deconv2d_fast(&packed, x, &mut scratch, out)?;
         }
     }
+    if let Some(s) = skip {
+        // The separate `add`'s arithmetic: one f32 addition per value (commutative, so the
+        // same bits as `skip + up`).
+        for (o, &k) in out.iter_mut().zip(s) {
+            *o += k;
+        }
+    }
+    Ok(())
 }

@@ -66,16 +66,16 @@ pub struct TvInputs {
 }
 
 /// Width of the pseudo-noise in the synthetic cost curves, grey levels.
-pub const NOISE: f64 = 8.0;
+pub(crate) const NOISE: f64 = 8.0;
 /// Depth of a cost curve's valley, grey levels (RGB mean L1 costs are of this order).
-pub const VALLEY: f64 = 30.0;
+pub(crate) const VALLEY: f64 = 30.0;
 /// Width of the valley in inverse depth, 1/m.
-pub const VALLEY_WIDTH: f64 = 0.15;
+pub(crate) const VALLEY_WIDTH: f64 = 0.15;
 
 /// A smooth synthetic cost volume with the statistics of an RGB volume: hypotheses over depths
 /// `[0.4, 10]` m; the true inverse depth is a slanted plane plus a sine and two rectangles in front
-/// (depth discontinuities); each curve is an inverted Gaussian valley of depth [`VALLEY`] grey levels
-/// and width [`VALLEY_WIDTH`] at the truth plus uniform noise of [`NOISE`] levels; the left twentieth of the image has its
+/// (depth discontinuities); each curve is an inverted Gaussian valley of depth `VALLEY` grey levels
+/// and width `VALLEY_WIDTH` at the truth plus uniform noise of `NOISE` levels; the left twentieth of the image has its
 /// nearest quarter of hypotheses unseen (out of the live frames' view). The grey image has the
 /// rectangles' edges plus texture noise. Deterministic (SplitMix64 seed 11).
 ///

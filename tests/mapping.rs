@@ -373,3 +373,31 @@ fn cli_eval_lambda_sweep_writes_csv_and_plot() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--lambda-sweep"));
 }
+
+/// `eval --depth-range auto` estimates a range per keyframe (not the first keyframe's for all): each
+/// keyframe's metrics.json states the range estimated at that keyframe.
+#[test]
+fn eval_auto_depth_range_is_estimated_per_keyframe() {
+    let seq = fixture();
+    let want: Vec<(f64, f64)> =
+        [10, 30].iter().map(|&k| seq.estimate_depth_range(k).unwrap().unwrap()).collect();
+    assert_ne!(want[0], want[1], "the fixture's keyframes 10 and 30 see different depth ranges");
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["eval", "--sequence", FIXTURE, "--keyframes", "10:20:30", "--window", "2,2", "--bins", "16"])
+        .args(["--level", "2", "--depth-range", "auto", "--methods", "rgb-wta", "--save-depth", "--out"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for (k, (near, far)) in [10, 30].iter().zip(want) {
+        let path = dir.path().join(format!("kf_{k:05}_rgb/metrics.json"));
+        let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        let got = (json["depth_range_m"][0].as_f64().unwrap(), json["depth_range_m"][1].as_f64().unwrap());
+        assert!(
+            (got.0 - near).abs() < 1e-9 * near && (got.1 - far).abs() < 1e-9 * far,
+            "keyframe {k}: {got:?} vs {:?}",
+            (near, far)
+        );
+    }
+}

@@ -13,7 +13,9 @@ use crate::mapping::{write_outputs_with, FeatureKind};
 use crate::plot::{line_plot_png, Series};
 use crate::sequence::Sequence;
 
-use super::mapping_args::{parse_keyframes, progress_bar, show_stage, summary, MappingArgs};
+use super::mapping_args::{
+    parse_keyframes, progress_bar, resolve_depth_range, show_stage, summary, DepthRange, MappingArgs,
+};
 use super::validate::{flag, mapping_preflight, positive};
 
 /// Arguments of `densefeat eval`.
@@ -73,6 +75,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             lambda_sweep: lambdas.clone(),
             min_confidence: args.mapping.min_confidence,
             confidence_sweep: args.confidence_sweep.clone(),
+            ..EvalOptions::default()
         })?;
     let mut sweep_csv = None;
     if !table.confidence_sweep.is_empty() {
@@ -183,13 +186,22 @@ pub fn run_eval(
 ) -> Result<EvalTable> {
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let base = mapping.config(seq, keyframes[0], FeatureKind::Rgb, Regularizer::Tv)?;
+    let mut options = options();
+    if mapping.depth_range == DepthRange::Auto {
+        // One estimate per keyframe, all made before any heavy work (a keyframe without sparse
+        // points or depth fails here, naming itself).
+        options.depth_ranges = keyframes
+            .iter()
+            .map(|&k| resolve_depth_range(mapping.depth_range, seq, k))
+            .collect::<Result<_>>()?;
+    }
     let bar = progress_bar();
     let result = evaluate(
         seq,
         &base,
         keyframes,
         methods,
-        &options(),
+        &options,
         |r| {
             bar.println(summary(r));
             if save_depth {

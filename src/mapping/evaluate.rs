@@ -113,6 +113,9 @@ pub struct EvalOptions {
     pub min_confidence: f32,
     /// Extra confidence thresholds: every method's metrics at each ([`EvalTable::confidence_sweep`]).
     pub confidence_sweep: Vec<f32>,
+    /// Per-keyframe `(near, far)` depth ranges, in the order of the keyframes (`--depth-range auto`
+    /// estimates one per keyframe); empty: every keyframe uses the base config's range.
+    pub depth_ranges: Vec<(f64, f64)>,
 }
 
 /// Run `methods` on every keyframe. `base` gives the window, range, bins, DTAM parameters and
@@ -120,8 +123,9 @@ pub struct EvalOptions {
 /// reconstruction (to print or write it); `progress(keyframe, stage, done, total)`.
 ///
 /// # Errors
-/// [`Error::InvalidArgument`] for no keyframe or method, a keyframe without ground truth; any
-/// [`reconstruct`] error.
+/// [`Error::InvalidArgument`] for no keyframe or method, [`EvalOptions::depth_ranges`] that is
+/// neither empty nor one range per keyframe, a keyframe without ground truth; any [`reconstruct`]
+/// error.
 pub fn evaluate(
     seq: &Sequence,
     base: &KeyframeConfig,
@@ -133,6 +137,12 @@ pub fn evaluate(
 ) -> Result<EvalTable> {
     if keyframes.is_empty() || methods.is_empty() {
         return Err(Error::invalid_argument("evaluation", "need at least one keyframe and one method"));
+    }
+    if !options.depth_ranges.is_empty() && options.depth_ranges.len() != keyframes.len() {
+        return Err(Error::invalid_argument(
+            "evaluation",
+            format!("{} depth ranges for {} keyframes", options.depth_ranges.len(), keyframes.len()),
+        ));
     }
     let mut per_keyframe = Vec::new();
     let mut per_keyframe_conf: Vec<(Method, DepthMetrics)> = Vec::new();
@@ -155,8 +165,11 @@ pub fn evaluate(
             if wanted.iter().any(|&i| methods[i].tv()) { Regularizer::Tv } else { Regularizer::None };
         cfg.lambda_sweep =
             if cfg.regularizer == Regularizer::Tv { options.lambda_sweep.clone() } else { Vec::new() };
-        for &k in keyframes {
+        for (j, &k) in keyframes.iter().enumerate() {
             cfg.keyframe = k;
+            if let Some(&(near, far)) = options.depth_ranges.get(j) {
+                (cfg.near, cfg.far) = (near, far);
+            }
             let result = reconstruct(seq, &cfg, |s, d, t| progress(k, s, d, t))?;
             for &i in &wanted {
                 let m = methods[i];

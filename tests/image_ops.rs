@@ -1,5 +1,7 @@
 //! Sampling, undistortion and depth-metric tests (SPEC.md §2.1, §2.7, §3).
 
+mod common;
+
 use approx::assert_relative_eq;
 use densefeat::eval::depth_metrics;
 use densefeat::geometry::{PinholeCamera, RadTan};
@@ -72,15 +74,7 @@ fn undistort_map_recovers_a_pinhole_rendering() {
     let k = PinholeCamera::new(120.0, 118.0, 63.5, 47.5, 128, 96).unwrap();
     let d = RadTan { k1: 0.2624, k2: -0.9531, p1: -0.0054, p2: 0.0026, k3: 1.1633 };
     let pattern = |x: f64, y: f64| 128.0 + 100.0 * (3.0 * x).sin() * (2.0 * y).cos();
-    let pinhole = Array3::from_shape_fn((96, 128, 3), |(v, u, _)| {
-        let r = k.ray(u as f64, v as f64);
-        pattern(r.x, r.y) as f32
-    });
-    let raw = Array3::from_shape_fn((96, 128, 3), |(v, u, _)| {
-        let r = k.ray(u as f64, v as f64);
-        let (x, y) = d.undistort(r.x, r.y).unwrap();
-        pattern(x, y) as f32
-    });
+    let (pinhole, raw) = common::pinhole_and_distorted(&k, &d, pattern);
     let out = UndistortMap::new(&k, &d).rgb(&raw);
     let mut worst = 0.0f32;
     for v in 4..92 {

@@ -16,3 +16,25 @@ pub fn data_dir(name: &str) -> Option<PathBuf> {
     eprintln!("SKIPPED: {} not found", p.display());
     None
 }
+
+/// A smooth grey-level `pattern(x, y)` of normalised image coordinates rendered `[H, W, 3]` on
+/// camera `k`'s grid twice: through the ideal pinhole, and as the distorted camera `(k, d)` records
+/// it (pixel `u` sees the ray whose distorted coordinates are `k⁻¹ u`). Returns `(pinhole, raw)`:
+/// undistorting `raw` should give `pinhole`.
+pub fn pinhole_and_distorted(
+    k: &densefeat::geometry::PinholeCamera,
+    d: &densefeat::geometry::RadTan,
+    pattern: impl Fn(f64, f64) -> f64,
+) -> (ndarray::Array3<f32>, ndarray::Array3<f32>) {
+    let shape = (k.height, k.width, 3);
+    let pinhole = ndarray::Array3::from_shape_fn(shape, |(v, u, _)| {
+        let r = k.ray(u as f64, v as f64);
+        pattern(r.x, r.y) as f32
+    });
+    let raw = ndarray::Array3::from_shape_fn(shape, |(v, u, _)| {
+        let r = k.ray(u as f64, v as f64);
+        let (x, y) = d.undistort(r.x, r.y).unwrap();
+        pattern(x, y) as f32
+    });
+    (pinhole, raw)
+}

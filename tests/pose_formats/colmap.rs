@@ -323,24 +323,15 @@ fn colmap_cli_inspect_warns_and_map_needs_scale_then_runs_with_auto_range() {
 
 #[test]
 fn colmap_opencv_images_are_undistorted_onto_the_pinhole_rendering() {
-    // A smooth pattern seen through a distorted camera (as `tests/image_ops.rs` does), written as
+    // A smooth pattern seen through a distorted camera (`common::pinhole_and_distorted`, as `tests/image_ops.rs` uses it), written as
     // 8-bit PNGs with an OPENCV model: loading undistorts it onto the pinhole rendering within half
     // a grey level of quantisation plus half of interpolation, in the interior.
     use densefeat::geometry::PinholeCamera;
     use densefeat::sequence::open_with;
-    use ndarray::Array3;
     let k = PinholeCamera::new(120.0, 118.0, 63.5, 47.5, 128, 96).unwrap();
     let d = RadTan { k1: -0.2, k2: 0.05, p1: 2e-3, p2: -1e-3, k3: 0.0 };
     let pattern = |x: f64, y: f64| 128.0 + 100.0 * (8.0 * x).sin() * (6.0 * y).cos();
-    let pinhole = Array3::from_shape_fn((96, 128, 3), |(v, u, _)| {
-        let r = k.ray(u as f64, v as f64);
-        pattern(r.x, r.y) as f32
-    });
-    let raw = Array3::from_shape_fn((96, 128, 3), |(v, u, _)| {
-        let r = k.ray(u as f64, v as f64);
-        let (x, y) = d.undistort(r.x, r.y).unwrap();
-        pattern(x, y) as f32
-    });
+    let (pinhole, raw) = crate::common::pinhole_and_distorted(&k, &d, pattern);
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir_all(dir.path().join("images")).unwrap();
     let mut images = Vec::new();

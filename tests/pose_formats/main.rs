@@ -5,6 +5,8 @@
 //! record and byte offset).
 
 mod colmap;
+#[path = "../common/mod.rs"]
+mod common;
 mod nerfstudio;
 mod render;
 mod sevenscenes;

@@ -73,6 +73,18 @@ pub const UNSEEN_COST: f32 = f32::MAX;
 /// distances of finite features): the default of [`CostVolume::with_impl`].
 pub const NO_TRUNCATION: f32 = f32::MAX;
 
+/// The one rule for a per-frame truncation (SPEC.md §9.13): positive ([`NO_TRUNCATION`] included),
+/// not NaN.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] naming `name` otherwise.
+pub fn check_truncation(name: &str, tau: f32) -> Result<()> {
+    if tau.is_nan() || tau <= 0.0 {
+        return Err(Error::invalid_argument(name, format!("{tau}: must be positive (or none)")));
+    }
+    Ok(())
+}
+
 /// Which cost-volume implementation to run. Every variant is always compiled and always tested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[non_exhaustive]
@@ -157,9 +169,7 @@ impl CostVolume {
     /// # Errors
     /// [`Error::InvalidArgument`] unless `tau > 0` (NaN included), or if frames were already added.
     pub fn with_truncation(mut self, tau: f32) -> Result<Self> {
-        if tau.is_nan() || tau <= 0.0 {
-            return Err(Error::invalid_argument("--truncate", format!("{tau}: must be positive")));
-        }
+        check_truncation("--truncate", tau)?;
         if self.frames > 0 {
             return Err(Error::invalid_argument(
                 "cost volume",

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::backend::Backend;
-use crate::costvolume::{confidence_and_scale, filter_evidence, NO_TRUNCATION};
+use crate::costvolume::{check_truncation, confidence_and_scale, filter_evidence, NO_TRUNCATION};
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
@@ -196,13 +196,8 @@ impl KeyframeConfig {
         if self.level > 8 {
             return Err(Error::invalid_argument("level", format!("{}: at most 8", self.level)));
         }
-        for (flag, t) in
-            [("truncate-rgb", self.truncation.rgb), ("truncate-learned", self.truncation.learned)]
-        {
-            if t.is_nan() || t <= 0.0 {
-                return Err(Error::invalid_argument(flag, format!("{t}: must be positive (or none)")));
-            }
-        }
+        check_truncation("truncate-rgb", self.truncation.rgb)?;
+        check_truncation("truncate-learned", self.truncation.learned)?;
         if let Some(l) = self.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
             return Err(Error::invalid_argument("lambda-sweep", format!("λ = {l}: must be positive")));
         }

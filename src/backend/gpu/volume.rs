@@ -48,9 +48,7 @@ impl GpuVolume {
         bins: InverseDepthBins,
         truncation: f32,
     ) -> Result<Self> {
-        if truncation.is_nan() || truncation <= 0.0 {
-            return Err(Error::invalid_argument("--truncate", format!("{truncation}: must be positive")));
-        }
+        crate::costvolume::check_truncation("--truncate", truncation)?;
         gpu.buffer(reference)?;
         gpu.require_f64("cost_volume", "the warp and the bounds test are the CPU's f64 expressions")?;
         let (h, w, c) = reference.dim();

@@ -73,6 +73,17 @@ impl Case {
         cv
     }
 
+    /// The same problem with every feature an integer in `0..=255` (byte-valued RGB, as decoded
+    /// images are): the block kernel then reads a packed copy of the live map (SPEC.md §9.4).
+    fn bytes(mut self) -> Self {
+        let to_byte = |v: f32| ((v + 2.0) * 63.75).round().clamp(0.0, 255.0);
+        self.reference.mapv_inplace(to_byte);
+        for (f, _) in &mut self.live {
+            f.mapv_inplace(to_byte);
+        }
+        self
+    }
+
     /// The same problem with reference `|f_r|` and live `-|f_n|`: every per-channel distance is then
     /// `|f_r| + Σ w |f_n|` exactly, so the reference computes the magnitude `M̄` of SPEC.md §9.6.
     /// Untruncated: `min(·, τ)` is 1-Lipschitz, so the untruncated budget bounds the truncated
@@ -107,11 +118,15 @@ proptest! {
         k in prop::sample::select(vec![2usize, 3, 17, 40]),
         frames in 1usize..4,
         tau_per_channel in prop::sample::select(vec![f32::INFINITY, 0.5, 1.0]),
+        bytes: bool,
     ) {
         // Features are uniform in [-2, 2]: a channel's |difference| averages about 4/3, so τ = c
-        // truncates most per-frame costs and τ = c/2 nearly all.
-        let tau = if tau_per_channel.is_finite() { tau_per_channel * c as f32 } else { NO_TRUNCATION };
-        let case = Case { truncation: tau, ..Case::from_seed(seed, h, w, c, k, frames) };
+        // truncates most per-frame costs and τ = c/2 nearly all. Byte-valued features (0..=255)
+        // differ by about 85 per channel: τ scales with them.
+        let scale = if bytes { 63.75 } else { 1.0 };
+        let tau = if tau_per_channel.is_finite() { tau_per_channel * scale * c as f32 } else { NO_TRUNCATION };
+        let case = Case::from_seed(seed, h, w, c, k, frames);
+        let case = Case { truncation: tau, ..if bytes { case.bytes() } else { case } };
         let oracle = case.run(CostVolumeImpl::Reference);
         let fast = case.run(CostVolumeImpl::Fast);
         let portable = case.run(CostVolumeImpl::FastPortable);
@@ -158,18 +173,20 @@ fn fast_kernel_reports_which_path_ran() {
 
 #[test]
 fn output_independent_of_thread_count() {
-    // Every kernel of the fast path: the RGB gather kernel, the 16·N-channel block kernel, the
-    // per-lane channel loop (35), the portable kernel.
-    for (c, imp, tau) in [
-        (3, CostVolumeImpl::Fast, NO_TRUNCATION),
-        (32, CostVolumeImpl::Fast, NO_TRUNCATION),
-        (35, CostVolumeImpl::Fast, NO_TRUNCATION),
-        (3, CostVolumeImpl::FastPortable, NO_TRUNCATION),
-        (32, CostVolumeImpl::FastPortable, NO_TRUNCATION),
-        (3, CostVolumeImpl::Fast, 3.0),
-        (32, CostVolumeImpl::Fast, 32.0),
+    // Every kernel of the fast path: the RGB gather kernel (float and packed byte-valued maps), the
+    // 16·N-channel block kernel, the per-lane channel loop (35), the portable kernel.
+    for (c, imp, tau, bytes) in [
+        (3, CostVolumeImpl::Fast, NO_TRUNCATION, false),
+        (3, CostVolumeImpl::Fast, NO_TRUNCATION, true),
+        (32, CostVolumeImpl::Fast, NO_TRUNCATION, false),
+        (35, CostVolumeImpl::Fast, NO_TRUNCATION, false),
+        (3, CostVolumeImpl::FastPortable, NO_TRUNCATION, false),
+        (32, CostVolumeImpl::FastPortable, NO_TRUNCATION, false),
+        (3, CostVolumeImpl::Fast, 3.0, false),
+        (32, CostVolumeImpl::Fast, 32.0, false),
     ] {
-        let case = Case { truncation: tau, ..Case::from_seed(7, 37, 45, c, 17, 3) };
+        let case = Case::from_seed(7, 37, 45, c, 17, 3);
+        let case = Case { truncation: tau, ..if bytes { case.bytes() } else { case } };
         let run = |n| thread_pool(n).install(|| case.run(imp));
         let one = run(1);
         assert!(one.counts().iter().any(|&n| n == 3), "some cells must be seen by every frame");

@@ -64,6 +64,36 @@ impl AlignedCopy {
     }
 }
 
+/// A byte-valued RGB map packed one pixel per word, `r | g << 8 | b << 16`: the three values a
+/// pixel's channels hold, exactly (each is an integer in `0..=255`, so the conversion back to `f32`
+/// is exact and every sample gets the same bits as from the float map).
+pub(super) struct PackedRgb {
+    words: Vec<u32>,
+}
+
+impl PackedRgb {
+    /// The packed map, or `None` unless `channels == 3` and every value is an integer `0..=255`
+    /// (bit for bit: `-0.0` and NaN are not).
+    pub(super) fn new(data: &[f32], channels: usize) -> Option<Self> {
+        if channels != 3 {
+            return None;
+        }
+        let byte = |v: f32| {
+            let b = v as u8; // saturating; exact for the values accepted below
+            (f32::from(b).to_bits() == v.to_bits()).then_some(u32::from(b))
+        };
+        let words = data
+            .chunks_exact(3)
+            .map(|p| Some(byte(p[0])? | byte(p[1])? << 8 | byte(p[2])? << 16))
+            .collect::<Option<Vec<u32>>>()?;
+        Some(Self { words })
+    }
+
+    fn as_slice(&self) -> &[u32] {
+        &self.words
+    }
+}
+
 /// Validity, corner offsets (`i32`, the top-left corner's first channel) and the four `f32`
 /// bilinear weights of 16 hypotheses.
 struct Block {
@@ -159,6 +189,7 @@ fn block(g: &RowGeo, rhos: &[f64], k: usize) -> Block {
 pub(super) unsafe fn row(
     geo: &Geometry,
     feats: &Slices,
+    packed: Option<&PackedRgb>,
     rhos: &[f64],
     y: usize,
     sum_row: &mut [f32],
@@ -176,9 +207,11 @@ pub(super) unsafe fn row(
         max: [(w - 1) as f64, (h - 1) as f64],
         cap: [w.saturating_sub(2) as f64, h.saturating_sub(2) as f64],
         w: w as i32,
-        c: c as i32,
+        // Offsets count pixels in the packed map, floats otherwise.
+        c: if packed.is_some() { 1 } else { c as i32 },
     };
     let (dx, dy) = (if w > 1 { c } else { 0 }, if h > 1 { w * c } else { 0 });
+    let (px, py) = (dx / c.max(1), dy / c.max(1));
     for x in 0..w {
         let a = geo.warp.point(x as f64, y as f64, 0.0);
         g.a = [a.x, a.y, a.z];
@@ -191,7 +224,9 @@ pub(super) unsafe fn row(
             }
             // SAFETY (all three): valid lanes' corners lie inside `live` (x0 <= W-2 or W = 1,
             // likewise y0).
-            let l1 = if c == 3 {
+            let l1 = if let Some(packed) = packed {
+                unsafe { l1_rgb16_packed(packed.as_slice(), &b, px as i32, py as i32, r) }
+            } else if c == 3 {
                 unsafe { l1_rgb16(feats.live, &b, dx as i32, dy as i32, r) }
             } else if c == 32 {
                 unsafe { l1_chunks16::<2>(feats.live, &b, dx, dy, r) }
@@ -248,6 +283,50 @@ unsafe fn l1_rgb16(live: &[f32], b: &Block, dx: i32, dy: i32, r: &[f32]) -> __m5
                 _mm512_mul_ps(b.w[2], at[2]),
             ),
             _mm512_mul_ps(b.w[3], at[3]),
+        );
+        *d = _mm512_abs_ps(_mm512_sub_ps(_mm512_set1_ps(r[ch]), s));
+    }
+    _mm512_add_ps(_mm512_add_ps(d[0], d[2]), d[1])
+}
+
+/// [`l1_rgb16`] from the packed map: one gather per corner (offsets in pixels), each word split
+/// into its three byte values, converted to `f32` exactly; then the same per-lane expressions.
+///
+/// # Safety
+/// Every valid lane's corners `o + {0, dx, dy, dy + dx}` must lie inside `packed`.
+#[inline]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq")]
+unsafe fn l1_rgb16_packed(packed: &[u32], b: &Block, dx: i32, dy: i32, r: &[f32]) -> __m512 {
+    let p = packed.as_ptr().cast::<i32>();
+    let at: [__m512i; 4] = [0, dx, dy, dy + dx].map(|o| {
+        // SAFETY: only valid lanes load, inside `packed` (the caller's contract).
+        unsafe {
+            _mm512_mask_i32gather_epi32::<4>(
+                _mm512_setzero_si512(),
+                b.ok,
+                _mm512_add_epi32(b.offset, _mm512_set1_epi32(o)),
+                p,
+            )
+        }
+    });
+    let byte = _mm512_set1_epi32(0xff);
+    let channel = |v: __m512i, ch: u32| {
+        let shifted = match ch {
+            0 => v,
+            1 => _mm512_srli_epi32::<8>(v),
+            _ => _mm512_srli_epi32::<16>(v),
+        };
+        _mm512_cvtepi32_ps(_mm512_and_si512(shifted, byte))
+    };
+    let mut d = [_mm512_setzero_ps(); 3];
+    for (ch, d) in d.iter_mut().enumerate() {
+        let v = at.map(|a| channel(a, ch as u32));
+        let s = _mm512_add_ps(
+            _mm512_add_ps(
+                _mm512_add_ps(_mm512_mul_ps(b.w[0], v[0]), _mm512_mul_ps(b.w[1], v[1])),
+                _mm512_mul_ps(b.w[2], v[2]),
+            ),
+            _mm512_mul_ps(b.w[3], v[3]),
         );
         *d = _mm512_abs_ps(_mm512_sub_ps(_mm512_set1_ps(r[ch]), s));
     }
@@ -506,6 +585,54 @@ mod tests {
             let lanes: Vec<(usize, [f32; 4])> =
                 lanes.iter().enumerate().map(|(j, &(x, wt))| (((j % 3) * w + x.min(2)) * c, wt)).collect();
             check(c, &live, &r[..c], &lanes, ok, dx, dy);
+        }
+
+        /// The packed-byte RGB kernel gives `l1_distance`'s bits on every valid lane, and packing
+        /// accepts exactly the maps whose every value is an integer `0..=255`.
+        #[test]
+        fn packed_rgb_kernel_equals_l1_distance(
+            live in prop::collection::vec(0u8..=255, 4 * 4 * 3),
+            r in prop::collection::vec(value(), 3),
+            lanes in prop::collection::vec((0usize..4, prop::array::uniform4(0.0f32..1.0)), BLOCK),
+            ok: u16,
+            spoil in prop::sample::select(vec![None, Some(-0.0f32), Some(0.5), Some(256.0), Some(f32::NAN)]),
+        ) {
+            if !available() {
+                eprintln!("no AVX-512 F/BW/VL/DQ: packed kernel not tested on this CPU");
+                return Ok(());
+            }
+            let (w, c) = (4, 3);
+            let mut live: Vec<f32> = live.into_iter().map(f32::from).collect();
+            let packed = PackedRgb::new(&live, c).expect("byte values pack");
+            prop_assert!(PackedRgb::new(&live, 4).is_none(), "only three channels pack");
+            let lanes: Vec<(usize, [f32; 4])> =
+                lanes.iter().enumerate().map(|(j, &(x, wt))| ((j % 3) * w + x.min(2), wt)).collect();
+            let mut got = [0.0f32; BLOCK];
+            // SAFETY: `available()` holds; every corner lies in the 4x4 map.
+            unsafe {
+                let offsets: [i32; BLOCK] = std::array::from_fn(|j| lanes[j].0 as i32);
+                let b = Block {
+                    ok,
+                    offset: _mm512_loadu_si512(offsets.as_ptr().cast()),
+                    w: std::array::from_fn(|i| {
+                        let v: [f32; BLOCK] = std::array::from_fn(|j| lanes[j].1[i]);
+                        _mm512_loadu_ps(v.as_ptr())
+                    }),
+                };
+                _mm512_storeu_ps(got.as_mut_ptr(), l1_rgb16_packed(packed.as_slice(), &b, 1, w as i32, &r));
+            }
+            for (j, &(o, wj)) in lanes.iter().enumerate() {
+                if ok >> j & 1 == 0 {
+                    continue;
+                }
+                let at = |p: usize| &live[p * c..p * c + c];
+                let want = l1_distance(&r, at(o), at(o + 1), at(o + w), at(o + w + 1), wj);
+                prop_assert!(same(got[j], want), "lane {}: {} vs {}", j, got[j], want);
+            }
+            if let Some(v) = spoil {
+                live[7] = v;
+                prop_assert!(PackedRgb::new(&live, c).is_none(), "{} must not pack", v);
+            }
         }
     }
 }

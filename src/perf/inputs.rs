@@ -28,7 +28,8 @@ pub struct BenchInputs {
     pub t_nr: Pose,
 }
 
-/// Inputs of the benchmark: random reference and live features in `[0, 1)`, a camera with
+/// Inputs of the benchmark: random reference and live features in `[0, 1)` (three channels: random
+/// integers `0..=255`, as decoded RGB images), a camera with
 /// `f = 0.8 W` and the principal point at the centre, hypotheses over `[0.25, 4]` 1/m, and a live
 /// camera 5 cm to the right, 2 cm forward, rotated by about 1° (a typical neighbouring keyframe).
 ///
@@ -43,7 +44,19 @@ pub fn bench_inputs(width: usize, height: usize, channels: usize, bins: usize) -
         PinholeCamera::new(f, f, (width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0, width, height)?;
     let bins = InverseDepthBins::new(0.25, 4.0, bins)?;
     let mut rng = SplitMix64::new(7);
-    let mut feats = || Array3::from_shape_simple_fn((height, width, channels), || rng.unit() as f32);
+    // Three channels are RGB as decoded images hold it (integers 0..=255, the cost volume's packed
+    // path, SPEC.md §9.4); other channel counts are learned-feature-like floats.
+    let rgb = channels == 3;
+    let mut feats = || {
+        Array3::from_shape_simple_fn((height, width, channels), || {
+            let u = rng.unit();
+            if rgb {
+                (u * 256.0).floor().min(255.0) as f32
+            } else {
+                u as f32
+            }
+        })
+    };
     let (reference, live) = (feats(), feats());
     let t_nr = Pose::from_parts(
         Translation3::new(-0.05, 0.0, -0.02),

@@ -40,14 +40,25 @@ fn inspect_rejects_bad_max_gap() {
 
 #[test]
 fn bench_tv_prints_iteration_and_solve_times() {
+    for (schedule, steps) in [("mapping", 4), ("raw", 1)] {
+        let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+            .args(["bench", "tv", "--size", "40x30", "--bins", "8", "--threads", "2", "--runs", "5"])
+            .args(["--schedule", schedule])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            text.contains("one iteration") && text.contains("a-search") && text.contains("full solve"),
+            "{text}"
+        );
+        let said = format!("{schedule} schedule (200 iterations scheduled, {steps} primal-dual steps each");
+        assert!(text.contains(&said), "{text}");
+    }
     let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
-        .args(["bench", "tv", "--size", "40x30", "--bins", "8", "--threads", "2", "--runs", "5"])
+        .args(["bench", "tv", "--size", "40x30", "--schedule", "fast"])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        text.contains("one iteration") && text.contains("a-search") && text.contains("full solve"),
-        "{text}"
-    );
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--schedule"));
 }

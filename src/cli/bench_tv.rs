@@ -1,7 +1,8 @@
 //! `densefeat bench tv`: time the DTAM Huber-TV solver (SPEC.md §10, §12.2) on a synthetic cost
 //! volume: one iteration (median, with its parts: the primal-dual step and the fused a-search with
 //! the energy and gap, plus the a-search alone for scale), the same iteration in the unfused
-//! reference formulation, and a full solve with default [`DtamParams`].
+//! reference formulation, and a full solve (`--schedule mapping`: the pipeline's normalised
+//! defaults; `raw`: [`DtamParams::default`]).
 
 use std::time::Instant;
 
@@ -36,6 +37,21 @@ pub struct BenchTvArgs {
     /// Where the solver runs (`gpu`: uploads, iterations and download timed separately).
     #[command(flatten)]
     pub backend: super::backend_flag::BackendFlag,
+    /// DTAM parameters: `mapping` (what `reconstruct`, `eval` and `map` run: `dtam::MAPPING_DEFAULTS`
+    /// normalised with the volume's cost scale, hypothesis range and width, SPEC.md §10.1) or `raw`
+    /// (`DtamParams::default()`, the solver's own defaults, §10).
+    #[arg(long, default_value = "mapping", value_parser = ["mapping", "raw"])]
+    pub schedule: String,
+}
+
+/// The DTAM parameters `--schedule` names, for this volume.
+pub(super) fn schedule_params(schedule: &str, inputs: &TvInputs) -> DtamParams {
+    if schedule == "raw" {
+        return DtamParams::default();
+    }
+    let scale = crate::costvolume::cost_scale(inputs.costs.view());
+    let (_, w, _) = inputs.costs.dim();
+    crate::dtam::MAPPING_DEFAULTS.normalised(scale, w, inputs.bins.rho_max - inputs.bins.rho_min)
 }
 
 pub(super) fn median_ms(mut v: Vec<f64>) -> f64 {
@@ -63,8 +79,9 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
         return device(args, width, height);
     }
     let pool = super::bench::pool(args.threads)?;
-    let TvInputs { costs, bins, grey, init } = tv_inputs(width, height, args.bins)?;
-    let params = DtamParams::default();
+    let inputs = tv_inputs(width, height, args.bins)?;
+    let params = schedule_params(&args.schedule, &inputs);
+    let TvInputs { costs, bins, grey, init } = inputs;
     let lambda = params.lambda;
     let (mut step, mut fused, mut search, mut iter) = (vec![], vec![], vec![], vec![]);
     let (mut ref_step, mut ref_search, mut ref_energy, mut ref_iter) = (vec![], vec![], vec![], vec![]);
@@ -143,9 +160,12 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
         median_ms(ref_energy),
     );
     println!(
-        "  full solve, default parameters ({} iterations scheduled, {solve_iterations} run): median \
-         {solve_ms:.1} ms over 3 solves ({:.2} ms per scheduled iteration, {:.2} per iteration run)",
+        "  full solve, {} schedule ({} iterations scheduled, {} primal-dual steps each, {solve_iterations} \
+         run): median {solve_ms:.1} ms over 3 solves ({:.2} ms per scheduled iteration, {:.2} per \
+         iteration run)",
+        args.schedule,
         params.iterations,
+        params.steps_per_search,
         solve_ms / params.iterations as f64,
         solve_ms / solve_iterations.max(1) as f64
     );

@@ -17,9 +17,11 @@ const REPEATS: usize = 3;
 /// No GPU adapter; device errors.
 pub(super) fn run(args: &BenchTvArgs, width: usize, height: usize) -> Result<()> {
     let gpu = GpuBackend::shared()?;
-    let TvInputs { costs, bins, grey, init } = tv_inputs(width, height, args.bins)?;
+    let inputs = tv_inputs(width, height, args.bins)?;
+    let params = super::bench_tv::schedule_params(&args.schedule, &inputs);
+    let TvInputs { costs, bins, grey, init } = inputs;
     // A fixed number of iterations: a schedule as long as the cap, so nothing stops early.
-    let fixed = DtamParams { iterations: args.runs, max_iterations: args.runs, ..DtamParams::default() };
+    let fixed = DtamParams { iterations: args.runs, max_iterations: args.runs, ..params };
     let warm = DtamParams { iterations: 2, max_iterations: 2, ..fixed };
     gpu.dtam_solve_timed(costs.view(), &bins, grey.view(), init.view(), &warm)?;
     let (mut upload, mut iteration, mut download) = (vec![], vec![], vec![]);
@@ -29,7 +31,6 @@ pub(super) fn run(args: &BenchTvArgs, width: usize, height: usize) -> Result<()>
         iteration.push(t.iterate_s / report.iterations.max(1) as f64);
         download.push(t.download_s);
     }
-    let params = DtamParams::default();
     let (mut solves, mut iterations) = (vec![], 0);
     for _ in 0..REPEATS {
         let (_, report, t) = gpu.dtam_solve_timed(costs.view(), &bins, grey.view(), init.view(), &params)?;
@@ -50,8 +51,9 @@ pub(super) fn run(args: &BenchTvArgs, width: usize, height: usize) -> Result<()>
     );
     let solve_ms = median_ms(solves);
     println!(
-        "  full solve, default parameters ({} iterations scheduled, {iterations} run): median {solve_ms:.1} ms \
+        "  full solve, {} schedule ({} iterations scheduled, {iterations} run): median {solve_ms:.1} ms \
          over {REPEATS} solves ({:.2} ms per iteration run, uploads and download included)",
+        args.schedule,
         params.iterations,
         solve_ms / iterations.max(1) as f64
     );

@@ -3,15 +3,16 @@
 //! semantics.
 
 use densefeat::nn::conv2d::{
-    conv2d_direct, conv2d_direct_with, conv2d_im2col, direct, im2col, scratch_len, DirectKernel, PackedConv2d,
+    conv2d_direct, conv2d_direct_concat_with, conv2d_direct_with, conv2d_im2col, direct, im2col, scratch_len,
+    DirectKernel, PackedConv2d,
 };
 use densefeat::nn::deconv2d::{
     deconv2d_direct, deconv2d_fast, scratch_len as deconv_scratch_len, PackedDeconv2d,
 };
 use densefeat::nn::geometry::DownsampleGeometry;
 use densefeat::nn::{
-    add, concat_channels, conv2d, deconv2d, downsample2x, Activation, Conv2dGeometry, Conv2dImpl,
-    Deconv2dGeometry, Deconv2dImpl,
+    add, concat_channels, conv2d, conv2d_concat_into, deconv2d, downsample2x, Activation, Conv2dGeometry,
+    Conv2dImpl, Deconv2dGeometry, Deconv2dImpl,
 };
 use densefeat::testing::within_budget;
 use ndarray::{array, s, Array1, Array3, Array4, Dimension};
@@ -77,6 +78,21 @@ impl ConvCase {
         )
         .unwrap();
         out
+    }
+    /// Runs the staged concatenation kernel with `x`'s channels split `ca + (c_in - ca)`.
+    fn run_direct_concat(&self, kernel: DirectKernel, ca: usize) -> Array3<f32> {
+        let packed = PackedConv2d::new(&self.g, self.w.view(), self.b.view()).unwrap();
+        let (a, b) = self.split(ca);
+        let mut out = Array3::from_elem(self.g.output_shape(), f32::NAN);
+        let (sa, sb) = (a.as_slice().unwrap(), b.as_slice().unwrap());
+        let cb = self.g.c_in() - ca;
+        conv2d_direct_concat_with(kernel, &packed, (sa, ca), (sb, cb), self.act, out.as_slice_mut().unwrap())
+            .unwrap();
+        out
+    }
+    /// `x` as two maps whose concatenation it is: channels `..ca` and `ca..`.
+    fn split(&self, ca: usize) -> (Array3<f32>, Array3<f32>) {
+        (self.x.slice(s![.., .., ..ca]).to_owned(), self.x.slice(s![.., .., ca..]).to_owned())
     }
     /// The same case on |x|, |w|, |b| without activation: its reference output is Σ|x||w| + |b|.
     fn abs(&self) -> Self {
@@ -175,6 +191,32 @@ proptest! {
             let got = case.run_direct(kernel);
             within_budget(got.view(), oracle.view(), magnitude.view(), budget(case.g.k()))
                 .map_err(|e| TestCaseError::fail(format!("kernel {}: {e}", kernel.name())))?;
+        }
+    }
+
+    /// The staged concatenation (SPEC.md §7.10): within §7.5 of the reference on the concatenated
+    /// map, and bit-identical to the direct kernel on it, for every kernel and channel split.
+    #[test]
+    fn direct_concat_matches_reference_and_direct_on_the_concatenation(
+        case in conv_cases().prop_filter("two channel parts", |c| c.g.c_in() >= 2),
+        split in 0.0..1.0f64,
+    ) {
+        let ca = 1 + ((case.g.c_in() - 1) as f64 * split) as usize; // 1 ..= c_in - 1
+        let oracle = case.run(Conv2dImpl::Reference);
+        let magnitude = case.abs().run(Conv2dImpl::Reference);
+        for kernel in DirectKernel::ALL.into_iter().filter(|k| k.supports(&case.g)) {
+            let got = case.run_direct_concat(kernel, ca);
+            within_budget(got.view(), oracle.view(), magnitude.view(), budget(case.g.k()))
+                .map_err(|e| TestCaseError::fail(format!("kernel {}: {e}", kernel.name())))?;
+            prop_assert_eq!(bits(&got), bits(&case.run_direct(kernel)), "kernel {}, ca = {}", kernel.name(), ca);
+        }
+        // The public entry point, every implementation: the same bits as conv2d on concat(a, b).
+        let (a, b) = case.split(ca);
+        for imp in [Conv2dImpl::Im2colGemm, Conv2dImpl::Direct] {
+            let mut out = Array3::from_elem(case.g.output_shape(), f32::NAN);
+            conv2d_concat_into(imp, &case.g, a.view(), b.view(), case.w.view(), case.b.view(), case.act,
+                out.as_slice_mut().unwrap()).unwrap();
+            prop_assert_eq!(bits(&out), bits(&case.run(imp)), "{:?}, ca = {}", imp, ca);
         }
     }
 
@@ -283,6 +325,53 @@ fn direct_output_independent_of_thread_count() {
         let auto = thread_pool(3).install(|| case.run(Conv2dImpl::Direct));
         assert_eq!(bits(&auto), bits(&case.run_direct(DirectKernel::select(&case.g))), "shape {shape:?}");
     }
+}
+
+#[test]
+fn direct_concat_output_independent_of_thread_count() {
+    for (shape, ca, seed) in
+        [((37, 29, 35, 32, 2), 32, 11), ((41, 30, 35, 32, 1), 3, 12), ((66, 47, 35, 8, 2), 32, 13)]
+    {
+        let case = ConvCase::new(shape, Activation::Relu, seed);
+        for kernel in DirectKernel::ALL.into_iter().filter(|k| k.supports(&case.g)) {
+            let run = |n| thread_pool(n).install(|| case.run_direct_concat(kernel, ca));
+            let one = run(1);
+            for n in [2, 3, 8] {
+                assert_eq!(bits(&run(n)), bits(&one), "shape {shape:?}, {}, threads = {n}", kernel.name());
+            }
+        }
+    }
+}
+
+#[test]
+fn direct_concat_rejects_bad_channel_splits_and_lengths() {
+    let case = ConvCase::new((5, 6, 35, 32, 2), Activation::None, 3);
+    let packed = PackedConv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
+    let (a, b) = case.split(32);
+    let (sa, sb) = (a.as_slice().unwrap(), b.as_slice().unwrap());
+    let mut out = vec![0.0; case.g.output_shape().iter().product()];
+    let k = DirectKernel::Portable;
+    assert!(conv2d_direct_concat_with(k, &packed, (sa, 32), (sb, 3), Activation::None, &mut out).is_ok());
+    assert!(conv2d_direct_concat_with(k, &packed, (sa, 32), (sb, 4), Activation::None, &mut out).is_err());
+    assert!(conv2d_direct_concat_with(k, &packed, (sa, 35), (&[], 0), Activation::None, &mut out).is_err());
+    assert!(
+        conv2d_direct_concat_with(k, &packed, (&sa[1..], 32), (sb, 3), Activation::None, &mut out).is_err()
+    );
+    assert!(
+        conv2d_direct_concat_with(k, &packed, (sa, 32), (sb, 3), Activation::None, &mut out[1..]).is_err()
+    );
+    let wrong = Array3::<f32>::zeros((4, 6, 3));
+    let r = conv2d_concat_into(
+        Conv2dImpl::Direct,
+        &case.g,
+        a.view(),
+        wrong.view(),
+        case.w.view(),
+        case.b.view(),
+        Activation::None,
+        &mut out,
+    );
+    assert!(r.is_err());
 }
 
 #[test]

@@ -24,7 +24,7 @@ pub mod viz;
 pub mod weights;
 
 pub use config::NetworkConfig;
-pub use conv2d::{conv2d, conv2d_into, Conv2dImpl};
+pub use conv2d::{conv2d, conv2d_concat_into, conv2d_into, Conv2dImpl};
 pub use deconv2d::{deconv2d, deconv2d_into, Deconv2dImpl};
 pub use downsample::{
     add, concat_channels, concat_channels_backward, concat_channels_into, downsample2x, downsample2x_backward,

@@ -178,19 +178,20 @@ pub fn conv2d_direct_with(
                 DirectKernel::Avx512F => {
                     // SAFETY: `supports` checked that the CPU has AVX-512F and c_out = 32; the
                     // slice lengths were checked against the geometry above.
-                    unsafe { super::direct_avx512::conv_row(packed, input, y, activation, out_row) }
+                    unsafe { super::direct_avx512::conv_row(packed, input, 0, y, activation, out_row) }
                 }
-                _ => conv_row_portable(packed, input, y, activation, out_row),
+                _ => conv_row_portable(packed, input, 0, y, activation, out_row),
             }
         }
     });
     Ok(())
 }
 
-/// One output row with the portable kernel.
-fn conv_row_portable(
+/// One output row with the portable kernel; `input` holds the image's rows from `row0` on.
+pub(super) fn conv_row_portable(
     packed: &PackedConv2d,
     input: &[f32],
+    row0: usize,
     y: usize,
     activation: Activation,
     out_row: &mut [f32],
@@ -204,7 +205,7 @@ fn conv_row_portable(
         let run = (kx_hi - kx_lo) * c_in;
         acc.copy_from_slice(packed.bias());
         for ky in ky_lo..ky_hi {
-            let at = ((s * y + ky - CONV_PADDING) * w + s * x + kx_lo - CONV_PADDING) * c_in;
+            let at = ((s * y + ky - CONV_PADDING - row0) * w + s * x + kx_lo - CONV_PADDING) * c_in;
             let taps = &input[at..at + run];
             let w_at = (ky * CONV_KERNEL + kx_lo) * c_in * c_out;
             for (&v, w_row) in taps.iter().zip(weights[w_at..w_at + run * c_out].chunks_exact(c_out)) {

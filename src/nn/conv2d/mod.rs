@@ -34,6 +34,7 @@ pub mod backward;
 pub mod direct;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod direct_avx512;
+pub mod direct_concat;
 pub mod im2col;
 pub mod reference;
 
@@ -44,12 +45,13 @@ pub use backward::{
     conv2d_backward_weight_reference, relu_backward,
 };
 pub use direct::{conv2d_direct, conv2d_direct_with, DirectKernel};
+pub use direct_concat::conv2d_direct_concat_with;
 pub use im2col::{conv2d_im2col, scratch_len, PackedConv2d};
 pub use reference::conv2d_reference;
 
 use crate::error::Result;
 use crate::nn::pack_cache::packed_conv;
-use crate::nn::{default_lanes, expect_len, expect_shape, Activation, Conv2dGeometry};
+use crate::nn::{concat_channels, default_lanes, expect_len, expect_shape, Activation, Conv2dGeometry};
 
 /// Which conv2d implementation to run. Every variant is always compiled and always tested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -168,4 +170,40 @@ pub fn conv2d_into(
             conv2d_direct(&packed, x, activation, out).map(|_| ())
         }
     }
+}
+
+/// [`conv2d_into`] on `concat(a, b)` (`a`'s channels first, SPEC.md §7.4), the input of every block
+/// after the first (§8.1). [`Conv2dImpl::Direct`] never forms the concatenation: each work unit
+/// stages the rows it reads ([`direct_concat`], SPEC.md §7.10), with the same bits as the direct
+/// convolution of the concatenated map; the other implementations concatenate, then convolve.
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] if `a` and `b` differ in height or width, their channels do
+/// not add up to `geom`'s input, or a shape or `out`'s length disagrees with `geom`.
+#[allow(clippy::too_many_arguments)]
+pub fn conv2d_concat_into(
+    imp: Conv2dImpl,
+    geom: &Conv2dGeometry,
+    a: ArrayView3<f32>,
+    b: ArrayView3<f32>,
+    weight: ArrayView4<f32>,
+    bias: ArrayView1<f32>,
+    activation: Activation,
+    out: &mut [f32],
+) -> Result<()> {
+    let [h, w, c_in] = geom.input_shape();
+    let (ca, cb) = (a.dim().2, b.dim().2);
+    expect_shape("conv2d concat input a", a.shape(), &[h, w, ca])?;
+    expect_shape("conv2d concat input b", b.shape(), &[h, w, c_in.saturating_sub(ca)])?;
+    if imp != Conv2dImpl::Direct || ca == 0 || cb == 0 {
+        let x = concat_channels(a, b)?;
+        return conv2d_into(imp, geom, x.view(), weight, bias, activation, out);
+    }
+    let packed = packed_conv(geom, weight, bias)?;
+    let (a, b) = (a.as_standard_layout(), b.as_standard_layout());
+    let (Some(sa), Some(sb)) = (a.as_slice(), b.as_slice()) else {
+        unreachable!("standard-layout arrays are contiguous")
+    };
+    let kernel = DirectKernel::select(geom);
+    conv2d_direct_concat_with(kernel, &packed, (sa, ca), (sb, cb), activation, out)
 }

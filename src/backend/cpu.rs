@@ -8,6 +8,7 @@ use crate::costvolume::{winner_take_all_costs, CostVolume, CostVolumeImpl, WtaDe
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
+use crate::nn::alloc::zeroed_vec;
 use crate::nn::network::{conv_geometry, deconv_geometry};
 use crate::nn::weights::LayerParams;
 use crate::nn::{
@@ -45,7 +46,8 @@ impl CpuBackend {
 
 /// A `shape` array for an op's output: `spare`'s storage when it is a host map with a single
 /// handle and room for the new length (truncated, or grown inside its capacity; the op overwrites
-/// every value), else a new zeroed one (`calloc`: fresh pages come zeroed from the OS, no memset).
+/// every value), else a new zeroed one (`calloc`: fresh pages come zeroed from the OS, no memset; large ones
+/// advised onto huge pages, `nn::alloc`).
 fn output_array(shape: [usize; 3], spare: Option<Tensor>) -> Array3<f32> {
     let n = shape.iter().product();
     let reused = match spare.map(Tensor::into_unique_host) {
@@ -58,7 +60,7 @@ fn output_array(shape: [usize; 3], spare: Option<Tensor>) -> Array3<f32> {
         },
         _ => None,
     };
-    let v = reused.unwrap_or_else(|| vec![0.0; n]);
+    let v = reused.unwrap_or_else(|| zeroed_vec(n));
     let Ok(a) = Array3::from_shape_vec(shape, v) else { unreachable!("length is the shape's product") };
     a
 }

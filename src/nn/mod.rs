@@ -11,6 +11,7 @@
 //! [`weights`] (PyTorch names, Xavier init, safetensors), [`network`] (the forward pass),
 //! [`budget`] (the network-level error bound) and [`viz`] (a PCA colouring of features).
 
+pub mod alloc;
 pub mod budget;
 pub mod config;
 pub mod conv2d;

@@ -23,6 +23,7 @@ use rayon::prelude::*;
 
 use crate::backend::{Backend, Tensor};
 use crate::error::{Error, Result};
+use crate::nn::alloc::zeroed_map;
 use crate::nn::config::{NetworkConfig, IMAGE_CHANNELS};
 use crate::nn::geometry::{Conv2dGeometry, Deconv2dGeometry, DECONV_KERNEL};
 use crate::nn::weights::{LayerParams, NetworkWeights};
@@ -316,7 +317,7 @@ pub fn padded_input(config: &NetworkConfig, image: ArrayView3<f32>) -> Result<Ar
     let image = image.as_standard_layout();
     let Some(src) = image.as_slice() else { unreachable!("standard layout is contiguous") };
     let mean = config.input_mean;
-    let mut level0 = Array3::<f32>::zeros((hp, wp, c));
+    let mut level0 = zeroed_map([hp, wp, c]);
     let Some(dst) = level0.as_slice_mut() else { unreachable!("a new array is contiguous") };
     dst.par_chunks_mut(wp * c).enumerate().for_each(|(y, row)| {
         let src_row = &src[y.min(h - 1) * w * c..][..w * c];

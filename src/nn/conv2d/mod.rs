@@ -118,7 +118,7 @@ pub fn conv2d(
     bias: ArrayView1<f32>,
     activation: Activation,
 ) -> Result<Array3<f32>> {
-    let mut out = Array3::zeros(geom.output_shape());
+    let mut out = crate::nn::alloc::zeroed_map(geom.output_shape());
     let Some(y) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
     conv2d_into(imp, geom, input, weight, bias, activation, y)?;
     Ok(out)

@@ -75,7 +75,7 @@ pub fn deconv2d(
     weight: ArrayView4<f32>,
     bias: ArrayView1<f32>,
 ) -> Result<Array3<f32>> {
-    let mut out = Array3::zeros(geom.output_shape());
+    let mut out = crate::nn::alloc::zeroed_map(geom.output_shape());
     let Some(y) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
     deconv2d_into(imp, geom, input, weight, bias, None, y)?;
     Ok(out)

@@ -44,6 +44,38 @@ pub fn median(v: &mut [f64]) -> f64 {
     }
 }
 
+/// Largest block glibc's `malloc` may serve from its heap instead of a fresh `mmap` (its ceiling
+/// for `M_MMAP_THRESHOLD` on 64-bit targets).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+const HEAP_BLOCK_MAX_BYTES: libc::c_int = 32 << 20;
+
+/// Free memory glibc keeps at the top of its heap before returning it to the OS.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+const HEAP_KEEP_BYTES: libc::c_int = 1 << 30;
+
+/// Lets glibc's allocator reuse the memory of freed activation maps instead of returning it to the
+/// OS (SPEC.md §8.9): blocks up to 32 MB come from the heap (`M_MMAP_THRESHOLD`, fixed at glibc's
+/// ceiling instead of its sliding default) and up to 1 GiB of free heap top is kept
+/// (`M_TRIM_THRESHOLD`). A forward pass returns fresh maps that the caller drops; without this the
+/// next pass gets them back as new pages that the OS zero-fills, one page fault at a time. Peak
+/// memory is unchanged; memory freed after the peak stays with the process. Process-wide, so the
+/// `densefeat` binary calls it at start; library users may. Returns whether glibc accepted both
+/// settings (always `false` off Linux/glibc, where it does nothing).
+pub fn keep_freed_memory() -> bool {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        // SAFETY: mallopt only changes allocator parameters; both values are in its documented range.
+        unsafe {
+            libc::mallopt(libc::M_MMAP_THRESHOLD, HEAP_BLOCK_MAX_BYTES) == 1
+                && libc::mallopt(libc::M_TRIM_THRESHOLD, HEAP_KEEP_BYTES) == 1
+        }
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    {
+        false
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -51,6 +83,12 @@ mod tests {
         assert_eq!(super::median(&mut [3.0, 1.0, 2.0]), 2.0);
         assert_eq!(super::median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
         assert!(super::median(&mut []).is_nan());
+    }
+
+    #[test]
+    fn glibc_accepts_the_allocator_settings() {
+        let accepted = super::keep_freed_memory();
+        assert_eq!(accepted, cfg!(all(target_os = "linux", target_env = "gnu")));
     }
 
     #[test]

@@ -3,12 +3,32 @@
 
 use crate::error::{Error, Result};
 
-/// Whether the CPU has AVX-512F (always `false` off x86-64). Every kernel with an AVX-512 path
-/// asks here (the cost volume, the direct convolution, the training loss).
+/// Environment variable that, set to any value, makes [`has_avx512f`] answer `false`, so that the
+/// AVX2 / portable paths can be run and timed on an AVX-512 machine (SPEC.md §7.7).
+pub const NO_AVX512_ENV: &str = "DENSEFEAT_NO_AVX512";
+
+/// Whether the CPU has AVX-512F and [`NO_AVX512_ENV`] is not set (always `false` off x86-64).
+/// Every kernel with an AVX-512 path asks here (the cost volume, the direct convolution and
+/// transposed convolution, the training loss). The environment is read once per process.
 pub fn has_avx512f() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
+        static DISABLED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
         std::arch::is_x86_feature_detected!("avx512f")
+            && !*DISABLED.get_or_init(|| std::env::var_os(NO_AVX512_ENV).is_some())
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Whether the CPU has AVX2 and FMA (always `false` off x86-64): the direct convolution's kernel
+/// for CPUs without AVX-512.
+pub fn has_avx2_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {

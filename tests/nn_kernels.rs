@@ -379,12 +379,20 @@ fn direct_selects_the_avx512_kernel_exactly_when_available() {
     let g32 = Conv2dGeometry::new(9, 40, 35, 32, 2).unwrap();
     let g8 = Conv2dGeometry::new(9, 40, 35, 8, 2).unwrap();
     let avx512 = cfg!(target_arch = "x86_64") && avx512f_available();
-    let want = if avx512 { "avx512f-14x32" } else { "portable" };
+    let avx2 = cfg!(target_arch = "x86_64") && avx2_fma_available();
+    let want = match (avx512, avx2) {
+        (true, _) => "avx512f-14x32",
+        (false, true) => "avx2-6x16",
+        _ => "portable",
+    };
     assert_eq!(direct::kernel_name(&g32), want);
     assert_eq!(direct::kernel_name(&g8), "portable");
     assert_eq!(DirectKernel::Avx512F.supports(&g32), avx512);
+    assert_eq!(DirectKernel::Avx2Fma.supports(&g32), avx2);
     assert!(!DirectKernel::Avx512F.supports(&g8));
-    assert_eq!(Conv2dImpl::fastest(), if avx512 { Conv2dImpl::Direct } else { Conv2dImpl::Im2colGemm });
+    assert!(!DirectKernel::Avx2Fma.supports(&g8));
+    let simd = avx512 || avx2;
+    assert_eq!(Conv2dImpl::fastest(), if simd { Conv2dImpl::Direct } else { Conv2dImpl::Im2colGemm });
     assert_eq!(Conv2dImpl::default(), Conv2dImpl::fastest());
     assert_eq!(Conv2dImpl::fastest_for(&g8), Conv2dImpl::Im2colGemm);
     // conv2d_direct reports the kernel that ran; an unavailable kernel is an error, not a fallback.
@@ -394,6 +402,7 @@ fn direct_selects_the_avx512_kernel_exactly_when_available() {
     let x = case.x.as_slice().unwrap();
     assert_eq!(conv2d_direct(&packed, x, Activation::None, &mut out).unwrap(), DirectKernel::Portable);
     assert!(conv2d_direct_with(DirectKernel::Avx512F, &packed, x, Activation::None, &mut out).is_err());
+    assert!(conv2d_direct_with(DirectKernel::Avx2Fma, &packed, x, Activation::None, &mut out).is_err());
     // Machines that run the AVX-512 checks say so in the test log.
     eprintln!("direct kernel for c_out = 32: {}", direct::kernel_name(&g32));
 }
@@ -401,6 +410,42 @@ fn direct_selects_the_avx512_kernel_exactly_when_available() {
 #[cfg(target_arch = "x86_64")]
 fn avx512f_available() -> bool {
     std::arch::is_x86_feature_detected!("avx512f")
+        && std::env::var_os(densefeat::runtime::NO_AVX512_ENV).is_none()
+}
+
+#[cfg(target_arch = "x86_64")]
+fn avx2_fma_available() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn avx2_fma_available() -> bool {
+    false
+}
+
+/// The two FMA kernels accumulate every output in the same order with one FMA per product, so
+/// they agree bit for bit (SPEC.md §7.7), on every network shape and on odd ones.
+#[test]
+fn avx2_kernel_gives_the_avx512_kernels_bits() {
+    for (shape, seed) in [
+        ((37, 29, 35, 32, 1), 1),
+        ((41, 30, 32, 32, 2), 2),
+        ((5, 300, 3, 32, 1), 3),
+        ((66, 47, 3, 32, 2), 4),
+        ((1, 1, 32, 32, 1), 5),
+        ((2, 13, 7, 32, 2), 6),
+    ] {
+        let case = ConvCase::new(shape, Activation::Relu, seed);
+        if DirectKernel::Avx512F.supports(&case.g) && DirectKernel::Avx2Fma.supports(&case.g) {
+            let (a, b) = (case.run_direct(DirectKernel::Avx512F), case.run_direct(DirectKernel::Avx2Fma));
+            assert_eq!(bits(&a), bits(&b), "shape {shape:?}");
+            let (a, b) = (
+                case.run_direct_concat(DirectKernel::Avx512F, 2),
+                case.run_direct_concat(DirectKernel::Avx2Fma, 2),
+            );
+            assert_eq!(bits(&a), bits(&b), "concat, shape {shape:?}");
+        }
+    }
 }
 
 #[cfg(not(target_arch = "x86_64"))]

@@ -116,6 +116,11 @@ pub fn conv2d_direct_concat_with(
                     // out_row holds w_out · 32 floats.
                     unsafe { super::direct_avx512::conv_row(packed, staging, lo, y, activation, out_row) }
                 }
+                #[cfg(target_arch = "x86_64")]
+                DirectKernel::Avx2Fma => {
+                    // SAFETY: as above, with AVX2 and FMA checked by `supports`.
+                    unsafe { super::direct_avx2::conv_row(packed, staging, lo, y, activation, out_row) }
+                }
                 _ => conv_row_portable(packed, staging, lo, y, activation, out_row),
             }
         }

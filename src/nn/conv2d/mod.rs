@@ -33,6 +33,8 @@
 pub mod backward;
 pub mod direct;
 #[cfg(target_arch = "x86_64")]
+pub(crate) mod direct_avx2;
+#[cfg(target_arch = "x86_64")]
 pub(crate) mod direct_avx512;
 pub mod direct_concat;
 pub mod im2col;
@@ -64,8 +66,9 @@ pub enum Conv2dImpl {
     Im2colGemm,
     /// Direct (implicit-GEMM) convolution, no im2col, no scratch, parallel over blocks of output
     /// rows ([`conv2d_direct`], SPEC.md §7.7). Runs the AVX-512F micro-kernel (strips of 14 pixels
-    /// x 32 output channels) when the CPU has AVX-512F and `c_out = 32`, otherwise a portable Rust
-    /// loop; [`direct::kernel_name`] says which.
+    /// x 32 output channels) when the CPU has AVX-512F and `c_out = 32`, else the AVX2+FMA one
+    /// (6 pixels x 16 channels) where the CPU has those, otherwise a portable Rust loop;
+    /// [`direct::kernel_name`] says which.
     Direct,
 }
 
@@ -74,23 +77,22 @@ impl Conv2dImpl {
     pub const ALL: [Conv2dImpl; 3] = [Conv2dImpl::Reference, Conv2dImpl::Im2colGemm, Conv2dImpl::Direct];
 
     /// The fastest implementation for the network's layers (all with `c_out = 32`) on this CPU:
-    /// [`Conv2dImpl::Direct`] when the CPU has AVX-512F (its micro-kernel then runs every
-    /// `c_out = 32` layer about 2x faster than [`Conv2dImpl::Im2colGemm`], 4x on the 3-channel first
-    /// layer, SPEC.md §7.7), otherwise `Im2colGemm` (Direct's portable kernel is 3-4x slower than
-    /// the GEMM). [`Default`] returns this.
-    /// When the geometry is known, [`Conv2dImpl::fastest_for`] also accounts for `c_out`.
+    /// [`Conv2dImpl::Direct`] when the CPU has AVX-512F or AVX2+FMA (its micro-kernels then run
+    /// every `c_out = 32` layer faster than [`Conv2dImpl::Im2colGemm`], SPEC.md §7.7), otherwise
+    /// `Im2colGemm` (Direct's portable kernel is 3-4x slower than the GEMM). [`Default`] returns
+    /// this. When the geometry is known, [`Conv2dImpl::fastest_for`] also accounts for `c_out`.
     pub fn fastest() -> Conv2dImpl {
-        if direct::avx512f_detected() {
+        if direct::avx512f_detected() || crate::runtime::has_avx2_fma() {
             Conv2dImpl::Direct
         } else {
             Conv2dImpl::Im2colGemm
         }
     }
 
-    /// The fastest implementation for `geom` on this CPU: [`Conv2dImpl::Direct`] when its AVX-512F
-    /// kernel runs `geom`, otherwise [`Conv2dImpl::Im2colGemm`].
+    /// The fastest implementation for `geom` on this CPU: [`Conv2dImpl::Direct`] when one of its
+    /// SIMD kernels (AVX-512F, AVX2+FMA) runs `geom`, otherwise [`Conv2dImpl::Im2colGemm`].
     pub fn fastest_for(geom: &Conv2dGeometry) -> Conv2dImpl {
-        if DirectKernel::select(geom) == DirectKernel::Avx512F {
+        if DirectKernel::select(geom) != DirectKernel::Portable {
             Conv2dImpl::Direct
         } else {
             Conv2dImpl::Im2colGemm

@@ -7,7 +7,7 @@ use densefeat::nn::conv2d::{
     DirectKernel, PackedConv2d,
 };
 use densefeat::nn::deconv2d::{
-    deconv2d_direct, deconv2d_fast, scratch_len as deconv_scratch_len, PackedDeconv2d,
+    deconv2d_direct, deconv2d_direct_with, deconv2d_fast, scratch_len as deconv_scratch_len, PackedDeconv2d,
 };
 use densefeat::nn::geometry::DownsampleGeometry;
 use densefeat::nn::{
@@ -31,6 +31,10 @@ fn lcg(seed: u64) -> impl FnMut() -> f32 {
 }
 
 fn bits<D: Dimension>(a: &ndarray::Array<f32, D>) -> Vec<u32> {
+    a.iter().map(|v| v.to_bits()).collect()
+}
+
+fn bits_of(a: &[f32]) -> Vec<u32> {
     a.iter().map(|v| v.to_bits()).collect()
 }
 
@@ -243,6 +247,13 @@ proptest! {
             deconv2d_direct(&packed, case.x.as_slice().unwrap(), Some(&skip), &mut fused).unwrap();
             let want: Vec<u32> = fast.as_slice().unwrap().iter().zip(&skip).map(|(a, s)| (s + a).to_bits()).collect();
             prop_assert_eq!(fused.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want);
+            // Every strip kernel this CPU runs gives the same bits (one FMA per product, same order).
+            for kernel in [DirectKernel::Avx512F, DirectKernel::Avx2Fma] {
+                let mut other = vec![0.0f32; fast.len()];
+                if deconv2d_direct_with(kernel, &packed, case.x.as_slice().unwrap(), Some(&skip), &mut other).is_ok() {
+                    prop_assert_eq!(bits_of(&other), bits_of(&fused), "{}", kernel.name());
+                }
+            }
         }
     }
 
@@ -483,6 +494,19 @@ fn deconv_output_independent_of_thread_count() {
         assert_eq!(bits(&run(n)), bits(&one), "threads = {n}");
     }
     let packed = PackedDeconv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
+    for kernel in [DirectKernel::Avx512F, DirectKernel::Avx2Fma] {
+        let run = |n| {
+            let mut out = vec![0.0f32; case.g.output_shape().iter().product()];
+            let x = case.x.as_slice().unwrap();
+            let ok =
+                thread_pool(n).install(|| deconv2d_direct_with(kernel, &packed, x, None, &mut out).is_ok());
+            ok.then(|| bits_of(&out))
+        };
+        let one = run(1);
+        for n in [2, 3, 8] {
+            assert_eq!(run(n), one, "{}, threads = {n}", kernel.name());
+        }
+    }
     let mut out = vec![0.0f32; case.g.output_shape().iter().product()];
     let mut scratch = vec![0.0; deconv_scratch_len(&case.g)];
     deconv2d_fast(&packed, case.x.as_slice().unwrap(), &mut scratch, &mut out).unwrap();

@@ -96,7 +96,7 @@ unsafe fn strip<const P: usize, const PS: usize>(t: &Taps, bias: *const f32, o: 
 /// # Safety
 /// As [`strip`] with `P = n`.
 #[target_feature(enable = "avx2,fma")]
-unsafe fn any_strip(n: usize, t: &Taps, bias: *const f32, o: &Store) {
+pub(crate) unsafe fn any_strip(n: usize, t: &Taps, bias: *const f32, o: &Store) {
     // SAFETY: forwarded caller contract; PS equals t.pix_stride in every specialised arm.
     unsafe {
         match (n, t.pix_stride) {

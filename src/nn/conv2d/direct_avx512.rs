@@ -155,6 +155,25 @@ pub(crate) unsafe fn short_strip(n: usize, t: &Taps, bias: *const f32, o: &Store
     }
 }
 
+/// A strip kernel of `n` pixels (this one or `direct_avx2::any_strip`), chosen once per call.
+pub(crate) type StripFn = unsafe fn(usize, &Taps, *const f32, &Store);
+
+/// A strip of `n <= STRIP` pixels: [`full_strip`] or [`short_strip`].
+///
+/// # Safety
+/// As [`strip`] with `P = n`.
+#[target_feature(enable = "avx512f")]
+pub(crate) unsafe fn any_strip(n: usize, t: &Taps, bias: *const f32, o: &Store) {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        if n == STRIP {
+            full_strip(t, bias, o)
+        } else {
+            short_strip(n, t, bias, o)
+        }
+    }
+}
+
 /// Output row `y` (`w_out · 32` floats) of the convolution. `input` holds the image's rows from
 /// `row0` on (`row0 = 0`: the whole image; the staged concatenation of `super::direct_concat` passes
 /// a window of rows).

@@ -34,7 +34,7 @@ pub use backward::{
     deconv2d_backward_input, deconv2d_backward_input_reference, deconv2d_backward_weight,
     deconv2d_backward_weight_reference,
 };
-pub use direct::deconv2d_direct;
+pub use direct::{deconv2d_direct, deconv2d_direct_with};
 pub use fast::{deconv2d_fast, scratch_len, PackedDeconv2d};
 pub use reference::deconv2d_reference;
 
@@ -51,9 +51,9 @@ pub enum Deconv2dImpl {
     /// Gather as four parity sub-convolutions, each a GEMM, parallel over output row pairs
     /// ([`deconv2d_fast`]).
     ParityGemm,
-    /// The four parity convolutions run by the direct AVX-512F strip kernel of the 3x3 convolution
-    /// ([`deconv2d_direct`]) where the CPU has AVX-512F and `c_out = 32`; [`Deconv2dImpl::ParityGemm`]
-    /// otherwise.
+    /// The four parity convolutions run by the direct strip kernel of the 3x3 convolution
+    /// ([`deconv2d_direct`]: AVX-512F, else AVX2+FMA) where the CPU has one and `c_out = 32`;
+    /// [`Deconv2dImpl::ParityGemm`] otherwise.
     Direct,
 }
 

@@ -60,7 +60,7 @@ pub enum DirectKernel {
     /// `c_out = 32` on a CPU with AVX-512F (detected at run time).
     Avx512F,
     /// x86-64 AVX2 + FMA intrinsics (for CPUs without AVX-512), strips of
-    /// [`AVX2_STRIP`](super::direct_avx2::AVX2_STRIP) pixels x 16 output channels, run once per
+    /// 6 pixels x 16 output channels, run once per
     /// channel half. Only for `c_out = 32`. The same bits as [`DirectKernel::Avx512F`].
     Avx2Fma,
     /// Plain Rust, one pixel at a time, any `c_out`, every target (no FMA contraction).

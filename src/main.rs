@@ -1,6 +1,8 @@
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
+    // Freed activation maps are reused rather than returned to the OS (SPEC.md §8.9).
+    densefeat::runtime::keep_freed_memory();
     let cli = densefeat::cli::Cli::parse();
     match densefeat::cli::run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -3,12 +3,32 @@
 
 use crate::error::{Error, Result};
 
-/// Whether the CPU has AVX-512F (always `false` off x86-64). Every kernel with an AVX-512 path
-/// asks here (the cost volume, the direct convolution, the training loss).
+/// Environment variable that, set to any value, makes [`has_avx512f`] answer `false`, so that the
+/// AVX2 / portable paths can be run and timed on an AVX-512 machine (SPEC.md §7.7).
+pub const NO_AVX512_ENV: &str = "DENSEFEAT_NO_AVX512";
+
+/// Whether the CPU has AVX-512F and [`NO_AVX512_ENV`] is not set (always `false` off x86-64).
+/// Every kernel with an AVX-512 path asks here (the cost volume, the direct convolution and
+/// transposed convolution, the training loss). The environment is read once per process.
 pub fn has_avx512f() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
+        static DISABLED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
         std::arch::is_x86_feature_detected!("avx512f")
+            && !*DISABLED.get_or_init(|| std::env::var_os(NO_AVX512_ENV).is_some())
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Whether the CPU has AVX2 and FMA (always `false` off x86-64): the direct convolution's kernel
+/// for CPUs without AVX-512.
+pub fn has_avx2_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -44,6 +64,38 @@ pub fn median(v: &mut [f64]) -> f64 {
     }
 }
 
+/// Largest block glibc's `malloc` may serve from its heap instead of a fresh `mmap` (its ceiling
+/// for `M_MMAP_THRESHOLD` on 64-bit targets).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+const HEAP_BLOCK_MAX_BYTES: libc::c_int = 32 << 20;
+
+/// Free memory glibc keeps at the top of its heap before returning it to the OS.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+const HEAP_KEEP_BYTES: libc::c_int = 1 << 30;
+
+/// Lets glibc's allocator reuse the memory of freed activation maps instead of returning it to the
+/// OS (SPEC.md §8.9): blocks up to 32 MB come from the heap (`M_MMAP_THRESHOLD`, fixed at glibc's
+/// ceiling instead of its sliding default) and up to 1 GiB of free heap top is kept
+/// (`M_TRIM_THRESHOLD`). A forward pass returns fresh maps that the caller drops; without this the
+/// next pass gets them back as new pages that the OS zero-fills, one page fault at a time. Peak
+/// memory is unchanged; memory freed after the peak stays with the process. Process-wide, so the
+/// `densefeat` binary calls it at start; library users may. Returns whether glibc accepted both
+/// settings (always `false` off Linux/glibc, where it does nothing).
+pub fn keep_freed_memory() -> bool {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        // SAFETY: mallopt only changes allocator parameters; both values are in its documented range.
+        unsafe {
+            libc::mallopt(libc::M_MMAP_THRESHOLD, HEAP_BLOCK_MAX_BYTES) == 1
+                && libc::mallopt(libc::M_TRIM_THRESHOLD, HEAP_KEEP_BYTES) == 1
+        }
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    {
+        false
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -51,6 +103,12 @@ mod tests {
         assert_eq!(super::median(&mut [3.0, 1.0, 2.0]), 2.0);
         assert_eq!(super::median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
         assert!(super::median(&mut []).is_nan());
+    }
+
+    #[test]
+    fn glibc_accepts_the_allocator_settings() {
+        let accepted = super::keep_freed_memory();
+        assert_eq!(accepted, cfg!(all(target_os = "linux", target_env = "gnu")));
     }
 
     #[test]

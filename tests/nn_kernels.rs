@@ -3,15 +3,16 @@
 //! semantics.
 
 use densefeat::nn::conv2d::{
-    conv2d_direct, conv2d_direct_with, conv2d_im2col, direct, im2col, scratch_len, DirectKernel, PackedConv2d,
+    conv2d_direct, conv2d_direct_concat_with, conv2d_direct_with, conv2d_im2col, direct, im2col, scratch_len,
+    DirectKernel, PackedConv2d,
 };
 use densefeat::nn::deconv2d::{
-    deconv2d_direct, deconv2d_fast, scratch_len as deconv_scratch_len, PackedDeconv2d,
+    deconv2d_direct, deconv2d_direct_with, deconv2d_fast, scratch_len as deconv_scratch_len, PackedDeconv2d,
 };
 use densefeat::nn::geometry::DownsampleGeometry;
 use densefeat::nn::{
-    add, concat_channels, conv2d, deconv2d, downsample2x, Activation, Conv2dGeometry, Conv2dImpl,
-    Deconv2dGeometry, Deconv2dImpl,
+    add, concat_channels, conv2d, conv2d_concat_into, deconv2d, downsample2x, Activation, Conv2dGeometry,
+    Conv2dImpl, Deconv2dGeometry, Deconv2dImpl,
 };
 use densefeat::testing::within_budget;
 use ndarray::{array, s, Array1, Array3, Array4, Dimension};
@@ -30,6 +31,10 @@ fn lcg(seed: u64) -> impl FnMut() -> f32 {
 }
 
 fn bits<D: Dimension>(a: &ndarray::Array<f32, D>) -> Vec<u32> {
+    a.iter().map(|v| v.to_bits()).collect()
+}
+
+fn bits_of(a: &[f32]) -> Vec<u32> {
     a.iter().map(|v| v.to_bits()).collect()
 }
 
@@ -77,6 +82,21 @@ impl ConvCase {
         )
         .unwrap();
         out
+    }
+    /// Runs the staged concatenation kernel with `x`'s channels split `ca + (c_in - ca)`.
+    fn run_direct_concat(&self, kernel: DirectKernel, ca: usize) -> Array3<f32> {
+        let packed = PackedConv2d::new(&self.g, self.w.view(), self.b.view()).unwrap();
+        let (a, b) = self.split(ca);
+        let mut out = Array3::from_elem(self.g.output_shape(), f32::NAN);
+        let (sa, sb) = (a.as_slice().unwrap(), b.as_slice().unwrap());
+        let cb = self.g.c_in() - ca;
+        conv2d_direct_concat_with(kernel, &packed, (sa, ca), (sb, cb), self.act, out.as_slice_mut().unwrap())
+            .unwrap();
+        out
+    }
+    /// `x` as two maps whose concatenation it is: channels `..ca` and `ca..`.
+    fn split(&self, ca: usize) -> (Array3<f32>, Array3<f32>) {
+        (self.x.slice(s![.., .., ..ca]).to_owned(), self.x.slice(s![.., .., ca..]).to_owned())
     }
     /// The same case on |x|, |w|, |b| without activation: its reference output is Σ|x||w| + |b|.
     fn abs(&self) -> Self {
@@ -178,6 +198,32 @@ proptest! {
         }
     }
 
+    /// The staged concatenation (SPEC.md §7.10): within §7.5 of the reference on the concatenated
+    /// map, and bit-identical to the direct kernel on it, for every kernel and channel split.
+    #[test]
+    fn direct_concat_matches_reference_and_direct_on_the_concatenation(
+        case in conv_cases().prop_filter("two channel parts", |c| c.g.c_in() >= 2),
+        split in 0.0..1.0f64,
+    ) {
+        let ca = 1 + ((case.g.c_in() - 1) as f64 * split) as usize; // 1 ..= c_in - 1
+        let oracle = case.run(Conv2dImpl::Reference);
+        let magnitude = case.abs().run(Conv2dImpl::Reference);
+        for kernel in DirectKernel::ALL.into_iter().filter(|k| k.supports(&case.g)) {
+            let got = case.run_direct_concat(kernel, ca);
+            within_budget(got.view(), oracle.view(), magnitude.view(), budget(case.g.k()))
+                .map_err(|e| TestCaseError::fail(format!("kernel {}: {e}", kernel.name())))?;
+            prop_assert_eq!(bits(&got), bits(&case.run_direct(kernel)), "kernel {}, ca = {}", kernel.name(), ca);
+        }
+        // The public entry point, every implementation: the same bits as conv2d on concat(a, b).
+        let (a, b) = case.split(ca);
+        for imp in [Conv2dImpl::Im2colGemm, Conv2dImpl::Direct] {
+            let mut out = Array3::from_elem(case.g.output_shape(), f32::NAN);
+            conv2d_concat_into(imp, &case.g, a.view(), b.view(), case.w.view(), case.b.view(), case.act,
+                out.as_slice_mut().unwrap()).unwrap();
+            prop_assert_eq!(bits(&out), bits(&case.run(imp)), "{:?}, ca = {}", imp, ca);
+        }
+    }
+
     #[test]
     fn deconv_parity_gemm_matches_reference(case in deconv_cases()) {
         let fast = case.run(Deconv2dImpl::ParityGemm);
@@ -201,6 +247,13 @@ proptest! {
             deconv2d_direct(&packed, case.x.as_slice().unwrap(), Some(&skip), &mut fused).unwrap();
             let want: Vec<u32> = fast.as_slice().unwrap().iter().zip(&skip).map(|(a, s)| (s + a).to_bits()).collect();
             prop_assert_eq!(fused.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), want);
+            // Every strip kernel this CPU runs gives the same bits (one FMA per product, same order).
+            for kernel in [DirectKernel::Avx512F, DirectKernel::Avx2Fma] {
+                let mut other = vec![0.0f32; fast.len()];
+                if deconv2d_direct_with(kernel, &packed, case.x.as_slice().unwrap(), Some(&skip), &mut other).is_ok() {
+                    prop_assert_eq!(bits_of(&other), bits_of(&fused), "{}", kernel.name());
+                }
+            }
         }
     }
 
@@ -286,16 +339,71 @@ fn direct_output_independent_of_thread_count() {
 }
 
 #[test]
+fn direct_concat_output_independent_of_thread_count() {
+    for (shape, ca, seed) in
+        [((37, 29, 35, 32, 2), 32, 11), ((41, 30, 35, 32, 1), 3, 12), ((66, 47, 35, 8, 2), 32, 13)]
+    {
+        let case = ConvCase::new(shape, Activation::Relu, seed);
+        for kernel in DirectKernel::ALL.into_iter().filter(|k| k.supports(&case.g)) {
+            let run = |n| thread_pool(n).install(|| case.run_direct_concat(kernel, ca));
+            let one = run(1);
+            for n in [2, 3, 8] {
+                assert_eq!(bits(&run(n)), bits(&one), "shape {shape:?}, {}, threads = {n}", kernel.name());
+            }
+        }
+    }
+}
+
+#[test]
+fn direct_concat_rejects_bad_channel_splits_and_lengths() {
+    let case = ConvCase::new((5, 6, 35, 32, 2), Activation::None, 3);
+    let packed = PackedConv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
+    let (a, b) = case.split(32);
+    let (sa, sb) = (a.as_slice().unwrap(), b.as_slice().unwrap());
+    let mut out = vec![0.0; case.g.output_shape().iter().product()];
+    let k = DirectKernel::Portable;
+    assert!(conv2d_direct_concat_with(k, &packed, (sa, 32), (sb, 3), Activation::None, &mut out).is_ok());
+    assert!(conv2d_direct_concat_with(k, &packed, (sa, 32), (sb, 4), Activation::None, &mut out).is_err());
+    assert!(conv2d_direct_concat_with(k, &packed, (sa, 35), (&[], 0), Activation::None, &mut out).is_err());
+    assert!(
+        conv2d_direct_concat_with(k, &packed, (&sa[1..], 32), (sb, 3), Activation::None, &mut out).is_err()
+    );
+    assert!(
+        conv2d_direct_concat_with(k, &packed, (sa, 32), (sb, 3), Activation::None, &mut out[1..]).is_err()
+    );
+    let wrong = Array3::<f32>::zeros((4, 6, 3));
+    let r = conv2d_concat_into(
+        Conv2dImpl::Direct,
+        &case.g,
+        a.view(),
+        wrong.view(),
+        case.w.view(),
+        case.b.view(),
+        Activation::None,
+        &mut out,
+    );
+    assert!(r.is_err());
+}
+
+#[test]
 fn direct_selects_the_avx512_kernel_exactly_when_available() {
     let g32 = Conv2dGeometry::new(9, 40, 35, 32, 2).unwrap();
     let g8 = Conv2dGeometry::new(9, 40, 35, 8, 2).unwrap();
     let avx512 = cfg!(target_arch = "x86_64") && avx512f_available();
-    let want = if avx512 { "avx512f-14x32" } else { "portable" };
+    let avx2 = cfg!(target_arch = "x86_64") && avx2_fma_available();
+    let want = match (avx512, avx2) {
+        (true, _) => "avx512f-14x32",
+        (false, true) => "avx2-6x16",
+        _ => "portable",
+    };
     assert_eq!(direct::kernel_name(&g32), want);
     assert_eq!(direct::kernel_name(&g8), "portable");
     assert_eq!(DirectKernel::Avx512F.supports(&g32), avx512);
+    assert_eq!(DirectKernel::Avx2Fma.supports(&g32), avx2);
     assert!(!DirectKernel::Avx512F.supports(&g8));
-    assert_eq!(Conv2dImpl::fastest(), if avx512 { Conv2dImpl::Direct } else { Conv2dImpl::Im2colGemm });
+    assert!(!DirectKernel::Avx2Fma.supports(&g8));
+    let simd = avx512 || avx2;
+    assert_eq!(Conv2dImpl::fastest(), if simd { Conv2dImpl::Direct } else { Conv2dImpl::Im2colGemm });
     assert_eq!(Conv2dImpl::default(), Conv2dImpl::fastest());
     assert_eq!(Conv2dImpl::fastest_for(&g8), Conv2dImpl::Im2colGemm);
     // conv2d_direct reports the kernel that ran; an unavailable kernel is an error, not a fallback.
@@ -305,6 +413,7 @@ fn direct_selects_the_avx512_kernel_exactly_when_available() {
     let x = case.x.as_slice().unwrap();
     assert_eq!(conv2d_direct(&packed, x, Activation::None, &mut out).unwrap(), DirectKernel::Portable);
     assert!(conv2d_direct_with(DirectKernel::Avx512F, &packed, x, Activation::None, &mut out).is_err());
+    assert!(conv2d_direct_with(DirectKernel::Avx2Fma, &packed, x, Activation::None, &mut out).is_err());
     // Machines that run the AVX-512 checks say so in the test log.
     eprintln!("direct kernel for c_out = 32: {}", direct::kernel_name(&g32));
 }
@@ -312,6 +421,42 @@ fn direct_selects_the_avx512_kernel_exactly_when_available() {
 #[cfg(target_arch = "x86_64")]
 fn avx512f_available() -> bool {
     std::arch::is_x86_feature_detected!("avx512f")
+        && std::env::var_os(densefeat::runtime::NO_AVX512_ENV).is_none()
+}
+
+#[cfg(target_arch = "x86_64")]
+fn avx2_fma_available() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn avx2_fma_available() -> bool {
+    false
+}
+
+/// The two FMA kernels accumulate every output in the same order with one FMA per product, so
+/// they agree bit for bit (SPEC.md §7.7), on every network shape and on odd ones.
+#[test]
+fn avx2_kernel_gives_the_avx512_kernels_bits() {
+    for (shape, seed) in [
+        ((37, 29, 35, 32, 1), 1),
+        ((41, 30, 32, 32, 2), 2),
+        ((5, 300, 3, 32, 1), 3),
+        ((66, 47, 3, 32, 2), 4),
+        ((1, 1, 32, 32, 1), 5),
+        ((2, 13, 7, 32, 2), 6),
+    ] {
+        let case = ConvCase::new(shape, Activation::Relu, seed);
+        if DirectKernel::Avx512F.supports(&case.g) && DirectKernel::Avx2Fma.supports(&case.g) {
+            let (a, b) = (case.run_direct(DirectKernel::Avx512F), case.run_direct(DirectKernel::Avx2Fma));
+            assert_eq!(bits(&a), bits(&b), "shape {shape:?}");
+            let (a, b) = (
+                case.run_direct_concat(DirectKernel::Avx512F, 2),
+                case.run_direct_concat(DirectKernel::Avx2Fma, 2),
+            );
+            assert_eq!(bits(&a), bits(&b), "concat, shape {shape:?}");
+        }
+    }
 }
 
 #[cfg(not(target_arch = "x86_64"))]
@@ -349,6 +494,19 @@ fn deconv_output_independent_of_thread_count() {
         assert_eq!(bits(&run(n)), bits(&one), "threads = {n}");
     }
     let packed = PackedDeconv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
+    for kernel in [DirectKernel::Avx512F, DirectKernel::Avx2Fma] {
+        let run = |n| {
+            let mut out = vec![0.0f32; case.g.output_shape().iter().product()];
+            let x = case.x.as_slice().unwrap();
+            let ok =
+                thread_pool(n).install(|| deconv2d_direct_with(kernel, &packed, x, None, &mut out).is_ok());
+            ok.then(|| bits_of(&out))
+        };
+        let one = run(1);
+        for n in [2, 3, 8] {
+            assert_eq!(run(n), one, "{}, threads = {n}", kernel.name());
+        }
+    }
     let mut out = vec![0.0f32; case.g.output_shape().iter().product()];
     let mut scratch = vec![0.0; deconv_scratch_len(&case.g)];
     deconv2d_fast(&packed, case.x.as_slice().unwrap(), &mut scratch, &mut out).unwrap();

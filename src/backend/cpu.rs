@@ -8,11 +8,12 @@ use crate::costvolume::{winner_take_all_costs, CostVolume, CostVolumeImpl, WtaDe
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
+use crate::nn::alloc::zeroed_vec;
 use crate::nn::network::{conv_geometry, deconv_geometry};
 use crate::nn::weights::LayerParams;
 use crate::nn::{
-    add, concat_channels_into, conv2d_into, deconv2d_into, downsample2x, expect_shape, Activation,
-    Conv2dImpl, NetworkImpl,
+    add, concat_channels_into, conv2d_concat_into, conv2d_into, deconv2d_into, downsample2x, expect_shape,
+    Activation, Conv2dImpl, NetworkImpl,
 };
 
 /// Kernel choices of the CPU backend. [`CpuBackend::default`] is the fast one; tests build others
@@ -45,7 +46,8 @@ impl CpuBackend {
 
 /// A `shape` array for an op's output: `spare`'s storage when it is a host map with a single
 /// handle and room for the new length (truncated, or grown inside its capacity; the op overwrites
-/// every value), else a new zeroed one (`calloc`: fresh pages come zeroed from the OS, no memset).
+/// every value), else a new zeroed one (`calloc`: fresh pages come zeroed from the OS, no memset; large ones
+/// advised onto huge pages, `nn::alloc`).
 fn output_array(shape: [usize; 3], spare: Option<Tensor>) -> Array3<f32> {
     let n = shape.iter().product();
     let reused = match spare.map(Tensor::into_unique_host) {
@@ -58,7 +60,7 @@ fn output_array(shape: [usize; 3], spare: Option<Tensor>) -> Array3<f32> {
         },
         _ => None,
     };
-    let v = reused.unwrap_or_else(|| vec![0.0; n]);
+    let v = reused.unwrap_or_else(|| zeroed_vec(n));
     let Ok(a) = Array3::from_shape_vec(shape, v) else { unreachable!("length is the shape's product") };
     a
 }
@@ -117,6 +119,34 @@ impl Backend for CpuBackend {
         let mut out = output_array(g.output_shape(), spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
         conv2d_into(imp, &g, x.view(), l.weight.view(), l.bias.view(), act, o)?;
+        Ok(Tensor::host(out))
+    }
+
+    fn conv3x3_concat(
+        &self,
+        a: &Tensor,
+        b: &Tensor,
+        l: &LayerParams,
+        stride: usize,
+        act: Activation,
+        spare: Option<Tensor>,
+    ) -> Result<Tensor> {
+        let (a, b) = (host(self.name(), a)?, host(self.name(), b)?);
+        let ((h, w, ca), (hb, wb, cb)) = (a.dim(), b.dim());
+        if (h, w) != (hb, wb) {
+            return Err(Error::invalid_argument(
+                "concat_channels",
+                format!("spatial sizes differ: {:?} and {:?}", a.shape(), b.shape()),
+            ));
+        }
+        let g = conv_geometry((h, w, ca + cb), l, stride)?;
+        let imp = match self.network.conv {
+            Conv2dImpl::Direct => Conv2dImpl::fastest_for(&g),
+            other => other,
+        };
+        let mut out = output_array(g.output_shape(), spare);
+        let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
+        conv2d_concat_into(imp, &g, a.view(), b.view(), l.weight.view(), l.bias.view(), act, o)?;
         Ok(Tensor::host(out))
     }
 

@@ -105,6 +105,24 @@ pub trait Backend: Send + Sync + Debug {
         drop(spare);
         self.conv3x3(x, layer, stride, act)
     }
+    /// [`Backend::conv3x3_reusing`] on `concat(a, b)` (`a`'s channels first): the first convolution
+    /// of every block after the first (SPEC.md §8.1). The default concatenates, then convolves; the
+    /// CPU backend convolves without forming the concatenation (SPEC.md §7.10), with the same bits.
+    ///
+    /// # Errors
+    /// As [`Backend::concat`] and [`Backend::conv3x3`].
+    fn conv3x3_concat(
+        &self,
+        a: &Tensor,
+        b: &Tensor,
+        layer: &LayerParams,
+        stride: usize,
+        act: Activation,
+        spare: Option<Tensor>,
+    ) -> Result<Tensor> {
+        let x = self.concat(a, b)?;
+        self.conv3x3_reusing(&x, layer, stride, act, spare)
+    }
     /// 5x5 stride-2 transposed convolution (padding 2, output padding 1; SPEC.md §7.3); weight
     /// `[c_in, c_out, 5, 5]`.
     ///

@@ -5,6 +5,7 @@ use ndarray::{Array3, ArrayView3};
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
+use crate::nn::alloc::zeroed_map;
 use crate::nn::geometry::DownsampleGeometry;
 
 /// Tent filter `[1/4, 1/2, 1/4]`, centred on input pixel `2j` for output pixel `j`.
@@ -41,7 +42,7 @@ pub fn downsample2x(input: ArrayView3<f32>) -> Result<Array3<f32>> {
     let (h, w, c) = input.dim();
     let geom = DownsampleGeometry::new(h, w, c)?;
     let [h_out, w_out, _] = geom.output_shape();
-    let mut out = Array3::zeros((h_out, w_out, c));
+    let mut out = zeroed_map([h_out, w_out, c]);
     let Some(out_slice) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
     let input = input.as_standard_layout();
     let Some(src) = input.as_slice() else { unreachable!("standard layout is contiguous") };
@@ -71,7 +72,7 @@ pub fn downsample2x(input: ArrayView3<f32>) -> Result<Array3<f32>> {
 /// [`Error::InvalidArgument`] if the heights or widths differ.
 pub fn concat_channels(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<f32>> {
     let (h, w, ca) = a.dim();
-    let mut out = Array3::<f32>::zeros((h, w, ca + b.dim().2));
+    let mut out = zeroed_map([h, w, ca + b.dim().2]);
     let Some(dst) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
     concat_channels_into(a, b, dst)?;
     Ok(out)
@@ -126,7 +127,7 @@ pub fn add(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<f32>> {
         a.as_slice().expect("standard layout is contiguous"),
         b.as_slice().expect("standard layout is contiguous"),
     );
-    let mut out = Array3::<f32>::zeros(a.dim());
+    let mut out = zeroed_map(a.dim().into());
     let dst = out.as_slice_mut().expect("freshly allocated arrays are contiguous");
     // Elementwise, in parallel over fixed chunks: each output written once, no reduction.
     const CHUNK: usize = 1 << 14;

@@ -11,6 +11,7 @@
 //! [`weights`] (PyTorch names, Xavier init, safetensors), [`network`] (the forward pass),
 //! [`budget`] (the network-level error bound) and [`viz`] (a PCA colouring of features).
 
+pub mod alloc;
 pub mod budget;
 pub mod config;
 pub mod conv2d;
@@ -24,7 +25,7 @@ pub mod viz;
 pub mod weights;
 
 pub use config::NetworkConfig;
-pub use conv2d::{conv2d, conv2d_into, Conv2dImpl};
+pub use conv2d::{conv2d, conv2d_concat_into, conv2d_into, Conv2dImpl};
 pub use deconv2d::{deconv2d, deconv2d_into, Deconv2dImpl};
 pub use downsample::{
     add, concat_channels, concat_channels_backward, concat_channels_into, downsample2x, downsample2x_backward,

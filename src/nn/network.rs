@@ -23,6 +23,7 @@ use rayon::prelude::*;
 
 use crate::backend::{Backend, Tensor};
 use crate::error::{Error, Result};
+use crate::nn::alloc::zeroed_map;
 use crate::nn::config::{NetworkConfig, IMAGE_CHANNELS};
 use crate::nn::geometry::{Conv2dGeometry, Deconv2dGeometry, DECONV_KERNEL};
 use crate::nn::weights::{LayerParams, NetworkWeights};
@@ -98,6 +99,22 @@ pub trait Executor {
         stride: usize,
         act: Activation,
     ) -> Result<Self::Map>;
+    /// The 3x3 convolution of `concat(a, b)`, the first op of every block after the first. The
+    /// default runs [`Executor::concat`], [`Executor::conv`] and releases the concatenation (the
+    /// training tape records them so); executors may fuse it.
+    fn concat_conv(
+        &mut self,
+        a: &Self::Map,
+        b: &Self::Map,
+        layer: &LayerParams,
+        stride: usize,
+        act: Activation,
+    ) -> Result<Self::Map> {
+        let x = self.concat(a, b)?;
+        let y = self.conv(&x, layer, stride, act)?;
+        self.release(x);
+        Ok(y)
+    }
     /// 5x5 stride-2 transposed convolution.
     fn deconv(&mut self, x: &Self::Map, layer: &LayerParams) -> Result<Self::Map>;
     /// Channel concatenation, `a` first.
@@ -241,6 +258,19 @@ impl Executor for PooledExecutor<'_> {
         let spare = self.take_spare(h * w * c);
         self.backend.conv3x3_reusing(x, l, stride, act, spare)
     }
+    fn concat_conv(
+        &mut self,
+        a: &Tensor,
+        b: &Tensor,
+        l: &LayerParams,
+        stride: usize,
+        act: Activation,
+    ) -> Result<Tensor> {
+        let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
+        let [ho, wo, co] = conv_geometry((h, w, ca + cb), l, stride)?.output_shape();
+        let spare = self.take_spare(ho * wo * co);
+        self.backend.conv3x3_concat(a, b, l, stride, act, spare)
+    }
     fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
         self.backend.deconv5x5s2(x, l)
     }
@@ -287,7 +317,7 @@ pub fn padded_input(config: &NetworkConfig, image: ArrayView3<f32>) -> Result<Ar
     let image = image.as_standard_layout();
     let Some(src) = image.as_slice() else { unreachable!("standard layout is contiguous") };
     let mean = config.input_mean;
-    let mut level0 = Array3::<f32>::zeros((hp, wp, c));
+    let mut level0 = zeroed_map([hp, wp, c]);
     let Some(dst) = level0.as_slice_mut() else { unreachable!("a new array is contiguous") };
     dst.par_chunks_mut(wp * c).enumerate().for_each(|(y, row)| {
         let src_row = &src[y.min(h - 1) * w * c..][..w * c];
@@ -336,14 +366,13 @@ pub fn run_network<E: Executor>(
     let pyramid = exec.pyramid(config, image, max_level)?;
     let mut outs: Vec<E::Map> = Vec::with_capacity(config.blocks);
     for (k, block) in weights.blocks.iter().enumerate() {
-        let input = match outs.last() {
-            None => pyramid[0].clone(),
-            Some(prev) => exec.concat(prev, &pyramid[config.block_level(k - 1)])?,
+        let (stride, act) = (config.block_stride(k), Activation::Relu);
+        let x1 = match outs.last() {
+            None => exec.conv(&pyramid[0], &block.conv1, stride, act)?,
+            Some(prev) => {
+                exec.concat_conv(prev, &pyramid[config.block_level(k - 1)], &block.conv1, stride, act)?
+            }
         };
-        let x1 = exec.conv(&input, &block.conv1, config.block_stride(k), Activation::Relu)?;
-        if k > 0 {
-            exec.release(input); // The concatenation (block 0's input is the pyramid's level 0).
-        }
         let x2 = exec.conv(&x1, &block.conv2, 1, Activation::Relu)?;
         exec.release(x1);
         let out = exec.conv(&x2, &block.conv3, 1, Activation::None)?;

@@ -66,6 +66,19 @@ impl Executor for ProfileExecutor<'_> {
         let kind = format!("conv s{stride} {}->{}", g.c_in(), g.c_out());
         self.record(kind, g.flops(), |e| e.conv(x, l, stride, act))
     }
+    fn concat_conv(
+        &mut self,
+        a: &Tensor,
+        b: &Tensor,
+        l: &LayerParams,
+        stride: usize,
+        act: Activation,
+    ) -> Result<Tensor> {
+        let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
+        let g = conv_geometry((h, w, ca + cb), l, stride)?;
+        let kind = format!("concat + conv s{stride} {}->{}", g.c_in(), g.c_out());
+        self.record(kind, g.flops(), |e| e.concat_conv(a, b, l, stride, act))
+    }
     fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
         // Each input pixel's 4 outputs sum 9, 6, 6 and 4 taps: 25 products per input pixel and pair
         // of channels.

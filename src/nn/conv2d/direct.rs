@@ -59,28 +59,29 @@ pub enum DirectKernel {
     /// x86-64 AVX-512F intrinsics, strips of [`STRIP`] pixels x 32 output channels, FMA. Only for
     /// `c_out = 32` on a CPU with AVX-512F (detected at run time).
     Avx512F,
+    /// x86-64 AVX2 + FMA intrinsics (for CPUs without AVX-512), strips of
+    /// 6 pixels x 16 output channels, run once per
+    /// channel half. Only for `c_out = 32`. The same bits as [`DirectKernel::Avx512F`].
+    Avx2Fma,
     /// Plain Rust, one pixel at a time, any `c_out`, every target (no FMA contraction).
     Portable,
 }
 
 impl DirectKernel {
     /// Every kernel, for tests.
-    pub const ALL: [DirectKernel; 2] = [DirectKernel::Avx512F, DirectKernel::Portable];
+    pub const ALL: [DirectKernel; 3] = [DirectKernel::Avx512F, DirectKernel::Avx2Fma, DirectKernel::Portable];
 
-    /// The kernel [`conv2d_direct`] runs for `geom` on this CPU: AVX-512F when available and
-    /// `c_out = 32`, otherwise portable.
+    /// The kernel [`conv2d_direct`] runs for `geom` on this CPU: the first of AVX-512F, AVX2+FMA
+    /// (both for `c_out = 32`) and portable that it supports.
     pub fn select(geom: &Conv2dGeometry) -> DirectKernel {
-        if DirectKernel::Avx512F.supports(geom) {
-            DirectKernel::Avx512F
-        } else {
-            DirectKernel::Portable
-        }
+        DirectKernel::ALL.into_iter().find(|k| k.supports(geom)).unwrap_or(DirectKernel::Portable)
     }
 
     /// Whether this kernel can run `geom` on this CPU.
     pub fn supports(self, geom: &Conv2dGeometry) -> bool {
         match self {
             DirectKernel::Avx512F => geom.c_out() == AVX512_C_OUT && avx512f_detected(),
+            DirectKernel::Avx2Fma => geom.c_out() == AVX512_C_OUT && crate::runtime::has_avx2_fma(),
             DirectKernel::Portable => true,
         }
     }
@@ -89,6 +90,7 @@ impl DirectKernel {
     pub fn name(self) -> &'static str {
         match self {
             DirectKernel::Avx512F => "avx512f-14x32",
+            DirectKernel::Avx2Fma => "avx2-6x16",
             DirectKernel::Portable => "portable",
         }
     }
@@ -178,19 +180,26 @@ pub fn conv2d_direct_with(
                 DirectKernel::Avx512F => {
                     // SAFETY: `supports` checked that the CPU has AVX-512F and c_out = 32; the
                     // slice lengths were checked against the geometry above.
-                    unsafe { super::direct_avx512::conv_row(packed, input, y, activation, out_row) }
+                    unsafe { super::direct_avx512::conv_row(packed, input, 0, y, activation, out_row) }
                 }
-                _ => conv_row_portable(packed, input, y, activation, out_row),
+                #[cfg(target_arch = "x86_64")]
+                DirectKernel::Avx2Fma => {
+                    // SAFETY: `supports` checked that the CPU has AVX2 and FMA and c_out = 32; the
+                    // slice lengths were checked against the geometry above.
+                    unsafe { super::direct_avx2::conv_row(packed, input, 0, y, activation, out_row) }
+                }
+                _ => conv_row_portable(packed, input, 0, y, activation, out_row),
             }
         }
     });
     Ok(())
 }
 
-/// One output row with the portable kernel.
-fn conv_row_portable(
+/// One output row with the portable kernel; `input` holds the image's rows from `row0` on.
+pub(super) fn conv_row_portable(
     packed: &PackedConv2d,
     input: &[f32],
+    row0: usize,
     y: usize,
     activation: Activation,
     out_row: &mut [f32],
@@ -204,7 +213,7 @@ fn conv_row_portable(
         let run = (kx_hi - kx_lo) * c_in;
         acc.copy_from_slice(packed.bias());
         for ky in ky_lo..ky_hi {
-            let at = ((s * y + ky - CONV_PADDING) * w + s * x + kx_lo - CONV_PADDING) * c_in;
+            let at = ((s * y + ky - CONV_PADDING - row0) * w + s * x + kx_lo - CONV_PADDING) * c_in;
             let taps = &input[at..at + run];
             let w_at = (ky * CONV_KERNEL + kx_lo) * c_in * c_out;
             for (&v, w_row) in taps.iter().zip(weights[w_at..w_at + run * c_out].chunks_exact(c_out)) {

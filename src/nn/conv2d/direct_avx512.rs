@@ -155,15 +155,38 @@ pub(crate) unsafe fn short_strip(n: usize, t: &Taps, bias: *const f32, o: &Store
     }
 }
 
-/// Output row `y` (`w_out · 32` floats) of the convolution.
+/// A strip kernel of `n` pixels (this one or `direct_avx2::any_strip`), chosen once per call.
+pub(crate) type StripFn = unsafe fn(usize, &Taps, *const f32, &Store);
+
+/// A strip of `n <= STRIP` pixels: [`full_strip`] or [`short_strip`].
 ///
 /// # Safety
-/// The CPU has AVX-512F, `c_out = 32`, `input` holds `h w c_in` floats, `out_row` holds
-/// `w_out · 32` floats and `y < h_out`.
+/// As [`strip`] with `P = n`.
+#[target_feature(enable = "avx512f")]
+pub(crate) unsafe fn any_strip(n: usize, t: &Taps, bias: *const f32, o: &Store) {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        if n == STRIP {
+            full_strip(t, bias, o)
+        } else {
+            short_strip(n, t, bias, o)
+        }
+    }
+}
+
+/// Output row `y` (`w_out · 32` floats) of the convolution. `input` holds the image's rows from
+/// `row0` on (`row0 = 0`: the whole image; the staged concatenation of `super::direct_concat` passes
+/// a window of rows).
+///
+/// # Safety
+/// The CPU has AVX-512F, `c_out = 32`, `input` holds input rows `row0 .. ` (`w c_in` floats each)
+/// up to at least the last row that output row `y` reads, `out_row` holds `w_out · 32` floats and
+/// `y < h_out`.
 #[target_feature(enable = "avx512f")]
 pub(super) unsafe fn conv_row(
     packed: &PackedConv2d,
     input: &[f32],
+    row0: usize,
     y: usize,
     activation: Activation,
     out_row: &mut [f32],
@@ -171,7 +194,7 @@ pub(super) unsafe fn conv_row(
     let geom = packed.geometry();
     let (h, w, c_in, s) = (geom.h(), geom.w(), geom.c_in(), geom.stride());
     debug_assert_eq!(geom.c_out(), AVX512_C_OUT);
-    debug_assert_eq!(input.len(), h * w * c_in);
+    debug_assert!(input.len() >= (s * y + CONV_KERNEL - CONV_PADDING).min(h) * w * c_in - row0 * w * c_in);
     debug_assert_eq!(out_row.len(), geom.w_out() * AVX512_C_OUT);
     let relu = activation == Activation::Relu;
     let (ky_lo, ky_hi) = tap_range(y, s, h);
@@ -179,7 +202,7 @@ pub(super) unsafe fn conv_row(
     let weights = packed.weights();
     // Taps of output pixels x0 .. x0 + n, all with the tap columns kx_lo .. kx_hi inside the image.
     let taps = |x0: usize, kx_lo: usize, kx_hi: usize| -> Taps {
-        let iy = s * y + ky_lo - CONV_PADDING;
+        let iy = s * y + ky_lo - CONV_PADDING - row0;
         let ix = s * x0 + kx_lo - CONV_PADDING;
         Taps {
             input: input[(iy * w + ix) * c_in..].as_ptr(),

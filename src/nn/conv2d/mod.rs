@@ -33,7 +33,10 @@
 pub mod backward;
 pub mod direct;
 #[cfg(target_arch = "x86_64")]
+pub(crate) mod direct_avx2;
+#[cfg(target_arch = "x86_64")]
 pub(crate) mod direct_avx512;
+pub mod direct_concat;
 pub mod im2col;
 pub mod reference;
 
@@ -44,12 +47,13 @@ pub use backward::{
     conv2d_backward_weight_reference, relu_backward,
 };
 pub use direct::{conv2d_direct, conv2d_direct_with, DirectKernel};
+pub use direct_concat::conv2d_direct_concat_with;
 pub use im2col::{conv2d_im2col, scratch_len, PackedConv2d};
 pub use reference::conv2d_reference;
 
 use crate::error::Result;
 use crate::nn::pack_cache::packed_conv;
-use crate::nn::{default_lanes, expect_len, expect_shape, Activation, Conv2dGeometry};
+use crate::nn::{concat_channels, default_lanes, expect_len, expect_shape, Activation, Conv2dGeometry};
 
 /// Which conv2d implementation to run. Every variant is always compiled and always tested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -62,8 +66,9 @@ pub enum Conv2dImpl {
     Im2colGemm,
     /// Direct (implicit-GEMM) convolution, no im2col, no scratch, parallel over blocks of output
     /// rows ([`conv2d_direct`], SPEC.md §7.7). Runs the AVX-512F micro-kernel (strips of 14 pixels
-    /// x 32 output channels) when the CPU has AVX-512F and `c_out = 32`, otherwise a portable Rust
-    /// loop; [`direct::kernel_name`] says which.
+    /// x 32 output channels) when the CPU has AVX-512F and `c_out = 32`, else the AVX2+FMA one
+    /// (6 pixels x 16 channels) where the CPU has those, otherwise a portable Rust loop;
+    /// [`direct::kernel_name`] says which.
     Direct,
 }
 
@@ -72,23 +77,22 @@ impl Conv2dImpl {
     pub const ALL: [Conv2dImpl; 3] = [Conv2dImpl::Reference, Conv2dImpl::Im2colGemm, Conv2dImpl::Direct];
 
     /// The fastest implementation for the network's layers (all with `c_out = 32`) on this CPU:
-    /// [`Conv2dImpl::Direct`] when the CPU has AVX-512F (its micro-kernel then runs every
-    /// `c_out = 32` layer about 2x faster than [`Conv2dImpl::Im2colGemm`], 4x on the 3-channel first
-    /// layer, SPEC.md §7.7), otherwise `Im2colGemm` (Direct's portable kernel is 3-4x slower than
-    /// the GEMM). [`Default`] returns this.
-    /// When the geometry is known, [`Conv2dImpl::fastest_for`] also accounts for `c_out`.
+    /// [`Conv2dImpl::Direct`] when the CPU has AVX-512F or AVX2+FMA (its micro-kernels then run
+    /// every `c_out = 32` layer faster than [`Conv2dImpl::Im2colGemm`], SPEC.md §7.7), otherwise
+    /// `Im2colGemm` (Direct's portable kernel is 3-4x slower than the GEMM). [`Default`] returns
+    /// this. When the geometry is known, [`Conv2dImpl::fastest_for`] also accounts for `c_out`.
     pub fn fastest() -> Conv2dImpl {
-        if direct::avx512f_detected() {
+        if direct::avx512f_detected() || crate::runtime::has_avx2_fma() {
             Conv2dImpl::Direct
         } else {
             Conv2dImpl::Im2colGemm
         }
     }
 
-    /// The fastest implementation for `geom` on this CPU: [`Conv2dImpl::Direct`] when its AVX-512F
-    /// kernel runs `geom`, otherwise [`Conv2dImpl::Im2colGemm`].
+    /// The fastest implementation for `geom` on this CPU: [`Conv2dImpl::Direct`] when one of its
+    /// SIMD kernels (AVX-512F, AVX2+FMA) runs `geom`, otherwise [`Conv2dImpl::Im2colGemm`].
     pub fn fastest_for(geom: &Conv2dGeometry) -> Conv2dImpl {
-        if DirectKernel::select(geom) == DirectKernel::Avx512F {
+        if DirectKernel::select(geom) != DirectKernel::Portable {
             Conv2dImpl::Direct
         } else {
             Conv2dImpl::Im2colGemm
@@ -116,7 +120,7 @@ pub fn conv2d(
     bias: ArrayView1<f32>,
     activation: Activation,
 ) -> Result<Array3<f32>> {
-    let mut out = Array3::zeros(geom.output_shape());
+    let mut out = crate::nn::alloc::zeroed_map(geom.output_shape());
     let Some(y) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
     conv2d_into(imp, geom, input, weight, bias, activation, y)?;
     Ok(out)
@@ -168,4 +172,40 @@ pub fn conv2d_into(
             conv2d_direct(&packed, x, activation, out).map(|_| ())
         }
     }
+}
+
+/// [`conv2d_into`] on `concat(a, b)` (`a`'s channels first, SPEC.md §7.4), the input of every block
+/// after the first (§8.1). [`Conv2dImpl::Direct`] never forms the concatenation: each work unit
+/// stages the rows it reads ([`direct_concat`], SPEC.md §7.10), with the same bits as the direct
+/// convolution of the concatenated map; the other implementations concatenate, then convolve.
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] if `a` and `b` differ in height or width, their channels do
+/// not add up to `geom`'s input, or a shape or `out`'s length disagrees with `geom`.
+#[allow(clippy::too_many_arguments)]
+pub fn conv2d_concat_into(
+    imp: Conv2dImpl,
+    geom: &Conv2dGeometry,
+    a: ArrayView3<f32>,
+    b: ArrayView3<f32>,
+    weight: ArrayView4<f32>,
+    bias: ArrayView1<f32>,
+    activation: Activation,
+    out: &mut [f32],
+) -> Result<()> {
+    let [h, w, c_in] = geom.input_shape();
+    let (ca, cb) = (a.dim().2, b.dim().2);
+    expect_shape("conv2d concat input a", a.shape(), &[h, w, ca])?;
+    expect_shape("conv2d concat input b", b.shape(), &[h, w, c_in.saturating_sub(ca)])?;
+    if imp != Conv2dImpl::Direct || ca == 0 || cb == 0 {
+        let x = concat_channels(a, b)?;
+        return conv2d_into(imp, geom, x.view(), weight, bias, activation, out);
+    }
+    let packed = packed_conv(geom, weight, bias)?;
+    let (a, b) = (a.as_standard_layout(), b.as_standard_layout());
+    let (Some(sa), Some(sb)) = (a.as_slice(), b.as_slice()) else {
+        unreachable!("standard-layout arrays are contiguous")
+    };
+    let kernel = DirectKernel::select(geom);
+    conv2d_direct_concat_with(kernel, &packed, (sa, ca), (sb, cb), activation, out)
 }

@@ -1,4 +1,5 @@
-//! Transposed convolution as four direct (implicit-GEMM) parity convolutions, AVX-512F.
+//! Transposed convolution as four direct (implicit-GEMM) parity convolutions, AVX-512F or
+//! AVX2+FMA (the 3x3 convolution's strip kernels, SPEC.md §7.7; the same bits either way).
 //!
 //! Each output parity `(q_y, q_x)` is an ordinary small convolution of the input (SPEC.md §7.3,
 //! [`super::fast`]): output pixel `(2m + q_y, 2n + q_x)` sums input pixels `(m + d_y, n + d_x)` for
@@ -21,13 +22,31 @@ use rayon::prelude::*;
 
 use super::fast::{PackedDeconv2d, PARITIES};
 use crate::error::{Error, Result};
-use crate::nn::conv2d::direct::{AVX512_C_OUT, STRIP};
+use crate::nn::conv2d::direct::{DirectKernel, AVX512_C_OUT};
 use crate::nn::expect_len;
 use crate::nn::geometry::Deconv2dGeometry;
 
-/// Whether [`deconv2d_direct`] can run `geom` on this CPU: AVX-512F and `c_out = 32`.
+/// Whether [`deconv2d_direct`] can run `geom` on this CPU: `c_out = 32` and AVX-512F or AVX2+FMA.
 pub fn supported(geom: &Deconv2dGeometry) -> bool {
-    geom.c_out() == AVX512_C_OUT && crate::runtime::has_avx512f()
+    select(geom) != DirectKernel::Portable
+}
+
+/// The strip kernel [`deconv2d_direct`] runs for `geom` on this CPU: AVX-512F, else AVX2+FMA (both
+/// for `c_out = 32`, SPEC.md §7.7), else [`DirectKernel::Portable`], meaning none (use
+/// [`Deconv2dImpl::ParityGemm`](super::Deconv2dImpl::ParityGemm)).
+pub fn select(geom: &Deconv2dGeometry) -> DirectKernel {
+    let simd = |k: DirectKernel| k != DirectKernel::Portable && kernel_supports(k, geom);
+    DirectKernel::ALL.into_iter().find(|&k| simd(k)).unwrap_or(DirectKernel::Portable)
+}
+
+/// Whether the SIMD strip kernel `kernel` can run `geom` on this CPU.
+fn kernel_supports(kernel: DirectKernel, geom: &Deconv2dGeometry) -> bool {
+    geom.c_out() == AVX512_C_OUT
+        && match kernel {
+            DirectKernel::Avx512F => crate::runtime::has_avx512f(),
+            DirectKernel::Avx2Fma => crate::runtime::has_avx2_fma(),
+            _ => false,
+        }
 }
 
 /// Valid taps `lo .. hi` (indices into the parity's increasing tap offsets `ds`) for input index
@@ -41,12 +60,28 @@ fn valid_taps(ds: &[isize], i: usize, n: usize) -> (usize, usize) {
 
 /// Transposed convolution (SPEC.md §7.3) of a channels-last input `[h, w, c_in]` into `out`
 /// (`[2h, 2w, 32]`, fully overwritten); with `skip` (same shape as `out`), `out = skip + deconv`.
+/// Runs [`select`]'s kernel.
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] if a slice has the wrong length, or if this CPU or geometry cannot
 /// run it ([`supported`]): callers choose
 /// [`Deconv2dImpl::ParityGemm`](super::Deconv2dImpl::ParityGemm) there.
 pub fn deconv2d_direct(
+    packed: &PackedDeconv2d,
+    input: &[f32],
+    skip: Option<&[f32]>,
+    out: &mut [f32],
+) -> Result<()> {
+    deconv2d_direct_with(select(packed.geometry()), packed, input, skip, out)
+}
+
+/// [`deconv2d_direct`] with a chosen strip kernel ([`DirectKernel::Avx512F`] or
+/// [`DirectKernel::Avx2Fma`]; tests run both on one machine). Both give the same bits.
+///
+/// # Errors
+/// As [`deconv2d_direct`], and if this CPU cannot run `kernel` (never a silent fallback).
+pub fn deconv2d_direct_with(
+    kernel: DirectKernel,
     packed: &PackedDeconv2d,
     input: &[f32],
     skip: Option<&[f32]>,
@@ -59,10 +94,10 @@ pub fn deconv2d_direct(
     if let Some(s) = skip {
         expect_len("deconv2d skip", s.len(), out.len())?;
     }
-    if !supported(geom) {
+    if !kernel_supports(kernel, geom) {
         return Err(Error::invalid_argument(
             "deconv2d direct kernel",
-            format!("needs AVX-512F and c_out = 32 (c_out = {c_out}); use ParityGemm"),
+            format!("{} cannot run c_out = {c_out} on this CPU; use ParityGemm", kernel.name()),
         ));
     }
     let pair_len = PARITIES * w_out * c_out;
@@ -70,9 +105,9 @@ pub fn deconv2d_direct(
     out.par_chunks_mut(pair_len).enumerate().for_each(|(m, pair)| {
         let skip = skip.map(|s| &s[m * pair_len..(m + 1) * pair_len]);
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `supported` checked AVX-512F and c_out = 32; lengths checked above.
+        // SAFETY: `kernel_supports` checked the CPU features and c_out = 32; lengths checked above.
         unsafe {
-            row_pair(packed, &offsets, input, m, skip, pair)
+            row_pair(kernel, packed, &offsets, input, m, skip, pair)
         };
         #[cfg(not(target_arch = "x86_64"))]
         let _ = (m, skip, pair, &offsets);
@@ -84,10 +119,11 @@ pub fn deconv2d_direct(
 /// parity `q`'s input offsets ([`PackedDeconv2d::offsets`]).
 ///
 /// # Safety
-/// AVX-512F, `c_out = 32`, slice lengths as [`deconv2d_direct`] checks.
+/// The CPU runs `kernel` (AVX-512F, or AVX2 and FMA), `c_out = 32`, slice lengths as
+/// [`deconv2d_direct`] checks.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
 unsafe fn row_pair(
+    kernel: DirectKernel,
     packed: &PackedDeconv2d,
     offsets: &[Vec<isize>; PARITIES],
     input: &[f32],
@@ -95,7 +131,13 @@ unsafe fn row_pair(
     skip: Option<&[f32]>,
     pair: &mut [f32],
 ) {
-    use crate::nn::conv2d::direct_avx512::{full_strip, short_strip, Store, Taps};
+    use crate::nn::conv2d::direct_avx512::{Store, StripFn, Taps};
+    let (width, run_strip): (usize, StripFn) = match kernel {
+        DirectKernel::Avx512F => {
+            (crate::nn::conv2d::direct::STRIP, crate::nn::conv2d::direct_avx512::any_strip)
+        }
+        _ => (crate::nn::conv2d::direct_avx2::AVX2_STRIP, crate::nn::conv2d::direct_avx2::any_strip),
+    };
     let geom = packed.geometry();
     let (h, w, c_in, w_out) = (geom.h(), geom.w(), geom.c_in(), geom.w_out());
     let c = AVX512_C_OUT;
@@ -133,21 +175,15 @@ unsafe fn row_pair(
                 let (tx_lo, tx_hi) = valid_taps(dxs, n, w);
                 // SAFETY: valid taps keep every read inside the h x w input; weights inside the
                 // parity's packed matrix; pixel (2m + qy, 2n + qx) inside `pair` (and `skip`).
-                unsafe { short_strip(1, &taps(n, tx_lo, tx_hi), bias, &store.at(n)) };
+                unsafe { run_strip(1, &taps(n, tx_lo, tx_hi), bias, &store.at(n)) };
             }
             let mut n = n_lo;
             while n < n_hi {
-                let len = STRIP.min(n_hi - n);
+                let len = width.min(n_hi - n);
                 let t = taps(n, 0, n_tx);
                 // SAFETY: pixels n .. n + len are interior, so all their taps are inside the input;
-                // their outputs are inside `pair`; AVX-512F per the caller.
-                unsafe {
-                    if len == STRIP {
-                        full_strip(&t, bias, &store.at(n));
-                    } else {
-                        short_strip(len, &t, bias, &store.at(n));
-                    }
-                }
+                // their outputs are inside `pair`; the kernel's CPU features per the caller.
+                unsafe { run_strip(len, &t, bias, &store.at(n)) };
                 n += len;
             }
         }

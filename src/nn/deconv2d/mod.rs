@@ -34,7 +34,7 @@ pub use backward::{
     deconv2d_backward_input, deconv2d_backward_input_reference, deconv2d_backward_weight,
     deconv2d_backward_weight_reference,
 };
-pub use direct::deconv2d_direct;
+pub use direct::{deconv2d_direct, deconv2d_direct_with};
 pub use fast::{deconv2d_fast, scratch_len, PackedDeconv2d};
 pub use reference::deconv2d_reference;
 
@@ -51,9 +51,9 @@ pub enum Deconv2dImpl {
     /// Gather as four parity sub-convolutions, each a GEMM, parallel over output row pairs
     /// ([`deconv2d_fast`]).
     ParityGemm,
-    /// The four parity convolutions run by the direct AVX-512F strip kernel of the 3x3 convolution
-    /// ([`deconv2d_direct`]) where the CPU has AVX-512F and `c_out = 32`; [`Deconv2dImpl::ParityGemm`]
-    /// otherwise.
+    /// The four parity convolutions run by the direct strip kernel of the 3x3 convolution
+    /// ([`deconv2d_direct`]: AVX-512F, else AVX2+FMA) where the CPU has one and `c_out = 32`;
+    /// [`Deconv2dImpl::ParityGemm`] otherwise.
     Direct,
 }
 
@@ -75,7 +75,7 @@ pub fn deconv2d(
     weight: ArrayView4<f32>,
     bias: ArrayView1<f32>,
 ) -> Result<Array3<f32>> {
-    let mut out = Array3::zeros(geom.output_shape());
+    let mut out = crate::nn::alloc::zeroed_map(geom.output_shape());
     let Some(y) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
     deconv2d_into(imp, geom, input, weight, bias, None, y)?;
     Ok(out)

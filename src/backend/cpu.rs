@@ -132,13 +132,8 @@ impl Backend for CpuBackend {
         spare: Option<Tensor>,
     ) -> Result<Tensor> {
         let (a, b) = (host(self.name(), a)?, host(self.name(), b)?);
-        let ((h, w, ca), (hb, wb, cb)) = (a.dim(), b.dim());
-        if (h, w) != (hb, wb) {
-            return Err(Error::invalid_argument(
-                "concat_channels",
-                format!("spatial sizes differ: {:?} and {:?}", a.shape(), b.shape()),
-            ));
-        }
+        crate::nn::downsample::check_same_spatial(a.shape(), b.shape())?;
+        let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
         let g = conv_geometry((h, w, ca + cb), l, stride)?;
         let imp = match self.network.conv {
             Conv2dImpl::Direct => Conv2dImpl::fastest_for(&g),
@@ -182,13 +177,8 @@ impl Backend for CpuBackend {
 
     fn concat_reusing(&self, a: &Tensor, b: &Tensor, spare: Option<Tensor>) -> Result<Tensor> {
         let (a, b) = (host(self.name(), a)?, host(self.name(), b)?);
-        let ((h, w, ca), (hb, wb, cb)) = (a.dim(), b.dim());
-        if (h, w) != (hb, wb) {
-            return Err(Error::invalid_argument(
-                "concat_channels",
-                format!("spatial sizes differ: {:?} and {:?}", a.shape(), b.shape()),
-            ));
-        }
+        crate::nn::downsample::check_same_spatial(a.shape(), b.shape())?;
+        let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
         let mut out = output_array([h, w, ca + cb], spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
         concat_channels_into(a.view(), b.view(), o)?;

@@ -277,16 +277,24 @@ unsafe fn l1_rgb16(live: &[f32], b: &Block, dx: i32, dy: i32, r: &[f32]) -> __m5
             std::array::from_fn(|i| _mm512_add_epi32(corners[i], _mm512_set1_epi32(ch as i32)))
                 // SAFETY: only valid lanes load, inside `live` (the caller's contract).
                 .map(|o| unsafe { gather(b.ok, o, p) });
-        let s = _mm512_add_ps(
-            _mm512_add_ps(
-                _mm512_add_ps(_mm512_mul_ps(b.w[0], at[0]), _mm512_mul_ps(b.w[1], at[1])),
-                _mm512_mul_ps(b.w[2], at[2]),
-            ),
-            _mm512_mul_ps(b.w[3], at[3]),
-        );
-        *d = _mm512_abs_ps(_mm512_sub_ps(_mm512_set1_ps(r[ch]), s));
+        *d = channel_l1(&b.w, at, r[ch]);
     }
     _mm512_add_ps(_mm512_add_ps(d[0], d[2]), d[1])
+}
+
+/// One channel of 16 hypotheses: `|r - (((w0 a + w1 b) + w2 c) + w3 d)|` from the four corners'
+/// values, the generic loop's expression.
+#[inline]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq")]
+fn channel_l1(w: &[__m512; 4], at: [__m512; 4], r: f32) -> __m512 {
+    let s = _mm512_add_ps(
+        _mm512_add_ps(
+            _mm512_add_ps(_mm512_mul_ps(w[0], at[0]), _mm512_mul_ps(w[1], at[1])),
+            _mm512_mul_ps(w[2], at[2]),
+        ),
+        _mm512_mul_ps(w[3], at[3]),
+    );
+    _mm512_abs_ps(_mm512_sub_ps(_mm512_set1_ps(r), s))
 }
 
 /// [`l1_rgb16`] from the packed map: one gather per corner (offsets in pixels), each word split
@@ -320,15 +328,7 @@ unsafe fn l1_rgb16_packed(packed: &[u32], b: &Block, dx: i32, dy: i32, r: &[f32]
     };
     let mut d = [_mm512_setzero_ps(); 3];
     for (ch, d) in d.iter_mut().enumerate() {
-        let v = at.map(|a| channel(a, ch as u32));
-        let s = _mm512_add_ps(
-            _mm512_add_ps(
-                _mm512_add_ps(_mm512_mul_ps(b.w[0], v[0]), _mm512_mul_ps(b.w[1], v[1])),
-                _mm512_mul_ps(b.w[2], v[2]),
-            ),
-            _mm512_mul_ps(b.w[3], v[3]),
-        );
-        *d = _mm512_abs_ps(_mm512_sub_ps(_mm512_set1_ps(r[ch]), s));
+        *d = channel_l1(&b.w, at.map(|a| channel(a, ch as u32)), r[ch]);
     }
     _mm512_add_ps(_mm512_add_ps(d[0], d[2]), d[1])
 }

@@ -78,18 +78,28 @@ pub fn concat_channels(a: ArrayView3<f32>, b: ArrayView3<f32>) -> Result<Array3<
     Ok(out)
 }
 
+/// The check of every channel concatenation: `a` and `b` (`[h, w, c]` shapes) have the same height
+/// and width.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] naming `concat_channels` and both shapes otherwise.
+pub fn check_same_spatial(a: &[usize], b: &[usize]) -> Result<()> {
+    if a[..2] != b[..2] {
+        return Err(Error::invalid_argument(
+            "concat_channels",
+            format!("spatial sizes differ: {a:?} and {b:?}"),
+        ));
+    }
+    Ok(())
+}
+
 /// [`concat_channels`] into a caller-provided slice (`[h, w, ca + cb]`, row-major, every value
 /// overwritten).
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] if the heights or widths differ or `out` has the wrong length.
 pub fn concat_channels_into(a: ArrayView3<f32>, b: ArrayView3<f32>, out: &mut [f32]) -> Result<()> {
-    if a.shape()[..2] != b.shape()[..2] {
-        return Err(Error::invalid_argument(
-            "concat_channels",
-            format!("spatial sizes differ: {:?} and {:?}", a.shape(), b.shape()),
-        ));
-    }
+    check_same_spatial(a.shape(), b.shape())?;
     let (h, w, ca) = a.dim();
     let cb = b.dim().2;
     let c = ca + cb;

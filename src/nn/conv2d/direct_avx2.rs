@@ -16,7 +16,7 @@ use std::arch::x86_64::{
 use super::direct::{interior_columns, tap_range, AVX512_C_OUT};
 use super::direct_avx512::{Store, Taps};
 use super::PackedConv2d;
-use crate::nn::geometry::{CONV_KERNEL, CONV_PADDING};
+use crate::nn::geometry::CONV_KERNEL;
 use crate::nn::Activation;
 
 /// Output pixels per strip of this kernel.
@@ -131,25 +131,14 @@ pub(super) unsafe fn conv_row(
     out_row: &mut [f32],
 ) {
     let geom = packed.geometry();
-    let (h, w, c_in, s) = (geom.h(), geom.w(), geom.c_in(), geom.stride());
+    let (h, w, s) = (geom.h(), geom.w(), geom.stride());
     debug_assert_eq!(geom.c_out(), AVX512_C_OUT);
     debug_assert_eq!(out_row.len(), geom.w_out() * AVX512_C_OUT);
     let relu = activation == Activation::Relu;
     let (ky_lo, ky_hi) = tap_range(y, s, h);
     let bias = packed.bias().as_ptr();
-    let weights = packed.weights();
-    let taps = |x0: usize, kx_lo: usize, kx_hi: usize| -> Taps {
-        let iy = s * y + ky_lo - CONV_PADDING - row0;
-        let ix = s * x0 + kx_lo - CONV_PADDING;
-        Taps {
-            input: input[(iy * w + ix) * c_in..].as_ptr(),
-            row_stride: w * c_in,
-            pix_stride: s * c_in,
-            n_ky: ky_hi - ky_lo,
-            run: (kx_hi - kx_lo) * c_in,
-            weights: weights[(ky_lo * CONV_KERNEL + kx_lo) * c_in * AVX512_C_OUT..].as_ptr(),
-            w_row_stride: CONV_KERNEL * c_in * AVX512_C_OUT,
-        }
+    let taps = |x0: usize, kx_lo: usize, kx_hi: usize| {
+        Taps::of(packed, input, row0, y, (ky_lo, ky_hi), x0, (kx_lo, kx_hi))
     };
     let store = Store { ptr: out_row.as_mut_ptr(), stride: AVX512_C_OUT, skip: std::ptr::null(), relu };
     let (x_lo, x_hi) = interior_columns(geom);

@@ -35,6 +35,34 @@ pub(crate) struct Taps {
     pub(crate) w_row_stride: usize,
 }
 
+impl Taps {
+    /// The taps of output pixels `x0 ..` of output row `y`: tap rows `ky_lo .. ky_hi` and tap columns
+    /// `kx_lo .. kx_hi` (all inside the image), `input` holding the image's rows from `row0` on.
+    pub(crate) fn of(
+        packed: &PackedConv2d,
+        input: &[f32],
+        row0: usize,
+        y: usize,
+        (ky_lo, ky_hi): (usize, usize),
+        x0: usize,
+        (kx_lo, kx_hi): (usize, usize),
+    ) -> Self {
+        let geom = packed.geometry();
+        let (w, c_in, s) = (geom.w(), geom.c_in(), geom.stride());
+        let iy = s * y + ky_lo - CONV_PADDING - row0;
+        let ix = s * x0 + kx_lo - CONV_PADDING;
+        Taps {
+            input: input[(iy * w + ix) * c_in..].as_ptr(),
+            row_stride: w * c_in,
+            pix_stride: s * c_in,
+            n_ky: ky_hi - ky_lo,
+            run: (kx_hi - kx_lo) * c_in,
+            weights: packed.weights()[(ky_lo * CONV_KERNEL + kx_lo) * c_in * AVX512_C_OUT..].as_ptr(),
+            w_row_stride: CONV_KERNEL * c_in * AVX512_C_OUT,
+        }
+    }
+}
+
 /// Where a strip's results go: pixel `p`'s 32 channels at `ptr + p stride`; with a non-null `skip`,
 /// `skip + p stride`'s 32 values are added to them after the activation (the U-Net sum, one f32
 /// addition, the same bits as a separate `add`).
@@ -199,20 +227,9 @@ pub(super) unsafe fn conv_row(
     let relu = activation == Activation::Relu;
     let (ky_lo, ky_hi) = tap_range(y, s, h);
     let bias = packed.bias().as_ptr();
-    let weights = packed.weights();
     // Taps of output pixels x0 .. x0 + n, all with the tap columns kx_lo .. kx_hi inside the image.
-    let taps = |x0: usize, kx_lo: usize, kx_hi: usize| -> Taps {
-        let iy = s * y + ky_lo - CONV_PADDING - row0;
-        let ix = s * x0 + kx_lo - CONV_PADDING;
-        Taps {
-            input: input[(iy * w + ix) * c_in..].as_ptr(),
-            row_stride: w * c_in,
-            pix_stride: s * c_in,
-            n_ky: ky_hi - ky_lo,
-            run: (kx_hi - kx_lo) * c_in,
-            weights: weights[(ky_lo * CONV_KERNEL + kx_lo) * c_in * AVX512_C_OUT..].as_ptr(),
-            w_row_stride: CONV_KERNEL * c_in * AVX512_C_OUT,
-        }
+    let taps = |x0: usize, kx_lo: usize, kx_hi: usize| {
+        Taps::of(packed, input, row0, y, (ky_lo, ky_hi), x0, (kx_lo, kx_hi))
     };
     let store = Store { ptr: out_row.as_mut_ptr(), stride: AVX512_C_OUT, skip: std::ptr::null(), relu };
     let (x_lo, x_hi) = interior_columns(geom);

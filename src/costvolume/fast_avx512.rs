@@ -210,8 +210,9 @@ pub(super) unsafe fn row(
         // Offsets count pixels in the packed map, floats otherwise.
         c: if packed.is_some() { 1 } else { c as i32 },
     };
-    let (dx, dy) = (if w > 1 { c } else { 0 }, if h > 1 { w * c } else { 0 });
-    let (px, py) = (dx / c.max(1), dy / c.max(1));
+    // Corner steps in the units of the offsets (pixels in the packed map, floats otherwise).
+    let unit = g.c as usize;
+    let (dx, dy) = (if w > 1 { unit } else { 0 }, if h > 1 { w * unit } else { 0 });
     for x in 0..w {
         let a = geo.warp.point(x as f64, y as f64, 0.0);
         g.a = [a.x, a.y, a.z];
@@ -225,7 +226,7 @@ pub(super) unsafe fn row(
             // SAFETY (all three): valid lanes' corners lie inside `live` (x0 <= W-2 or W = 1,
             // likewise y0).
             let l1 = if let Some(packed) = packed {
-                unsafe { l1_rgb16_packed(packed.as_slice(), &b, px as i32, py as i32, r) }
+                unsafe { l1_rgb16_packed(packed.as_slice(), &b, dx as i32, dy as i32, r) }
             } else if c == 3 {
                 unsafe { l1_rgb16(feats.live, &b, dx as i32, dy as i32, r) }
             } else if c == 32 {

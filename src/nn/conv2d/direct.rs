@@ -77,11 +77,61 @@ impl DirectKernel {
         DirectKernel::ALL.into_iter().find(|k| k.supports(geom)).unwrap_or(DirectKernel::Portable)
     }
 
+    /// `Ok` if this kernel can run `geom` on this CPU ([`DirectKernel::supports`]).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming the kernel otherwise.
+    pub fn check(self, geom: &Conv2dGeometry) -> Result<()> {
+        if self.supports(geom) {
+            return Ok(());
+        }
+        Err(Error::invalid_argument(
+            "conv2d direct kernel",
+            format!("{} cannot run c_out = {} on this CPU", self.name(), geom.c_out()),
+        ))
+    }
+
+    /// Output row `y` with this kernel; `input` holds the image's rows from `row0` on.
+    ///
+    /// # Safety
+    /// [`DirectKernel::check`] passed for `packed`'s geometry, `input` holds every row output row
+    /// `y` reads (from `row0` on), and `out_row` holds `w_out · c_out` floats.
+    pub(super) unsafe fn conv_row(
+        self,
+        packed: &PackedConv2d,
+        input: &[f32],
+        row0: usize,
+        y: usize,
+        activation: Activation,
+        out_row: &mut [f32],
+    ) {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `check` found AVX-512F and c_out = 32; rows per the caller.
+            DirectKernel::Avx512F => unsafe {
+                super::direct_avx512::conv_row(packed, input, row0, y, activation, out_row)
+            },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `check` found AVX2, FMA and c_out = 32; rows per the caller.
+            DirectKernel::Avx2Fma => unsafe {
+                super::direct_avx2::conv_row(packed, input, row0, y, activation, out_row)
+            },
+            _ => conv_row_portable(packed, input, row0, y, activation, out_row),
+        }
+    }
+
     /// Whether this kernel can run `geom` on this CPU.
     pub fn supports(self, geom: &Conv2dGeometry) -> bool {
+        self == DirectKernel::Portable || (geom.c_out() == AVX512_C_OUT && self.cpu_has())
+    }
+
+    /// Whether this CPU has the instructions of this kernel's strips (the portable kernel: always).
+    /// The SIMD strips compute 32 output channels; [`DirectKernel::supports`] adds that condition,
+    /// and the transposed convolution's strips (`nn::deconv2d::direct`) use the same two.
+    pub fn cpu_has(self) -> bool {
         match self {
-            DirectKernel::Avx512F => geom.c_out() == AVX512_C_OUT && avx512f_detected(),
-            DirectKernel::Avx2Fma => geom.c_out() == AVX512_C_OUT && crate::runtime::has_avx2_fma(),
+            DirectKernel::Avx512F => avx512f_detected(),
+            DirectKernel::Avx2Fma => crate::runtime::has_avx2_fma(),
             DirectKernel::Portable => true,
         }
     }
@@ -164,39 +214,21 @@ pub fn conv2d_direct_with(
     let [h_out, w_out, c_out] = geom.output_shape();
     expect_len("conv2d input", input.len(), geom.input_shape().iter().product())?;
     expect_len("conv2d output", out.len(), h_out * w_out * c_out)?;
-    if !kernel.supports(geom) {
-        return Err(Error::invalid_argument(
-            "conv2d direct kernel",
-            format!("{} cannot run c_out = {c_out} on this CPU", kernel.name()),
-        ));
-    }
+    kernel.check(geom)?;
     let row_len = w_out * c_out;
     let rows = rows_per_block(geom);
     out.par_chunks_mut(rows * row_len).enumerate().for_each(|(b, block)| {
         for (i, out_row) in block.chunks_exact_mut(row_len).enumerate() {
-            let y = b * rows + i;
-            match kernel {
-                #[cfg(target_arch = "x86_64")]
-                DirectKernel::Avx512F => {
-                    // SAFETY: `supports` checked that the CPU has AVX-512F and c_out = 32; the
-                    // slice lengths were checked against the geometry above.
-                    unsafe { super::direct_avx512::conv_row(packed, input, 0, y, activation, out_row) }
-                }
-                #[cfg(target_arch = "x86_64")]
-                DirectKernel::Avx2Fma => {
-                    // SAFETY: `supports` checked that the CPU has AVX2 and FMA and c_out = 32; the
-                    // slice lengths were checked against the geometry above.
-                    unsafe { super::direct_avx2::conv_row(packed, input, 0, y, activation, out_row) }
-                }
-                _ => conv_row_portable(packed, input, 0, y, activation, out_row),
-            }
+            // SAFETY: `check` passed; the slice lengths were checked against the geometry above,
+            // so `input` holds every image row from row 0.
+            unsafe { kernel.conv_row(packed, input, 0, b * rows + i, activation, out_row) };
         }
     });
     Ok(())
 }
 
 /// One output row with the portable kernel; `input` holds the image's rows from `row0` on.
-pub(super) fn conv_row_portable(
+fn conv_row_portable(
     packed: &PackedConv2d,
     input: &[f32],
     row0: usize,

@@ -20,7 +20,7 @@
 
 use rayon::prelude::*;
 
-use super::direct::{conv_row_portable, rows_per_block, DirectKernel};
+use super::direct::{rows_per_block, DirectKernel};
 use super::PackedConv2d;
 use crate::error::{Error, Result};
 use crate::nn::geometry::{Conv2dGeometry, CONV_KERNEL, CONV_PADDING};
@@ -92,12 +92,7 @@ pub fn conv2d_direct_concat_with(
     expect_len("conv2d concat input a", a.len(), h * w * ca)?;
     expect_len("conv2d concat input b", b.len(), h * w * cb)?;
     expect_len("conv2d output", out.len(), geom.output_shape().iter().product())?;
-    if !kernel.supports(geom) {
-        return Err(Error::invalid_argument(
-            "conv2d direct kernel",
-            format!("{} cannot run c_out = {c_out} on this CPU", kernel.name()),
-        ));
-    }
+    kernel.check(geom)?;
     let row_len = w_out * c_out;
     let rows = concat_rows_per_block(geom);
     out.par_chunks_mut(rows * row_len).enumerate().for_each_init(Vec::new, |staging, (blk, block)| {
@@ -107,22 +102,9 @@ pub fn conv2d_direct_concat_with(
         staging.resize((hi - lo) * w * c_in, 0.0);
         stage_rows(a, ca, b, cb, w, (lo, hi), staging);
         for (i, out_row) in block.chunks_exact_mut(row_len).enumerate() {
-            let y = y0 + i;
-            match kernel {
-                #[cfg(target_arch = "x86_64")]
-                DirectKernel::Avx512F => {
-                    // SAFETY: `supports` checked AVX-512F and c_out = 32; `staging` holds input
-                    // rows lo .. hi, which include every row output row y reads (input_rows), and
-                    // out_row holds w_out · 32 floats.
-                    unsafe { super::direct_avx512::conv_row(packed, staging, lo, y, activation, out_row) }
-                }
-                #[cfg(target_arch = "x86_64")]
-                DirectKernel::Avx2Fma => {
-                    // SAFETY: as above, with AVX2 and FMA checked by `supports`.
-                    unsafe { super::direct_avx2::conv_row(packed, staging, lo, y, activation, out_row) }
-                }
-                _ => conv_row_portable(packed, staging, lo, y, activation, out_row),
-            }
+            // SAFETY: `check` passed; `staging` holds input rows lo .. hi, which include every row
+            // output row y0 + i reads (input_rows), and out_row holds w_out · c_out floats.
+            unsafe { kernel.conv_row(packed, staging, lo, y0 + i, activation, out_row) };
         }
     });
     Ok(())

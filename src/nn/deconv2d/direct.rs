@@ -35,18 +35,12 @@ pub fn supported(geom: &Deconv2dGeometry) -> bool {
 /// for `c_out = 32`, SPEC.md §7.7), else [`DirectKernel::Portable`], meaning none (use
 /// [`Deconv2dImpl::ParityGemm`](super::Deconv2dImpl::ParityGemm)).
 pub fn select(geom: &Deconv2dGeometry) -> DirectKernel {
-    let simd = |k: DirectKernel| k != DirectKernel::Portable && kernel_supports(k, geom);
-    DirectKernel::ALL.into_iter().find(|&k| simd(k)).unwrap_or(DirectKernel::Portable)
+    DirectKernel::ALL.into_iter().find(|&k| kernel_supports(k, geom)).unwrap_or(DirectKernel::Portable)
 }
 
 /// Whether the SIMD strip kernel `kernel` can run `geom` on this CPU.
 fn kernel_supports(kernel: DirectKernel, geom: &Deconv2dGeometry) -> bool {
-    geom.c_out() == AVX512_C_OUT
-        && match kernel {
-            DirectKernel::Avx512F => crate::runtime::has_avx512f(),
-            DirectKernel::Avx2Fma => crate::runtime::has_avx2_fma(),
-            _ => false,
-        }
+    kernel != DirectKernel::Portable && geom.c_out() == AVX512_C_OUT && kernel.cpu_has()
 }
 
 /// Valid taps `lo .. hi` (indices into the parity's increasing tap offsets `ds`) for input index

@@ -11,8 +11,8 @@ use densefeat::nn::deconv2d::{
 };
 use densefeat::nn::geometry::DownsampleGeometry;
 use densefeat::nn::{
-    add, concat_channels, conv2d, conv2d_concat_into, deconv2d, downsample2x, Activation, Conv2dGeometry,
-    Conv2dImpl, Deconv2dGeometry, Deconv2dImpl,
+    add, concat_channels, conv2d, conv2d_concat_into, deconv2d, downsample2x, downsample2x_reference,
+    Activation, Conv2dGeometry, Conv2dImpl, Deconv2dGeometry, Deconv2dImpl,
 };
 use densefeat::testing::within_budget;
 use ndarray::{array, s, Array1, Array3, Array4, Dimension};
@@ -284,6 +284,31 @@ proptest! {
                 }
             }
         }
+    }
+
+    #[test]
+    fn downsample_equals_the_reference_bit_for_bit(
+        h in 1usize..14, w in 1usize..40, c in 1usize..5,
+        vals in proptest::collection::vec(
+            prop_oneof![
+                8 => -1.0e3f32..1.0e3,
+                1 => Just(f32::NAN), 1 => Just(f32::INFINITY), 1 => Just(f32::NEG_INFINITY),
+                1 => Just(-0.0f32), 1 => Just(f32::MAX), 1 => Just(-f32::MAX),
+                1 => Just(f32::MIN_POSITIVE), 1 => Just(1.0e-30f32), 1 => Just(3.0e30f32),
+            ],
+            14 * 40 * 4,
+        ),
+    ) {
+        // The column-vectorised kernel keeps every output's nine f64 terms in the definition's
+        // order, so it equals the plain-loop reference bit for bit, specials and extreme
+        // magnitudes (where f64 sums round) included. A NaN's sign and payload are not part of
+        // the contract (the compiler may commute an addition's operands), only that it is NaN.
+        let img = Array3::from_shape_fn((h, w, c), |(y, x, ch)| vals[(y * w + x) * c + ch]);
+        let fast = downsample2x(img.view()).unwrap();
+        let want = downsample2x_reference(img.view()).unwrap();
+        prop_assert_eq!(fast.dim(), want.dim());
+        let canon = |a: &Array3<f32>| a.iter().map(|v| if v.is_nan() { u32::MAX } else { v.to_bits() }).collect::<Vec<_>>();
+        prop_assert_eq!(canon(&fast), canon(&want));
     }
 
     #[test]

@@ -24,7 +24,7 @@ pub const DEFAULT_WEIGHTS: &str =
 pub struct FeaturesArgs {
     /// Input image (8-bit PNG or JPEG).
     pub image: PathBuf,
-    /// Weights (`.safetensors`, SPEC.md §8.4). Default: the shipped untrained init weights.
+    /// Weights (`.safetensors`, SPEC.md §8.4). Default: the shipped trained weights (`featurenet_trained_b1s2`).
     #[arg(long, default_value = DEFAULT_WEIGHTS)]
     pub weights: PathBuf,
     /// Output `.npy`: `[H_l, W_l, C]` f32, C order, where `l` is block 1's level.

@@ -28,7 +28,8 @@ pub use config::NetworkConfig;
 pub use conv2d::{conv2d, conv2d_concat_into, conv2d_into, Conv2dImpl};
 pub use deconv2d::{deconv2d, deconv2d_into, Deconv2dImpl};
 pub use downsample::{
-    add, concat_channels, concat_channels_backward, concat_channels_into, downsample2x, downsample2x_backward,
+    add, concat_channels, concat_channels_backward, concat_channels_into, downsample2x,
+    downsample2x_backward, downsample2x_reference,
 };
 pub use geometry::{Conv2dGeometry, Deconv2dGeometry, DownsampleGeometry};
 pub use network::{FeatureNet, ForwardOutput, NetworkImpl};

@@ -321,11 +321,17 @@ pub fn padded_input(config: &NetworkConfig, image: ArrayView3<f32>) -> Result<Ar
     let Some(dst) = level0.as_slice_mut() else { unreachable!("a new array is contiguous") };
     dst.par_chunks_mut(wp * c).enumerate().for_each(|(y, row)| {
         let src_row = &src[y.min(h - 1) * w * c..][..w * c];
-        for (x, px) in row.chunks_exact_mut(c).enumerate() {
-            let from = &src_row[x.min(w - 1) * c..][..c];
-            for ((o, &v), m) in px.iter_mut().zip(from).zip(mean) {
+        let (inside, pad) = row.split_at_mut(w * c);
+        let subtract = |o: &mut [f32], v: &[f32]| {
+            for ((o, &v), m) in o.iter_mut().zip(v).zip(mean) {
                 *o = v - m;
             }
+        };
+        for (o, v) in inside.chunks_exact_mut(IMAGE_CHANNELS).zip(src_row.chunks_exact(IMAGE_CHANNELS)) {
+            subtract(o, v);
+        }
+        for o in pad.chunks_exact_mut(IMAGE_CHANNELS) {
+            subtract(o, &src_row[(w - 1) * c..]);
         }
     });
     Ok(level0)

@@ -132,6 +132,10 @@ fn tum_reads_associations_calibration_and_interpolated_poses() {
         let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(r[7], r[4], r[5], r[6]));
         assert!(f.pose.rotation.angle_to(&q) < 5e-6, "{}", f.name);
     }
+    // A live frame of the mapper: the same undistorted colour and pose, no depth decoded.
+    let (full, live) = (seq.load_frame(3).unwrap(), seq.load_frame_rgb(3).unwrap());
+    assert_eq!((live.index, live.pose, live.depth.is_none()), (3, full.pose, true));
+    assert_eq!(live.rgb, full.rgb);
     let raw = open_with(&dir, &OpenOptions { undistort: false, ..Default::default() }).unwrap();
     let (valid, lo, hi) = valid_range(raw.load_frame(0).unwrap().depth.as_ref().unwrap());
     eprintln!("tum frame 0 depth: {valid:.3} valid, {lo}..{hi} m");
@@ -413,4 +417,19 @@ fn sun3d_and_tartanair_jpeg_sequences_read_and_warp() {
         // Measured: f0935 2.64, f3160 1.53 (1.6 cm per frame at 2.3 m median depth), TartanAir 3.08.
         assert!(gain > 1.3, "{name}: warp gain {gain}");
     }
+}
+
+#[test]
+fn load_frame_rgb_is_load_frame_without_the_depth() {
+    // The shipped fixture (always present): every frame has depth, which `load_frame_rgb` skips.
+    let seq =
+        open(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/synthetic/room_s1")).unwrap();
+    for i in [0, seq.len() / 2, seq.len() - 1] {
+        let (full, live) = (seq.load_frame(i).unwrap(), seq.load_frame_rgb(i).unwrap());
+        assert!(full.depth.is_some() && live.depth.is_none(), "frame {i}");
+        assert_eq!((live.index, live.pose), (full.index, full.pose), "frame {i}");
+        assert_eq!(live.rgb, full.rgb, "frame {i}");
+    }
+    let err = seq.load_frame_rgb(seq.len()).unwrap_err().to_string();
+    assert!(err.contains("out of range"), "{err}");
 }

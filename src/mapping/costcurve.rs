@@ -115,7 +115,7 @@ pub fn cost_curves(
             truncation,
         )?;
         for (i, &n) in order[..last].iter().enumerate() {
-            let live = seq.load_frame(n)?;
+            let live = seq.load_frame_rgb(n)?;
             builder.add_frame(
                 &backend.upload_owned(ex.extract(&live.rgb)?.data)?,
                 &relative_pose(&key.pose, &live.pose),

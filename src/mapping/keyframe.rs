@@ -415,7 +415,7 @@ pub fn reconstruct(
         let coarse = |rgb: &RgbImage| downsample_to(rgb.view(), lc);
         let all = live
             .par_iter()
-            .map(|&m| seq.load_frame(m).and_then(|f| Ok((coarse(&f.rgb)?, f.pose))))
+            .map(|&m| seq.load_frame_rgb(m).and_then(|f| Ok((coarse(&f.rgb)?, f.pose))))
             .collect::<Result<Vec<_>>>()?;
         let fit = photometric::fit((&coarse(&key.rgb)?, &key.pose), &all, &seq.camera, &bins, lc)?;
         timings.photometric = t.elapsed().as_secs_f64();
@@ -435,7 +435,7 @@ pub fn reconstruct(
         if loaded.is_empty() {
             let t = Instant::now();
             let next = &live[i..live.len().min(i + batch)];
-            let frames: Vec<Result<_>> = next.par_iter().map(|&m| seq.load_frame(m)).collect();
+            let frames: Vec<Result<_>> = next.par_iter().map(|&m| seq.load_frame_rgb(m)).collect();
             for f in frames {
                 loaded.push_back(f?);
             }

@@ -275,6 +275,19 @@ impl Sequence {
     /// # Errors
     /// [`Error::InvalidArgument`] for an index out of range; any image error naming the file.
     pub fn load_frame(&self, index: usize) -> Result<Frame> {
+        self.load(index, true)
+    }
+
+    /// [`Sequence::load_frame`] without the depth (`Frame::depth` is `None`): what a live frame of
+    /// the mapper needs. The depth file is neither read nor checked.
+    ///
+    /// # Errors
+    /// As [`Sequence::load_frame`], for the colour image.
+    pub fn load_frame_rgb(&self, index: usize) -> Result<Frame> {
+        self.load(index, false)
+    }
+
+    fn load(&self, index: usize, with_depth: bool) -> Result<Frame> {
         let info = self.frames.get(index).ok_or_else(|| {
             Error::invalid_argument(
                 "frame index",
@@ -284,12 +297,12 @@ impl Sequence {
         let rgb = image::load_rgb(&info.rgb)?;
         self.check_size(&info.rgb, rgb.dim().0, rgb.dim().1)?;
         let depth = match &info.depth {
-            None => None,
-            Some(src) => {
+            Some(src) if with_depth => {
                 let d = load_depth(src)?;
                 self.check_size(src.path(), d.dim().0, d.dim().1)?;
                 Some(d)
             }
+            _ => None,
         };
         let (rgb, depth) = match &self.undistort {
             Some(map) => (map.rgb(&rgb), depth.map(|d| map.depth(&d))),

@@ -51,7 +51,7 @@ pub fn downsample2x(input: ArrayView3<f32>) -> Result<Array3<f32>> {
         || TentRows::new(w_out, c),
         |taps, (j, row)| {
             for a in 0..3 {
-                taps.load(a, &src[tap(j, a, h) * w * c..][..w * c], w);
+                taps.load(a, &src[tap(j, a, h) * w * c..][..w * c]);
             }
             for ch in 0..c {
                 taps.combine(ch, avx512);
@@ -90,15 +90,15 @@ impl TentRows {
 
     /// The input row `src_row` (`[w, c]`) as tap row `a`, every channel, in one pass (the image's
     /// three channels unrolled).
-    fn load(&mut self, a: usize, src_row: &[f32], w: usize) {
+    fn load(&mut self, a: usize, src_row: &[f32]) {
         match self.channels {
-            3 => self.load_channels::<3>(a, src_row, w),
-            _ => self.load_channels::<0>(a, src_row, w),
+            3 => self.load_channels::<3>(a, src_row),
+            _ => self.load_channels::<0>(a, src_row),
         }
     }
 
     /// [`TentRows::load`] for `C` channels (`C = 0`: the run-time count).
-    fn load_channels<const C: usize>(&mut self, a: usize, src_row: &[f32], w: usize) {
+    fn load_channels<const C: usize>(&mut self, a: usize, src_row: &[f32]) {
         let c = if C == 0 { self.channels } else { C };
         let w_out = self.plane.len();
         let (even, odd) = (&mut self.even[a * c..][..c], &mut self.odd[a * c..][..c]);
@@ -117,7 +117,6 @@ impl TentRows {
                 e[w_out] = f64::from(tail[ch]);
             }
         }
-        let _ = w;
     }
 
     /// `plane[i]`: the nine-term sum of output column `i`, channel `ch`.

@@ -40,7 +40,9 @@ fn inspect_rejects_bad_max_gap() {
 
 #[test]
 fn bench_tv_prints_iteration_and_solve_times() {
-    for (schedule, steps) in [("mapping", 4), ("raw", 1)] {
+    let (mapping, raw) = (densefeat::dtam::MAPPING_DEFAULTS, densefeat::dtam::DtamParams::default());
+    for (schedule, p) in [("mapping", mapping), ("raw", raw)] {
+        let (iterations, steps) = (p.iterations, p.steps_per_search);
         let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
             .args(["bench", "tv", "--size", "40x30", "--bins", "8", "--threads", "2", "--runs", "5"])
             .args(["--schedule", schedule])
@@ -52,7 +54,8 @@ fn bench_tv_prints_iteration_and_solve_times() {
             text.contains("one iteration") && text.contains("a-search") && text.contains("full solve"),
             "{text}"
         );
-        let said = format!("{schedule} schedule (200 iterations scheduled, {steps} primal-dual steps each");
+        let said =
+            format!("{schedule} schedule ({iterations} iterations scheduled, {steps} primal-dual steps each");
         assert!(text.contains(&said), "{text}");
     }
     let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))

@@ -137,8 +137,8 @@ pub const MAPPING_DEFAULTS: DtamParams = DtamParams {
     beta: 1.0,
     theta_start: 1.0,
     theta_end: 1e-6,
-    iterations: 200,
-    steps_per_search: 4,
+    iterations: 100,
+    steps_per_search: 16,
     max_iterations: 500,
     tolerance: 1e-3,
 };

@@ -74,6 +74,31 @@ fn features_writes_npy_and_viz() {
 }
 
 #[test]
+fn features_default_weights_are_the_built_in_shipped_ones() {
+    // Without --weights the shipped weights come from the binary, not from a source-tree path (an
+    // installed binary has no source tree): same output as naming the shipped file, no path default.
+    let dir = tempfile::tempdir().unwrap();
+    let image = root().join("fixtures/synthetic/room_s1/images/00000.png");
+    let run = |name: &str, weights: Option<PathBuf>| {
+        let out_path = dir.path().join(name);
+        let mut cmd = bin();
+        cmd.current_dir(dir.path()).arg("features").arg(&image).arg("--out").arg(&out_path);
+        if let Some(w) = weights {
+            cmd.arg("--weights").arg(w);
+        }
+        let out = cmd.output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        std::fs::read(out_path).unwrap()
+    };
+    let built_in = run("a.npy", None);
+    let file = run("b.npy", Some(root().join("fixtures/weights/featurenet_trained_b1s2.safetensors")));
+    assert!(built_in == file, "built-in and file weights give different features");
+    let help = bin().args(["features", "--help"]).output().unwrap();
+    let help = String::from_utf8_lossy(&help.stdout);
+    assert!(help.contains("built into the binary") && !help.contains("[default: /"), "{help}");
+}
+
+#[test]
 fn features_with_bad_weights_names_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let weights = dir.path().join("bad.safetensors");

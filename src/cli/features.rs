@@ -10,23 +10,21 @@ use crate::backend::Backend;
 use crate::error::Result;
 use crate::image::{load_rgb, read_dimensions, save_rgb_png};
 use crate::io::{write_npy_f32, Staging};
+use crate::mapping::features::{SHIPPED_WEIGHTS, SHIPPED_WEIGHTS_NAME};
 use crate::nn::viz::pca_rgb;
 use crate::nn::{FeatureNet, NetworkWeights};
 
 use super::validate::{flag, MemoryLimit};
-
-/// The shipped trained weights (fixtures/weights/MODEL_CARD.md), in the source tree.
-pub const DEFAULT_WEIGHTS: &str =
-    concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/weights/featurenet_trained_b1s2.safetensors");
 
 /// Arguments of `densefeat features`.
 #[derive(Debug, Clone, Args)]
 pub struct FeaturesArgs {
     /// Input image (8-bit PNG or JPEG).
     pub image: PathBuf,
-    /// Weights (`.safetensors`, SPEC.md §8.4). Default: the shipped trained weights (`featurenet_trained_b1s2`).
-    #[arg(long, default_value = DEFAULT_WEIGHTS)]
-    pub weights: PathBuf,
+    /// Weights (`.safetensors`, SPEC.md §8.4). Default: the shipped trained weights
+    /// (fixtures/weights/featurenet_trained_b1s2.safetensors, built into the binary: no file needed).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
     /// Output `.npy`: `[H_l, W_l, C]` f32, C order, where `l` is block 1's level.
     #[arg(long)]
     pub out: PathBuf,
@@ -41,12 +39,35 @@ pub struct FeaturesArgs {
     pub backend: BackendFlag,
 }
 
-/// Computes the features of `image` with the weights at `weights`.
+/// The weights at `path`, or the shipped ones built into the binary for `None`.
+///
+/// # Errors
+/// Reading or format errors naming the file.
+pub fn load_weights(path: Option<&Path>) -> Result<NetworkWeights> {
+    match path {
+        Some(p) => NetworkWeights::load(p),
+        None => NetworkWeights::from_safetensors_bytes(SHIPPED_WEIGHTS, Path::new(SHIPPED_WEIGHTS_NAME)),
+    }
+}
+
+/// Computes the features of `image` with `weights` (see [`load_weights`]).
 ///
 /// # Errors
 /// Reading errors naming the file.
-pub fn features_of(image: &Path, weights: &Path, backend: &dyn Backend) -> Result<ndarray::Array3<f32>> {
-    let net = FeatureNet::new(NetworkWeights::load(weights)?)?;
+pub fn features_of(
+    image: &Path,
+    weights: Option<&Path>,
+    backend: &dyn Backend,
+) -> Result<ndarray::Array3<f32>> {
+    features_with(image, load_weights(weights)?, backend)
+}
+
+fn features_with(
+    image: &Path,
+    weights: NetworkWeights,
+    backend: &dyn Backend,
+) -> Result<ndarray::Array3<f32>> {
+    let net = FeatureNet::new(weights)?;
     let rgb = load_rgb(image)?;
     let out = net.forward(rgb.view(), backend)?;
     Ok(out.aggregated.into_iter().next().unwrap_or_default())
@@ -61,7 +82,8 @@ pub fn run(args: FeaturesArgs) -> Result<()> {
     // Up front (SPEC.md §14.1): the image header, the weights, the memory, the output paths.
     let backend = args.backend.resolve()?;
     let (w, h) = read_dimensions(&args.image)?;
-    let config = NetworkWeights::load(&args.weights)?.config;
+    let weights = load_weights(args.weights.as_deref())?;
+    let config = &weights.config;
     let bytes = crate::memory::network_forward_bytes(h, w, config.channels, config.b1_stride);
     args.memory.check(&format!("the network on a {w}x{h} image"), bytes, "use a smaller image")?;
     if args.viz.as_ref() == Some(&args.out) {
@@ -70,7 +92,7 @@ pub fn run(args: FeaturesArgs) -> Result<()> {
     let mut staging = Staging::new();
     let out = staging.file(&args.out)?;
     let viz = args.viz.as_ref().map(|v| staging.file(v)).transpose()?;
-    let feats = features_of(&args.image, &args.weights, backend.as_ref())?;
+    let feats = features_with(&args.image, weights, backend.as_ref())?;
     write_npy_f32(&out, feats.view())?;
     if let Some(viz) = &viz {
         save_rgb_png(viz, &pca_rgb(feats.view())?)?;

@@ -60,6 +60,20 @@ fn fixture_regenerates_byte_identical() {
     }
 }
 
+#[test]
+fn demo_fixture_config_renders_the_committed_fixture() {
+    // What `densefeat demo` renders when the binary runs away from its source tree.
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = densefeat::synth::Scene::generate(&densefeat::cli::demo::fixture_config()).unwrap();
+    densefeat::synth::write_scene(&scene, tmp.path(), |_, _| {}).unwrap();
+    let (want, got) = (files(&fixture_dir()), files(tmp.path()));
+    let want: BTreeMap<_, _> = want.into_iter().filter(|(k, _)| !k.ends_with(".md")).collect();
+    assert_eq!(want.keys().collect::<Vec<_>>(), got.keys().collect::<Vec<_>>(), "file lists differ");
+    for (name, bytes) in &want {
+        assert!(bytes == &got[name], "{name} differs from the committed fixture");
+    }
+}
+
 fn small_config(seed: u64) -> SceneConfig {
     SceneConfig { seed, width: 96, height: 72, frames: 12, ..SceneConfig::default() }
 }

@@ -1,7 +1,7 @@
 //! `densefeat demo`: reconstruct a keyframe of the shipped synthetic fixture with RGB and learned
 //! features, winner-take-all and TV; print the table and write the pictures.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::Args;
 
@@ -9,6 +9,7 @@ use crate::error::Result;
 use crate::mapping::evaluate::{EvalOptions, Method};
 use crate::mapping::keyframe::Regularizer;
 use crate::mapping::FeatureKind;
+use crate::synth::{write_scene, Scene, SceneConfig, Style};
 
 use super::eval::{print_table, run_eval};
 use super::mapping_args::MappingArgs;
@@ -16,12 +17,26 @@ use super::mapping_args::MappingArgs;
 /// The shipped fixture, in the source tree.
 pub const FIXTURE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");
 
+/// The scene of the fixture: `densefeat synth --seed 1 --frames 40 --size 320x240` writes it byte for
+/// byte (tests/synth.rs, `fixture_regenerates_byte_identical`).
+pub fn fixture_config() -> SceneConfig {
+    SceneConfig {
+        seed: 1,
+        width: 320,
+        height: 240,
+        frames: 40,
+        style: Style::Classic,
+        ..SceneConfig::default()
+    }
+}
+
 /// Arguments of `densefeat demo` (all optional).
 #[derive(Debug, Clone, Args)]
 pub struct DemoArgs {
-    /// Sequence folder.
-    #[arg(long, default_value = FIXTURE)]
-    pub sequence: PathBuf,
+    /// Sequence folder. Default: the shipped fixture `fixtures/synthetic/room_s1`; a binary run away
+    /// from its source tree renders the same fixture (synthetic seed 1) into a temporary folder.
+    #[arg(long)]
+    pub sequence: Option<PathBuf>,
     /// Keyframe index.
     #[arg(long, default_value_t = 20)]
     pub keyframe: usize,
@@ -38,11 +53,20 @@ pub struct DemoArgs {
 /// # Errors
 /// Reading or writing errors.
 pub fn run(args: DemoArgs) -> Result<()> {
-    let seq = args.mapping.open_sequence(&args.sequence)?;
+    let rendered;
+    let sequence = match &args.sequence {
+        Some(path) => path.clone(),
+        None if Path::new(FIXTURE).is_dir() => PathBuf::from(FIXTURE),
+        None => {
+            rendered = RenderedFixture::new()?;
+            rendered.0.clone()
+        }
+    };
+    let seq = args.mapping.open_sequence(&sequence)?;
     let cfg = args.mapping.config(&seq, args.keyframe, FeatureKind::Rgb, Regularizer::Tv)?;
     println!(
         "demo: {} ({} frames), keyframe {}, window {},{}, {} bins over {}..{} m",
-        args.sequence.display(),
+        sequence.display(),
         seq.len(),
         args.keyframe,
         args.mapping.window.0,
@@ -68,4 +92,28 @@ pub fn run(args: DemoArgs) -> Result<()> {
         args.keyframe
     );
     Ok(())
+}
+
+/// The fixture rendered into a fresh temporary folder, removed again when dropped.
+struct RenderedFixture(PathBuf);
+
+impl RenderedFixture {
+    fn new() -> Result<Self> {
+        let dir = std::env::temp_dir().join(format!("densefeat-demo-room_s1-{}", std::process::id()));
+        let guard = Self(dir);
+        let _ = std::fs::remove_dir_all(&guard.0);
+        std::fs::create_dir_all(&guard.0).map_err(|e| crate::error::Error::io(&guard.0, e))?;
+        eprintln!(
+            "demo: {FIXTURE} is not here; rendering the same fixture (synthetic seed 1) into {}",
+            guard.0.display()
+        );
+        write_scene(&Scene::generate(&fixture_config())?, &guard.0, |_, _| {})?;
+        Ok(guard)
+    }
+}
+
+impl Drop for RenderedFixture {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }

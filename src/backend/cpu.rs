@@ -9,7 +9,7 @@ use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use crate::nn::alloc::zeroed_vec;
-use crate::nn::network::{conv_geometry, deconv_geometry};
+use crate::nn::network::{concat_conv_geometry, conv_geometry, deconv_geometry};
 use crate::nn::weights::LayerParams;
 use crate::nn::{
     add, concat_channels_into, conv2d_concat_into, conv2d_into, deconv2d_into, downsample2x, expect_shape,
@@ -133,8 +133,7 @@ impl Backend for CpuBackend {
     ) -> Result<Tensor> {
         let (a, b) = (host(self.name(), a)?, host(self.name(), b)?);
         crate::nn::downsample::check_same_spatial(a.shape(), b.shape())?;
-        let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
-        let g = conv_geometry((h, w, ca + cb), l, stride)?;
+        let g = concat_conv_geometry(a.dim(), b.dim(), l, stride)?;
         let imp = match self.network.conv {
             Conv2dImpl::Direct => Conv2dImpl::fastest_for(&g),
             other => other,

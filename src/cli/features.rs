@@ -10,7 +10,7 @@ use crate::backend::Backend;
 use crate::error::Result;
 use crate::image::{load_rgb, read_dimensions, save_rgb_png};
 use crate::io::{write_npy_f32, Staging};
-use crate::mapping::features::{SHIPPED_WEIGHTS, SHIPPED_WEIGHTS_NAME};
+use crate::mapping::features::load_weights;
 use crate::nn::viz::pca_rgb;
 use crate::nn::{FeatureNet, NetworkWeights};
 
@@ -39,18 +39,7 @@ pub struct FeaturesArgs {
     pub backend: BackendFlag,
 }
 
-/// The weights at `path`, or the shipped ones built into the binary for `None`.
-///
-/// # Errors
-/// Reading or format errors naming the file.
-pub fn load_weights(path: Option<&Path>) -> Result<NetworkWeights> {
-    match path {
-        Some(p) => NetworkWeights::load(p),
-        None => NetworkWeights::from_safetensors_bytes(SHIPPED_WEIGHTS, Path::new(SHIPPED_WEIGHTS_NAME)),
-    }
-}
-
-/// Computes the features of `image` with `weights` (see [`load_weights`]).
+/// Computes the features of `image` with the weights at `weights` (`None`: the shipped ones).
 ///
 /// # Errors
 /// Reading errors naming the file.

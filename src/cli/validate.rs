@@ -107,16 +107,10 @@ impl MemoryLimit {
 /// # Errors
 /// Weight-file errors naming the file.
 pub fn feature_channels(kind: &crate::mapping::FeatureKind) -> Result<(usize, usize)> {
-    use crate::mapping::features::{SHIPPED_WEIGHTS, SHIPPED_WEIGHTS_NAME};
     use crate::mapping::FeatureKind;
-    use crate::nn::NetworkWeights;
     let w = match kind {
         FeatureKind::Rgb => return Ok((3, 1)),
-        FeatureKind::Learned(None) => NetworkWeights::from_safetensors_bytes(
-            SHIPPED_WEIGHTS,
-            std::path::Path::new(SHIPPED_WEIGHTS_NAME),
-        )?,
-        FeatureKind::Learned(Some(p)) => NetworkWeights::load(p)?,
+        FeatureKind::Learned(path) => crate::mapping::features::load_weights(path.as_deref())?,
     };
     Ok((w.config.channels, w.config.b1_stride))
 }

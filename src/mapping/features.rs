@@ -27,6 +27,17 @@ pub const SHIPPED_WEIGHTS: &[u8] =
 /// Name the shipped weights carry in messages.
 pub const SHIPPED_WEIGHTS_NAME: &str = "fixtures/weights/featurenet_trained_b1s2.safetensors (built in)";
 
+/// The weights at `path`, or the shipped ones compiled into the binary for `None`.
+///
+/// # Errors
+/// Weight-file errors naming the file.
+pub fn load_weights(path: Option<&Path>) -> Result<NetworkWeights> {
+    match path {
+        Some(p) => NetworkWeights::load(p),
+        None => NetworkWeights::from_safetensors_bytes(SHIPPED_WEIGHTS, Path::new(SHIPPED_WEIGHTS_NAME)),
+    }
+}
+
 /// Which features to match.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum FeatureKind {
@@ -84,11 +95,7 @@ impl FeatureExtractor {
     pub fn new(kind: FeatureKind, level: u32, backend: Arc<dyn Backend>) -> Result<Self> {
         let net = match &kind {
             FeatureKind::Rgb => None,
-            FeatureKind::Learned(None) => Some(FeatureNet::new(NetworkWeights::from_safetensors_bytes(
-                SHIPPED_WEIGHTS,
-                Path::new(SHIPPED_WEIGHTS_NAME),
-            )?)?),
-            FeatureKind::Learned(Some(p)) => Some(FeatureNet::new(NetworkWeights::load(p)?)?),
+            FeatureKind::Learned(path) => Some(FeatureNet::new(load_weights(path.as_deref())?)?),
         };
         let net_level = net.as_ref().map(Self::output_level);
         Ok(Self { kind, backend, net, level, net_level })
@@ -108,8 +115,7 @@ impl FeatureExtractor {
     /// # Errors
     /// If the shipped weights fail to load (a build error, tested).
     pub fn network_level() -> Result<u32> {
-        let w = NetworkWeights::from_safetensors_bytes(SHIPPED_WEIGHTS, Path::new(SHIPPED_WEIGHTS_NAME))?;
-        Ok(w.config.block_level(0) as u32)
+        Ok(load_weights(None)?.config.block_level(0) as u32)
     }
 
     /// What it extracts.

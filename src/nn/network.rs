@@ -149,6 +149,20 @@ pub fn conv_geometry(
     Conv2dGeometry::new(h, w, c_in, layer.weight.shape()[0], stride)
 }
 
+/// The validated geometry of `layer` applied to `concat(a, b)` (shapes `(h, w, ca)`, `(h, w, cb)`):
+/// [`conv_geometry`] of `(h, w, ca + cb)`; the spatial match is the concatenation's to check.
+///
+/// # Errors
+/// As [`conv_geometry`].
+pub fn concat_conv_geometry(
+    (h, w, ca): (usize, usize, usize),
+    (_, _, cb): (usize, usize, usize),
+    layer: &LayerParams,
+    stride: usize,
+) -> Result<Conv2dGeometry> {
+    conv_geometry((h, w, ca + cb), layer, stride)
+}
+
 /// The validated geometry of `layer` (a 5x5 transposed conv, weight `[c_in, c_out, 5, 5]`) on a
 /// map of shape `(h, w, c_in)`.
 ///
@@ -266,8 +280,7 @@ impl Executor for PooledExecutor<'_> {
         stride: usize,
         act: Activation,
     ) -> Result<Tensor> {
-        let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
-        let [ho, wo, co] = conv_geometry((h, w, ca + cb), l, stride)?.output_shape();
+        let [ho, wo, co] = concat_conv_geometry(a.dim(), b.dim(), l, stride)?.output_shape();
         let spare = self.take_spare(ho * wo * co);
         self.backend.conv3x3_concat(a, b, l, stride, act, spare)
     }

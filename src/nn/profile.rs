@@ -6,7 +6,9 @@ use std::time::Instant;
 
 use ndarray::{Array3, ArrayView3};
 
-use super::network::{conv_geometry, deconv_geometry, run_network, Executor, PooledExecutor};
+use super::network::{
+    concat_conv_geometry, conv_geometry, deconv_geometry, run_network, Executor, PooledExecutor,
+};
 use super::weights::LayerParams;
 use super::{Activation, FeatureNet};
 use crate::backend::{Backend, Tensor};
@@ -74,8 +76,7 @@ impl Executor for ProfileExecutor<'_> {
         stride: usize,
         act: Activation,
     ) -> Result<Tensor> {
-        let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
-        let g = conv_geometry((h, w, ca + cb), l, stride)?;
+        let g = concat_conv_geometry(a.dim(), b.dim(), l, stride)?;
         let kind = format!("concat + conv s{stride} {}->{}", g.c_in(), g.c_out());
         self.record(kind, g.flops(), |e| e.concat_conv(a, b, l, stride, act))
     }

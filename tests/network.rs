@@ -391,3 +391,30 @@ fn repeated_forward_calls_are_bit_identical_to_fresh_ones() {
         }
     }
 }
+
+#[test]
+fn features_pass_equals_the_forward_passs_features() {
+    // SPEC §8.9: `FeatureNet::features` (the decoder releasing maps as it goes, the crop of rows
+    // done by truncation) gives `forward(..).aggregated[0]` bit for bit. Sizes that need no crop,
+    // rows only (width a multiple of the network's) and both; calls alternate with `forward` and
+    // change size, so the shared arena hands over truncated and regrown buffers; 1, 2, 3, 8 threads.
+    let cpu = CpuBackend::default();
+    for config in every_config(6).chain(every_config(32).filter(|c| c.blocks >= 4)) {
+        let net = FeatureNet::new(weights(&config, 31)).unwrap();
+        let m = 1usize << config.block_level(config.blocks - 1);
+        let sizes = [(2 * m, 3 * m), (2 * m + 3, 3 * m), (2 * m + 5, 3 * m + 1), (m.max(2) - 1, m + 2)];
+        for n in [1, 2, 3, 8] {
+            thread_pool(n).install(|| {
+                for (i, &(h, w)) in sizes.iter().chain(sizes.iter().rev()).enumerate() {
+                    let img = image(h, w, 31 + i as u64);
+                    let want = net.clone().forward(img.view(), &cpu).unwrap().aggregated.swap_remove(0);
+                    let got = net.features(img.view(), &cpu).unwrap();
+                    assert_eq!(got.dim(), want.dim(), "{config:?} {h}x{w}");
+                    assert_eq!(bits(&got), bits(&want), "{config:?} {h}x{w}, threads = {n}");
+                    let again = net.forward(img.view(), &cpu).unwrap().aggregated.swap_remove(0);
+                    assert_eq!(bits(&again), bits(&want), "forward after features, {config:?} {h}x{w}");
+                }
+            });
+        }
+    }
+}

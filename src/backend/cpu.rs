@@ -65,6 +65,30 @@ fn output_array(shape: [usize; 3], spare: Option<Tensor>) -> Array3<f32> {
     a
 }
 
+/// The first `h` rows of `a`: its own storage truncated when it is standard-layout from offset 0
+/// (row-major, so the rows are a prefix), else a copy.
+fn first_rows(a: Array3<f32>, h: usize) -> Array3<f32> {
+    if !a.is_standard_layout() {
+        return a.slice_move(s![..h, .., ..]).as_standard_layout().into_owned();
+    }
+    let (hx, w, c) = a.dim();
+    match a.into_raw_vec_and_offset() {
+        (mut v, Some(0) | None) => {
+            v.truncate(h * w * c);
+            let Ok(a) = Array3::from_shape_vec((h, w, c), v) else { unreachable!("h rows of w·c values") };
+            a
+        }
+        (v, Some(o)) => {
+            // Storage with a leading offset: copy the window out of it.
+            let rows = &v[o..o + hx * w * c];
+            let Ok(a) = Array3::from_shape_vec((h, w, c), rows[..h * w * c].to_vec()) else {
+                unreachable!("h rows of w·c values")
+            };
+            a
+        }
+    }
+}
+
 /// The host array of a tensor, or [`Error::Unsupported`] naming where it lives.
 pub(crate) fn host<'a>(backend: &str, x: &'a Tensor) -> Result<&'a Array3<f32>> {
     x.as_host().ok_or_else(|| Error::Unsupported {
@@ -154,12 +178,22 @@ impl Backend for CpuBackend {
     }
 
     fn deconv5x5s2_add(&self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+        self.deconv5x5s2_add_reusing(x, l, skip, None)
+    }
+
+    fn deconv5x5s2_add_reusing(
+        &self,
+        x: &Tensor,
+        l: &LayerParams,
+        skip: &Tensor,
+        spare: Option<Tensor>,
+    ) -> Result<Tensor> {
         let (x, skip) = (host(self.name(), x)?, host(self.name(), skip)?);
         let g = deconv_geometry(x.dim(), l)?;
         expect_shape("U-Net skip map", skip.shape(), &g.output_shape())?;
         let skip = skip.as_standard_layout();
         let Some(ss) = skip.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
-        let mut out = output_array(g.output_shape(), None);
+        let mut out = output_array(g.output_shape(), spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
         // Direct fuses the sum into its store; the others add in a second pass (same bits).
         deconv2d_into(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view(), Some(ss), o)?;
@@ -196,6 +230,15 @@ impl Backend for CpuBackend {
         if h > hx || w > wx {
             return Err(Error::invalid_argument("crop", format!("{h}x{w} window of a {hx}x{wx} map")));
         }
+        let x = if w == wx {
+            // Only rows go: a uniquely owned map keeps its storage, truncated (nothing copied).
+            match x.into_unique_host() {
+                Ok(a) => return Ok(Tensor::host(first_rows(a, h))),
+                Err(shared) => shared,
+            }
+        } else {
+            x
+        };
         Ok(Tensor::host(host(self.name(), &x)?.slice(s![..h, ..w, ..]).to_owned()))
     }
 

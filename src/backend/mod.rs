@@ -138,6 +138,21 @@ pub trait Backend: Send + Sync + Debug {
         let up = self.deconv5x5s2(x, layer)?;
         self.add(skip, &up)
     }
+    /// [`Backend::deconv5x5s2_add`] that may write into `spare`'s storage, as
+    /// [`Backend::conv3x3_reusing`]. The default drops `spare`.
+    ///
+    /// # Errors
+    /// As [`Backend::deconv5x5s2_add`].
+    fn deconv5x5s2_add_reusing(
+        &self,
+        x: &Tensor,
+        layer: &LayerParams,
+        skip: &Tensor,
+        spare: Option<Tensor>,
+    ) -> Result<Tensor> {
+        drop(spare);
+        self.deconv5x5s2_add(x, layer, skip)
+    }
     /// The 2x tent downsampling of SPEC.md §7.4.
     ///
     /// # Errors

@@ -107,12 +107,12 @@ fn run_forward(args: &ForwardArgs) -> Result<()> {
     let pool = pool(args.threads)?;
     let (ms, peak) = pool.install(|| -> Result<(f64, f64)> {
         for _ in 0..WARMUP {
-            net.forward(image.view(), backend)?;
+            net.features(image.view(), backend)?;
         }
         let mut times = Vec::with_capacity(args.runs);
         for _ in 0..args.runs {
             let start = Instant::now();
-            std::hint::black_box(net.forward(image.view(), backend)?);
+            std::hint::black_box(net.features(image.view(), backend)?);
             times.push(start.elapsed().as_secs_f64() * 1e3);
         }
         Ok((median(times), crate::perf::gemm_gflops(args.gemm_size, 10)))

@@ -58,8 +58,7 @@ fn features_with(
 ) -> Result<ndarray::Array3<f32>> {
     let net = FeatureNet::new(weights)?;
     let rgb = load_rgb(image)?;
-    let out = net.forward(rgb.view(), backend)?;
-    Ok(out.aggregated.into_iter().next().unwrap_or_default())
+    net.features(rgb.view(), backend)
 }
 
 /// Runs the command.

@@ -149,7 +149,7 @@ impl FeatureExtractor {
         let (h0, w0, _) = rgb.dim();
         let data = match (&self.net, self.net_level) {
             (Some(net), Some(nl)) => {
-                let f = net.forward(rgb.view(), self.backend.as_ref())?.aggregated.swap_remove(0);
+                let f = net.features(rgb.view(), self.backend.as_ref())?;
                 match self.level.cmp(&nl) {
                     std::cmp::Ordering::Equal => f,
                     std::cmp::Ordering::Greater => downsample_to(f.view(), self.level - nl)?,

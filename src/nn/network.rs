@@ -296,7 +296,9 @@ impl Executor for PooledExecutor<'_> {
         self.backend.add(a, b)
     }
     fn deconv_add(&mut self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
-        self.backend.deconv5x5s2_add(x, l, skip)
+        let (h, w, c) = skip.dim();
+        let spare = self.take_spare(h * w * c);
+        self.backend.deconv5x5s2_add_reusing(x, l, skip, spare)
     }
     fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
         BackendExecutor(self.backend).crop(x, h, w)
@@ -368,18 +370,15 @@ pub fn image_pyramid(
     Ok(levels)
 }
 
-/// The forward pass (SPEC.md §8.1-8.2) through any [`Executor`].
-///
-/// # Errors
-/// [`Error::InvalidArgument`] for a malformed image or weights that do not match their config.
-pub fn run_network<E: Executor>(
+/// The encoder of the forward pass (SPEC.md §8.1-8.2): every block's output, uncropped (on the
+/// padded input's grid).
+fn run_blocks<E: Executor>(
     exec: &mut E,
     weights: &NetworkWeights,
     image: ArrayView3<f32>,
-) -> Result<ForwardOutput<E::Map>> {
+) -> Result<Vec<E::Map>> {
     weights.validate()?;
     let config = &weights.config;
-    let (h, w, _) = image.dim();
     // Block k > 0 needs the image at block k-1's level; the deepest is the next-to-last block's.
     let max_level = if config.blocks > 1 { config.block_level(config.blocks - 2) } else { 0 };
     let pyramid = exec.pyramid(config, image, max_level)?;
@@ -398,6 +397,21 @@ pub fn run_network<E: Executor>(
         exec.release(x2);
         outs.push(out);
     }
+    Ok(outs)
+}
+
+/// The forward pass (SPEC.md §8.1-8.2) through any [`Executor`]: every block's output and every
+/// aggregated map, cropped (what training's deep supervision needs).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for a malformed image or weights that do not match their config.
+pub fn run_network<E: Executor>(
+    exec: &mut E,
+    weights: &NetworkWeights,
+    image: ArrayView3<f32>,
+) -> Result<ForwardOutput<E::Map>> {
+    let outs = run_blocks(exec, weights, image)?;
+    let config = &weights.config;
     // Decoder, coarse to fine: a_k = out_k + deconv_k(a_{k+1}).
     let mut aggregated: Vec<E::Map> = Vec::with_capacity(config.blocks);
     for k in (0..config.blocks).rev() {
@@ -408,6 +422,7 @@ pub fn run_network<E: Executor>(
         aggregated.push(a);
     }
     aggregated.reverse();
+    let (h, w, _) = image.dim();
     let shapes = config.output_shapes(h, w);
     // Maps are moved through the crop: at sizes that need no cropping nothing is copied.
     let crop_all = |exec: &mut E, maps: Vec<E::Map>| -> Vec<E::Map> {
@@ -416,6 +431,31 @@ pub fn run_network<E: Executor>(
     let blocks = crop_all(exec, outs);
     let aggregated = crop_all(exec, aggregated);
     Ok(ForwardOutput { blocks, aggregated })
+}
+
+/// The features alone, `aggregated[0]` of [`run_network`] (the same bits): the decoder releases
+/// each block output and coarser aggregate as soon as it is used, and only the features are
+/// cropped. What inference (`features`, the mapper, `bench forward`) runs.
+///
+/// # Errors
+/// As [`run_network`].
+pub fn run_features<E: Executor>(
+    exec: &mut E,
+    weights: &NetworkWeights,
+    image: ArrayView3<f32>,
+) -> Result<E::Map> {
+    let mut outs = run_blocks(exec, weights, image)?;
+    let Some(mut a) = outs.pop() else { unreachable!("validated weights have at least one block") };
+    // `outs.pop()` is block k's output, k = blocks - 2 down to 0.
+    while let Some(skip) = outs.pop() {
+        let next = exec.deconv_add(&a, &weights.deconvs[outs.len()], &skip)?;
+        exec.release(a);
+        exec.release(skip);
+        a = next;
+    }
+    let (h, w, _) = image.dim();
+    let [h0, w0, _] = weights.config.output_shapes(h, w)[0];
+    Ok(exec.crop(a, h0, w0))
 }
 
 /// The feature network with its weights.
@@ -482,11 +522,41 @@ impl FeatureNet {
         image: ArrayView3<f32>,
         backend: &dyn Backend,
     ) -> Result<ForwardOutput<Tensor>> {
-        // The arena starts with the last pass's leftovers (a concurrent pass on the same network
-        // simply starts with an empty one) and hands its own leftovers back.
+        self.with_arena(backend, |exec| run_network(exec, &self.weights, image))
+    }
+
+    /// The features alone (`forward(..).aggregated[0]`, the same bits) as a host map: what
+    /// inference needs, with less memory and work than [`FeatureNet::forward`] (SPEC.md §8.9).
+    ///
+    /// # Errors
+    /// As [`FeatureNet::forward`].
+    pub fn features(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<Array3<f32>> {
+        let t = self.features_tensor(image, backend)?;
+        match t.as_host() {
+            Some(_) => Ok(t.into_host().expect("host tensor")),
+            None => backend.download(&t),
+        }
+    }
+
+    /// [`FeatureNet::features`] leaving the map where `backend` computed it.
+    ///
+    /// # Errors
+    /// As [`FeatureNet::forward`].
+    pub fn features_tensor(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<Tensor> {
+        self.with_arena(backend, |exec| run_features(exec, &self.weights, image))
+    }
+
+    /// Runs `pass` on a [`PooledExecutor`] whose arena starts with the last pass's leftovers (a
+    /// concurrent pass on the same network simply starts with an empty one) and hands its own
+    /// leftovers back.
+    fn with_arena<T>(
+        &self,
+        backend: &dyn Backend,
+        pass: impl FnOnce(&mut PooledExecutor<'_>) -> Result<T>,
+    ) -> Result<T> {
         let spares = std::mem::take(&mut *self.spares.lock().unwrap_or_else(|e| e.into_inner()));
         let mut exec = PooledExecutor::with_spares(backend, spares);
-        let out = run_network(&mut exec, &self.weights, image)?;
+        let out = pass(&mut exec)?;
         *self.spares.lock().unwrap_or_else(|e| e.into_inner()) = exec.into_spares();
         Ok(out)
     }

@@ -7,7 +7,7 @@ use std::time::Instant;
 use ndarray::{Array3, ArrayView3};
 
 use super::network::{
-    concat_conv_geometry, conv_geometry, deconv_geometry, run_network, Executor, PooledExecutor,
+    concat_conv_geometry, conv_geometry, deconv_geometry, run_features, Executor, PooledExecutor,
 };
 use super::weights::LayerParams;
 use super::{Activation, FeatureNet};
@@ -122,8 +122,8 @@ pub fn profile_forward(
     let runs = runs.max(1);
     let start = Instant::now();
     for _ in 0..runs {
-        std::hint::black_box(run_network(&mut exec, net.weights(), image)?);
-        // The arena carries over from pass to pass, as in `FeatureNet::forward`.
+        std::hint::black_box(run_features(&mut exec, net.weights(), image)?);
+        // The arena carries over from pass to pass, as in `FeatureNet::features`.
     }
     let total = start.elapsed().as_secs_f64() * 1e3 / runs as f64;
     let n = runs as f64;

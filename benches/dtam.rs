@@ -27,6 +27,10 @@ fn dtam(c: &mut Criterion) {
         c.bench_function(&format!("cpu_dtam_step_320x240_k64_t{threads}"), |b| {
             b.iter(|| pool.install(|| tv.step(a.view(), th)))
         });
+        // One DTAM iteration's primal-dual steps (the mapping default runs 16 per a-search).
+        c.bench_function(&format!("cpu_dtam_16_steps_320x240_k64_t{threads}"), |b| {
+            b.iter(|| pool.install(|| tv.steps_with(a.view(), th, 16, Dispatch::Auto)))
+        });
         c.bench_function(&format!("cpu_dtam_search_320x240_k64_t{threads}"), |b| {
             b.iter(|| {
                 pool.install(|| exhaustive_search(costs.view(), &range, &bins, tv.primal(), th, p.lambda))

@@ -129,6 +129,8 @@ pub struct HuberTv {
     qy: Array2<f32>,
     g: Array2<f32>,
     eps: f64,
+    /// Scratch for [`HuberTv::steps_with`]: `(τ a) / θ` per pixel.
+    a_term: Vec<f64>,
 }
 
 impl HuberTv {
@@ -139,7 +141,7 @@ impl HuberTv {
     pub fn new(d0: Array2<f32>, g: Array2<f32>, eps: f64) -> Self {
         assert_eq!(d0.dim(), g.dim(), "edge weights must match the depth map");
         let zeros = Array2::zeros(d0.dim());
-        Self { d_bar: d0.clone(), d: d0, qx: zeros.clone(), qy: zeros, g, eps }
+        Self { d_bar: d0.clone(), d: d0, qx: zeros.clone(), qy: zeros, g, eps, a_term: Vec::new() }
     }
 
     /// The current primal `d`.
@@ -159,51 +161,77 @@ impl HuberTv {
     /// [`HuberTv::step`] with an explicit choice of kernel build; every build gives the same bits
     /// as [`HuberTv::step_reference`].
     ///
-    /// Two row-parallel passes over contiguous rows: the dual update of every row (reading `d̄`
-    /// rows `y, y+1`), then the primal update fused with the extrapolation `d̄ = 2d' - d` (reading
-    /// `q` and `g` rows `y-1, y`, forming `g q` in `f32` on the fly). The per-pixel arithmetic is
+    /// # Panics
+    /// If `a` differs in shape from `d`.
+    pub fn step_with(&mut self, a: ArrayView2<f32>, theta: f64, dispatch: Dispatch) {
+        self.steps_with(a, theta, 1, dispatch);
+    }
+
+    /// `n` primal-dual steps for the same `a` and `θ` (what one DTAM iteration runs between two
+    /// a-searches): the bits of `n` calls of [`HuberTv::step_reference`].
+    ///
+    /// The primal update's term `(τ a) / θ` depends on neither `d` nor `q`, so it is formed once
+    /// per pixel (the same f64 expression, so the same value) and read by every step. Each step is
+    /// two row-parallel passes over contiguous rows: the dual update of every row (reading `d̄` rows
+    /// `y, y+1`), then the primal update fused with the extrapolation `d̄ = 2d' - d` (reading `q`
+    /// and `g` rows `y-1, y`, forming `g q` in `f32` on the fly). The per-pixel arithmetic is
     /// exactly the reference's, term by term and in the same order.
     ///
     /// # Panics
     /// If `a` differs in shape from `d`.
-    pub fn step_with(&mut self, a: ArrayView2<f32>, theta: f64, dispatch: Dispatch) {
+    pub fn steps_with(&mut self, a: ArrayView2<f32>, theta: f64, n: usize, dispatch: Dispatch) {
         assert_eq!(a.dim(), self.d.dim(), "a must match d");
         let (h, w) = self.d.dim();
-        if h == 0 || w == 0 {
+        if h == 0 || w == 0 || n == 0 {
             return;
         }
         let a = a.as_standard_layout();
         let a = a.as_slice().expect("standard layout is contiguous");
         let avx512 = dispatch.use_avx512();
         let k = Coefficients::new(self.eps, theta);
+        let mut a_term = std::mem::take(&mut self.a_term);
+        a_term.resize(h * w, 0.0);
+        a_term.par_chunks_mut(w).zip(a.par_chunks(w)).for_each(|(t, a)| {
+            for (t, &a) in t.iter_mut().zip(a) {
+                *t = STEP * a as f64 / theta;
+            }
+        });
+        for _ in 0..n {
+            self.one_step(&a_term, &k, avx512);
+        }
+        self.a_term = a_term;
+    }
+
+    /// One step of [`HuberTv::steps_with`] (`a_term` = `(τ a) / θ`, row-major).
+    fn one_step(&mut self, a_term: &[f64], k: &Coefficients, avx512: bool) {
+        let (h, w) = self.d.dim();
         let (d_bar, g) = (self.d_bar.as_slice().expect("contiguous"), self.g.as_slice().expect("contiguous"));
         let qx = self.qx.as_slice_mut().expect("owned arrays are contiguous");
         let qy = self.qy.as_slice_mut().expect("owned arrays are contiguous");
         qx.par_chunks_mut(w).zip(qy.par_chunks_mut(w)).enumerate().for_each(|(y, (rx, ry))| {
             let below = (y + 1 < h).then(|| &d_bar[(y + 1) * w..][..w]);
             let rows = DualRows { qx: rx, qy: ry, d_bar: &d_bar[y * w..][..w], below, g: &g[y * w..][..w] };
-            kernels::dual_row(rows, &k, avx512);
+            kernels::dual_row(rows, k, avx512);
         });
         let (qx, qy) = (self.qx.as_slice().expect("contiguous"), self.qy.as_slice().expect("contiguous"));
         let d = self.d.as_slice_mut().expect("owned arrays are contiguous");
         let d_bar = self.d_bar.as_slice_mut().expect("owned arrays are contiguous");
         d.par_chunks_mut(w).zip(d_bar.par_chunks_mut(w)).enumerate().for_each(|(y, (rd, rb))| {
-            fn row(v: &[f32], y: usize, w: usize) -> &[f32] {
+            fn row<T>(v: &[T], y: usize, w: usize) -> &[T] {
                 &v[y * w..][..w]
             }
-            let row = |v, y| row(v, y, w);
-            let above = (y > 0).then(|| (row(qy, y - 1), row(g, y - 1)));
+            let above = (y > 0).then(|| (row(qy, y - 1, w), row(g, y - 1, w)));
             let rows = PrimalRows {
                 d: rd,
                 d_bar: rb,
-                qx: row(qx, y),
-                qy: row(qy, y),
-                g: row(g, y),
+                qx: row(qx, y, w),
+                qy: row(qy, y, w),
+                g: row(g, y, w),
                 above,
                 has_below: y + 1 < h,
-                a: row(a, y),
+                a_term: row(a_term, y, w),
             };
-            kernels::primal_row(rows, &k, avx512);
+            kernels::primal_row(rows, k, avx512);
         });
     }
 
@@ -309,15 +337,13 @@ impl HuberTv {
 struct Coefficients {
     /// `1 + σ ε`.
     dual_den: f64,
-    /// `θ`.
-    theta: f64,
     /// `1 + τ / θ`.
     primal_den: f64,
 }
 
 impl Coefficients {
     fn new(eps: f64, theta: f64) -> Self {
-        Self { dual_den: 1.0 + STEP * eps, theta, primal_den: 1.0 + STEP / theta }
+        Self { dual_den: 1.0 + STEP * eps, primal_den: 1.0 + STEP / theta }
     }
 }
 
@@ -341,7 +367,8 @@ struct PrimalRows<'a> {
     g: &'a [f32],
     above: Option<(&'a [f32], &'a [f32])>,
     has_below: bool,
-    a: &'a [f32],
+    /// `(τ a) / θ`.
+    a_term: &'a [f64],
 }
 
 /// The row kernels of [`HuberTv::step_with`]: generic bodies (`#[inline(always)]`) instantiated once
@@ -450,11 +477,11 @@ mod kernels {
         -div
     }
 
-    /// `d' ← (d - τ kt + τ a / θ) / (1 + τ / θ)`, `d̄ ← 2 d' - d` at one pixel.
+    /// `d' ← (d - τ kt + τ a / θ) / (1 + τ / θ)`, `d̄ ← 2 d' - d` at one pixel (`at` = `(τ a) / θ`).
     #[inline(always)]
-    fn primal_px(d: &mut f32, d_bar: &mut f32, kt: f64, a: f32, k: &Coefficients) {
+    fn primal_px(d: &mut f32, d_bar: &mut f32, kt: f64, at: f64, k: &Coefficients) {
         let old = *d;
-        let new = ((old as f64 - STEP * kt + STEP * a as f64 / k.theta) / k.primal_den) as f32;
+        let new = ((old as f64 - STEP * kt + at) / k.primal_den) as f32;
         *d = new;
         *d_bar = 2.0 * new - old;
     }
@@ -462,7 +489,7 @@ mod kernels {
     #[inline(always)]
     fn primal_row_any(rows: PrimalRows, k: &Coefficients) {
         let (qy_up, g_up) = rows.above.unwrap_or((rows.qy, rows.g));
-        let r = (rows.d, rows.d_bar, rows.qx, rows.qy, rows.g, qy_up, g_up, rows.a);
+        let r = (rows.d, rows.d_bar, rows.qx, rows.qy, rows.g, qy_up, g_up, rows.a_term);
         match (rows.has_below, rows.above.is_some()) {
             (true, true) => primal_body::<true, true>(r, k),
             (true, false) => primal_body::<true, false>(r, k),
@@ -472,7 +499,7 @@ mod kernels {
     }
 
     type PrimalSlices<'a> =
-        (&'a mut [f32], &'a mut [f32], &'a [f32], &'a [f32], &'a [f32], &'a [f32], &'a [f32], &'a [f32]);
+        (&'a mut [f32], &'a mut [f32], &'a [f32], &'a [f32], &'a [f32], &'a [f32], &'a [f32], &'a [f64]);
 
     /// One row of the primal update; `DOWN` / `UP`: whether the next / previous row exists.
     #[inline(always)]

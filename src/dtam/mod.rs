@@ -288,9 +288,7 @@ pub fn solve_with(
     let range = CostRange::new(costs);
     Ok(iterate(start, grey, init, params, bins, |n, tv, a| {
         let theta = params.theta(n);
-        for _ in 0..params.steps_per_search {
-            tv.step_with(a.view(), theta, dispatch);
-        }
+        tv.steps_with(a.view(), theta, params.steps_per_search, dispatch);
         let m = search_with_energy(costs, &range, bins, tv, theta, params.lambda, a, dispatch);
         (m.energy, m.gap)
     }))

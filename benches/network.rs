@@ -1,6 +1,8 @@
 //! Forward pass of the feature network (SPEC.md §8) at 320x240, block-1 stride 1 and 2, with the
 //! fast kernels. Throughput is in elements = FLOPs (`FeatureNet::flops`), so criterion's "elem/s"
-//! reads as FLOP/s. Names: `fast_featurenet_<w>x<h>_b1s<stride>`.
+//! reads as FLOP/s. Names: `fast_featurenet_<w>x<h>_b1s<stride>`. Also the mapper's level-0
+//! learned features: the network's level-1 output (32 channels) upsampled 2x to 640x480
+//! (`mapping::features::upsample_to` and its per-pixel definition, SPEC.md §11.1).
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use densefeat::backend::CpuBackend;
@@ -32,5 +34,20 @@ fn bench_forward(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_forward);
+fn bench_upsample(c: &mut Criterion) {
+    use densefeat::mapping::features::{upsample_to, upsample_to_reference};
+    let mut group = c.benchmark_group("level0_features");
+    group.sample_size(20);
+    let x = Array3::from_shape_fn((240, 320, 32), |(y, x, ch)| ((x * 7 + y * 13 + ch * 61) % 256) as f32);
+    group.throughput(Throughput::Elements((480 * 640 * 32) as u64));
+    group.bench_function("upsample_320x240x32_to_640x480", |b| {
+        b.iter(|| black_box(upsample_to(black_box(x.view()), 1, 480, 640)))
+    });
+    group.bench_function("upsample_reference_320x240x32_to_640x480", |b| {
+        b.iter(|| black_box(upsample_to_reference(black_box(x.view()), 1, 480, 640)))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_forward, bench_upsample);
 criterion_main!(benches);

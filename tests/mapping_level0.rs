@@ -11,7 +11,7 @@ use densefeat::costvolume::{
 use densefeat::dtam::{solve, DtamParams, MAPPING_DEFAULTS, REFERENCE_WIDTH};
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use densefeat::mapping::evaluate::{evaluate, EvalOptions, Method};
-use densefeat::mapping::features::upsample_to;
+use densefeat::mapping::features::{upsample_to, upsample_to_reference};
 use densefeat::mapping::keyframe::{memory_estimate, reconstruct, KeyframeConfig};
 use densefeat::mapping::{FeatureExtractor, FeatureKind};
 use densefeat::sequence::open;
@@ -60,6 +60,39 @@ fn upsampling_reproduces_bilinear_on_the_integer_centre_grid() {
     let a = threads(1, || upsample_to(noise.view(), 1, 12, 18));
     for n in [2, 3, 8] {
         assert_eq!(a, threads(n, || upsample_to(noise.view(), 1, 12, 18)), "{n} threads");
+    }
+}
+
+#[test]
+fn upsampling_equals_its_per_pixel_definition_bit_for_bit() {
+    // The row kernel (column corners formed once, contiguous channel loop, AVX-512F build where the
+    // CPU has it) against `sample_bilinear` per pixel: channel counts around the vector widths,
+    // one-pixel-wide and -high maps, 1 and 2 levels, outputs reaching past the coarse grid,
+    // special values.
+    let mut r = stream(11);
+    for (h, w, c, levels, oh, ow) in [
+        (5, 7, 32, 1, 10, 14),
+        (4, 6, 3, 1, 7, 11),
+        (1, 5, 9, 1, 2, 10),
+        (6, 1, 17, 2, 24, 3),
+        (3, 4, 1, 2, 9, 13),
+        (2, 2, 35, 1, 4, 4),
+    ] {
+        let specials = [f32::NAN, f32::INFINITY, -0.0, 1e-40, -3.0e38];
+        let x = Array3::from_shape_fn((h, w, c), |_| {
+            let v = r();
+            if v < 0.03 {
+                specials[(v * 1000.0) as usize % specials.len()]
+            } else {
+                (v * 200.0 - 100.0) as f32
+            }
+        });
+        let got = upsample_to(x.view(), levels, oh, ow);
+        let want = upsample_to_reference(x.view(), levels, oh, ow);
+        assert_eq!(got.dim(), want.dim());
+        for (a, b) in got.iter().zip(&want) {
+            assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()), "{h}x{w}x{c}: {a} vs {b}");
+        }
     }
 }
 

@@ -185,8 +185,8 @@ pub fn downsample_to(x: ArrayView3<f32>, level: u32) -> Result<Array3<f32>> {
 /// the thread count.
 ///
 /// The bits of [`upsample_to_reference`] (which calls [`sample_bilinear`] per pixel): the corners
-/// and weights of every column are formed once by the same [`axis`] rule, those of a row once per
-/// row, and each channel is the same expression `((w00 I00 + w10 I10) + w01 I01) + w11 I11` in f64
+/// and weights of every column are formed once by [`sample_bilinear`]'s corner rule, those of a row
+/// once per row, and each channel is the same expression `((w00 I00 + w10 I10) + w01 I01) + w11 I11` in f64
 /// (no fused multiply-add), read from contiguous rows, so the channel loop vectorises (AVX-512F
 /// build where the CPU has it).
 ///

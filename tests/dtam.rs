@@ -14,7 +14,7 @@ use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
 use densefeat::image::to_gray;
 use densefeat::synth::{Quad, Scene, Shape, Surface, Texture};
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
-use ndarray::{Array2, Array3};
+use ndarray::{Array2, Array3, ArrayView2};
 use proptest::prelude::*;
 
 /// A deterministic pseudo-random stream from a seed (tests only).
@@ -206,6 +206,21 @@ fn fused_pass_equals_the_reference_functions() {
     }
 }
 
+/// Both fast builds' primal `d` and primal-dual gap (hence `q`) equal the reference's bit for bit.
+fn assert_builds_match(
+    reference: &HuberTv,
+    builds: [&HuberTv; 2],
+    a: ArrayView2<f32>,
+    theta: f64,
+    what: &str,
+) {
+    let bits = |tv: &HuberTv| tv.primal().mapv(f32::to_bits);
+    for (tv, name) in builds.into_iter().zip(["auto", "portable"]) {
+        assert_eq!(bits(tv), bits(reference), "{what}, {name}");
+        assert_eq!(tv.gap(a, theta), reference.gap(a, theta), "{what}, {name}: dual differs");
+    }
+}
+
 #[test]
 fn step_equals_the_reference_step() {
     for (h, w) in [(1, 1), (1, 7), (6, 1), (2, 2), (17, 29)] {
@@ -222,22 +237,21 @@ fn step_equals_the_reference_step() {
             reference.step_reference(a.view(), theta);
             auto.step_with(a.view(), theta, Dispatch::Auto);
             portable.step_with(a.view(), theta, Dispatch::Portable);
-            let bits = |tv: &HuberTv| tv.primal().mapv(f32::to_bits);
-            assert_eq!(bits(&auto), bits(&reference), "{h}x{w}, step {n}");
-            assert_eq!(bits(&portable), bits(&reference), "{h}x{w}, step {n}");
-            let gap = |tv: &HuberTv| tv.gap(a.view(), theta);
-            assert_eq!(gap(&auto), gap(&reference), "{h}x{w}, step {n}: dual differs");
-            assert_eq!(gap(&portable), gap(&reference), "{h}x{w}, step {n}: dual differs");
+            assert_builds_match(
+                &reference,
+                [&auto, &portable],
+                a.view(),
+                theta,
+                &format!("{h}x{w}, step {n}"),
+            );
         }
     }
 }
 
 #[test]
 fn several_steps_equal_as_many_reference_steps() {
-    // `steps_with` forms `(τ a) / θ` once for its n steps, and the dual update skips the
-    // projection's square root and divisions for groups of 8 pixels inside the unit ball: both
-    // must leave the reference's bits. Rows wider than a group, a map with steep jumps (so some
-    // groups project and some do not) and a smooth one, n = 1, 4, 16.
+    // `steps_with` forms `(τ a) / θ` once for its n steps: it must leave the reference's bits.
+    // Maps with steep jumps (the dual projection active) and a smooth one, n = 1, 4, 16.
     for (h, w, jump) in [(3, 40, 5.0), (17, 29, 0.2), (1, 9, 3.0), (5, 17, 0.0), (9, 8, 2.0)] {
         let mut r = stream((h * 1000 + w) as u64);
         let init = Array2::from_shape_fn((h, w), |(y, x)| {
@@ -256,12 +270,8 @@ fn several_steps_equal_as_many_reference_steps() {
             }
             auto.steps_with(a.view(), theta, n, Dispatch::Auto);
             portable.steps_with(a.view(), theta, n, Dispatch::Portable);
-            let bits = |tv: &HuberTv| tv.primal().mapv(f32::to_bits);
-            assert_eq!(bits(&auto), bits(&reference), "{h}x{w}, {n} steps at θ {theta}");
-            assert_eq!(bits(&portable), bits(&reference), "{h}x{w}, {n} steps at θ {theta}");
-            let gap = |tv: &HuberTv| tv.gap(a.view(), theta);
-            assert_eq!(gap(&auto), gap(&reference), "{h}x{w}: dual differs");
-            assert_eq!(gap(&portable), gap(&reference), "{h}x{w}: dual differs");
+            let what = format!("{h}x{w}, {n} steps at θ {theta}");
+            assert_builds_match(&reference, [&auto, &portable], a.view(), theta, &what);
         }
     }
 }

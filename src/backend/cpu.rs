@@ -65,28 +65,18 @@ fn output_array(shape: [usize; 3], spare: Option<Tensor>) -> Array3<f32> {
     a
 }
 
-/// The first `h` rows of `a`: its own storage truncated when it is standard-layout from offset 0
-/// (row-major, so the rows are a prefix), else a copy.
+/// The first `h` rows of `a`: its own storage, truncated, when it is standard-layout (row-major, so
+/// the rows are a prefix of its data), else a copy.
 fn first_rows(a: Array3<f32>, h: usize) -> Array3<f32> {
     if !a.is_standard_layout() {
         return a.slice_move(s![..h, .., ..]).as_standard_layout().into_owned();
     }
-    let (hx, w, c) = a.dim();
-    match a.into_raw_vec_and_offset() {
-        (mut v, Some(0) | None) => {
-            v.truncate(h * w * c);
-            let Ok(a) = Array3::from_shape_vec((h, w, c), v) else { unreachable!("h rows of w·c values") };
-            a
-        }
-        (v, Some(o)) => {
-            // Storage with a leading offset: copy the window out of it.
-            let rows = &v[o..o + hx * w * c];
-            let Ok(a) = Array3::from_shape_vec((h, w, c), rows[..h * w * c].to_vec()) else {
-                unreachable!("h rows of w·c values")
-            };
-            a
-        }
-    }
+    let (_, w, c) = a.dim();
+    let (mut v, offset) = a.into_raw_vec_and_offset();
+    v.drain(..offset.unwrap_or(0));
+    v.truncate(h * w * c);
+    let Ok(a) = Array3::from_shape_vec((h, w, c), v) else { unreachable!("h rows of w·c values") };
+    a
 }
 
 /// The host array of a tensor, or [`Error::Unsupported`] naming where it lives.
@@ -289,5 +279,27 @@ impl VolumeBuilder for CpuVolume {
 
     fn finish(self: Box<Self>) -> Result<CostVolume> {
         Ok(self.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `first_rows` keeps the top rows bit for bit whatever the storage: from offset 0, from an
+    /// array whose data starts past the allocation's start (rows sliced off the top), and from a
+    /// non-standard layout (transposed).
+    #[test]
+    fn first_rows_are_the_top_window_for_every_storage() {
+        let full = Array3::from_shape_fn((6, 4, 3), |(y, x, c)| (100 * y + 10 * x + c) as f32);
+        let want = |a: &Array3<f32>, h: usize| a.slice(s![..h, .., ..]).to_owned();
+        assert_eq!(first_rows(full.clone(), 4), want(&full, 4));
+        let offset = full.clone().slice_move(s![2.., .., ..]);
+        assert!(offset.is_standard_layout());
+        assert_eq!(first_rows(offset.clone(), 3), want(&offset, 3));
+        let transposed = full.clone().permuted_axes([1, 0, 2]);
+        assert!(!transposed.is_standard_layout());
+        assert_eq!(first_rows(transposed.clone(), 2), want(&transposed, 2));
+        assert_eq!(first_rows(full.clone(), 0).dim(), (0, 4, 3));
     }
 }

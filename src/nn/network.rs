@@ -458,6 +458,14 @@ pub fn run_features<E: Executor>(
     Ok(exec.crop(a, h0, w0))
 }
 
+/// `t`'s host array: moved out when it is on the host, else downloaded from `backend`.
+fn to_host(t: Tensor, backend: &dyn Backend) -> Result<Array3<f32>> {
+    match t.as_host() {
+        Some(_) => Ok(t.into_host().expect("host tensor")),
+        None => backend.download(&t),
+    }
+}
+
 /// The feature network with its weights.
 #[derive(Debug)]
 pub struct FeatureNet {
@@ -503,12 +511,7 @@ impl FeatureNet {
     pub fn forward(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<ForwardOutput> {
         let out = self.forward_tensors(image, backend)?;
         let down = |maps: Vec<Tensor>| -> Result<Vec<Array3<f32>>> {
-            maps.into_iter()
-                .map(|t| match t.as_host() {
-                    Some(_) => Ok(t.into_host().expect("host tensor")),
-                    None => backend.download(&t),
-                })
-                .collect()
+            maps.into_iter().map(|t| to_host(t, backend)).collect()
         };
         Ok(ForwardOutput { blocks: down(out.blocks)?, aggregated: down(out.aggregated)? })
     }
@@ -531,11 +534,7 @@ impl FeatureNet {
     /// # Errors
     /// As [`FeatureNet::forward`].
     pub fn features(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<Array3<f32>> {
-        let t = self.features_tensor(image, backend)?;
-        match t.as_host() {
-            Some(_) => Ok(t.into_host().expect("host tensor")),
-            None => backend.download(&t),
-        }
+        to_host(self.features_tensor(image, backend)?, backend)
     }
 
     /// [`FeatureNet::features`] leaving the map where `backend` computed it.

@@ -38,6 +38,16 @@ impl CpuBackend {
         Self { network, ..Self::default() }
     }
 
+    /// The convolution implementation this backend runs for `geom`: with `network.conv =
+    /// Direct` (the product's choice) [`Conv2dImpl::fastest_for`] the layer (Winograd, Direct or
+    /// im2col, SPEC.md §7.11), otherwise `network.conv` itself.
+    pub fn conv_impl_for(&self, geom: &crate::nn::Conv2dGeometry) -> Conv2dImpl {
+        match self.network.conv {
+            Conv2dImpl::Direct => Conv2dImpl::fastest_for(geom),
+            other => other,
+        }
+    }
+
     /// The f64 reference kernels everywhere (single-threaded and slow: the oracle).
     pub fn reference() -> Self {
         Self { network: NetworkImpl::REFERENCE, volume: CostVolumeImpl::Reference }
@@ -126,10 +136,7 @@ impl Backend for CpuBackend {
     ) -> Result<Tensor> {
         let x = host(self.name(), x)?;
         let g = conv_geometry(x.dim(), l, stride)?;
-        let imp = match self.network.conv {
-            Conv2dImpl::Direct => Conv2dImpl::fastest_for(&g),
-            other => other,
-        };
+        let imp = self.conv_impl_for(&g);
         let mut out = output_array(g.output_shape(), spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
         conv2d_into(imp, &g, x.view(), l.weight.view(), l.bias.view(), act, o)?;
@@ -148,10 +155,7 @@ impl Backend for CpuBackend {
         let (a, b) = (host(self.name(), a)?, host(self.name(), b)?);
         crate::nn::downsample::check_same_spatial(a.shape(), b.shape())?;
         let g = concat_conv_geometry(a.dim(), b.dim(), l, stride)?;
-        let imp = match self.network.conv {
-            Conv2dImpl::Direct => Conv2dImpl::fastest_for(&g),
-            other => other,
-        };
+        let imp = self.conv_impl_for(&g);
         let mut out = output_array(g.output_shape(), spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
         conv2d_concat_into(imp, &g, a.view(), b.view(), l.weight.view(), l.bias.view(), act, o)?;

@@ -4,8 +4,9 @@
 //! An entry is found by the address of the weight's data and kept only while the weight and bias
 //! are bit-for-bit those it was packed from (compared on every lookup, a few µs per layer), so a
 //! weight updated in place (training) or a new array at a reused address is repacked: a hit is
-//! always the packing of the values passed. Packing is a pure permutation of the values, so cached
-//! and fresh packings are identical and results never depend on the cache. The cache holds at most
+//! always the packing of the values passed. Packing is a pure permutation of the values (the
+//! Winograd weight transform, [`PackedWinograd`], a fixed f64 computation), so cached and fresh
+//! packings are identical and results never depend on the cache. The cache holds at most
 //! [`MAX_LAYERS`] layers per kind and starts over when full (like the GPU backend's weight cache).
 
 use std::sync::Mutex;
@@ -13,7 +14,7 @@ use std::sync::Mutex;
 use ndarray::{ArrayView1, ArrayView4};
 
 use crate::error::Result;
-use crate::nn::conv2d::PackedConv2d;
+use crate::nn::conv2d::{PackedConv2d, PackedWinograd};
 use crate::nn::deconv2d::PackedDeconv2d;
 use crate::nn::geometry::{Conv2dGeometry, Deconv2dGeometry};
 
@@ -30,6 +31,7 @@ struct Entry<P> {
 
 static CONV: Mutex<Vec<Entry<PackedConv2d>>> = Mutex::new(Vec::new());
 static DECONV: Mutex<Vec<Entry<PackedDeconv2d>>> = Mutex::new(Vec::new());
+static WINOGRAD: Mutex<Vec<Entry<PackedWinograd>>> = Mutex::new(Vec::new());
 
 /// The bit patterns of `v`, without a copy.
 fn bits(v: &[f32]) -> &[u32] {
@@ -98,4 +100,18 @@ pub fn packed_deconv(
     crate::nn::expect_shape("deconv2d weight", weight.shape(), &geom.weight_shape())?;
     crate::nn::expect_shape("deconv2d bias", bias.shape(), &[geom.c_out()])?;
     lookup(&DECONV, weight, bias, || PackedDeconv2d::new(geom, weight, bias), |p| p.with_geometry(geom))
+}
+
+/// [`PackedWinograd::new`]`(geom, weight, bias)`, transformed once per distinct weight.
+///
+/// # Errors
+/// As [`PackedWinograd::new`].
+pub fn packed_winograd(
+    geom: &Conv2dGeometry,
+    weight: ArrayView4<f32>,
+    bias: ArrayView1<f32>,
+) -> Result<PackedWinograd> {
+    crate::nn::expect_shape("conv2d weight", weight.shape(), &geom.weight_shape())?;
+    crate::nn::expect_shape("conv2d bias", bias.shape(), &[geom.c_out()])?;
+    lookup(&WINOGRAD, weight, bias, || PackedWinograd::new(geom, weight, bias), |p| p.with_geometry(geom))
 }

@@ -39,6 +39,9 @@ pub(crate) mod direct_avx512;
 pub mod direct_concat;
 pub mod im2col;
 pub mod reference;
+pub mod winograd;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod winograd_avx512;
 
 use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};
 
@@ -50,9 +53,13 @@ pub use direct::{conv2d_direct, conv2d_direct_with, DirectKernel};
 pub use direct_concat::conv2d_direct_concat_with;
 pub use im2col::{conv2d_im2col, scratch_len, PackedConv2d};
 pub use reference::conv2d_reference;
+pub use winograd::{
+    conv2d_winograd, conv2d_winograd_with, winograd_budget, winograd_magnitude_reference, PackedWinograd,
+    WinogradKernel,
+};
 
 use crate::error::Result;
-use crate::nn::pack_cache::packed_conv;
+use crate::nn::pack_cache::{packed_conv, packed_winograd};
 use crate::nn::{concat_channels, default_lanes, expect_len, expect_shape, Activation, Conv2dGeometry};
 
 /// Which conv2d implementation to run. Every variant is always compiled and always tested.
@@ -70,11 +77,23 @@ pub enum Conv2dImpl {
     /// (6 pixels x 16 channels) where the CPU has those, otherwise a portable Rust loop;
     /// [`direct::kernel_name`] says which.
     Direct,
+    /// Winograd F(2x2, 3x3) for **stride-1** layers ([`conv2d_winograd`], SPEC.md §7.11): 2.25x fewer
+    /// multiplications, parallel over tile rows, its own error budget ([`winograd_budget`]). Runs
+    /// the AVX-512F kernel when the CPU has AVX-512F and `c_out = 32`, else a portable one with the
+    /// same bits. A stride-2 geometry is an [`crate::Error::InvalidArgument`].
+    Winograd,
 }
 
 impl Conv2dImpl {
     /// Every implementation, for tests and benches.
-    pub const ALL: [Conv2dImpl; 3] = [Conv2dImpl::Reference, Conv2dImpl::Im2colGemm, Conv2dImpl::Direct];
+    pub const ALL: [Conv2dImpl; 4] =
+        [Conv2dImpl::Reference, Conv2dImpl::Im2colGemm, Conv2dImpl::Direct, Conv2dImpl::Winograd];
+
+    /// Whether this implementation can run `geom` (every one but [`Conv2dImpl::Winograd`] runs
+    /// every geometry; Winograd needs stride 1).
+    pub fn supports(self, geom: &Conv2dGeometry) -> bool {
+        self != Conv2dImpl::Winograd || geom.stride() == 1
+    }
 
     /// The fastest implementation for the network's layers (all with `c_out = 32`) on this CPU:
     /// [`Conv2dImpl::Direct`] when the CPU has AVX-512F or AVX2+FMA (its micro-kernels then run
@@ -89,16 +108,24 @@ impl Conv2dImpl {
         }
     }
 
-    /// The fastest implementation for `geom` on this CPU: [`Conv2dImpl::Direct`] when one of its
-    /// SIMD kernels (AVX-512F, AVX2+FMA) runs `geom`, otherwise [`Conv2dImpl::Im2colGemm`].
+    /// The fastest implementation for `geom` on this CPU (SPEC.md §7.11 has the measurements):
+    /// [`Conv2dImpl::Winograd`] for stride-1 layers with `c_in >= WINOGRAD_MIN_C_IN` where its
+    /// AVX-512F kernel runs (`c_out = 32`); else [`Conv2dImpl::Direct`] when one of its SIMD
+    /// kernels (AVX-512F, AVX2+FMA) runs `geom`; otherwise [`Conv2dImpl::Im2colGemm`].
     pub fn fastest_for(geom: &Conv2dGeometry) -> Conv2dImpl {
-        if DirectKernel::select(geom) != DirectKernel::Portable {
+        if geom.c_in() >= WINOGRAD_MIN_C_IN && WinogradKernel::Avx512F.supports(geom) {
+            Conv2dImpl::Winograd
+        } else if DirectKernel::select(geom) != DirectKernel::Portable {
             Conv2dImpl::Direct
         } else {
             Conv2dImpl::Im2colGemm
         }
     }
 }
+
+/// The fewest input channels for which [`Conv2dImpl::fastest_for`] picks Winograd: below it the
+/// transforms cost more than the saved multiplications (the network's `3 -> 32` layer).
+pub const WINOGRAD_MIN_C_IN: usize = 16;
 
 impl Default for Conv2dImpl {
     /// [`Conv2dImpl::fastest`].
@@ -170,6 +197,12 @@ pub fn conv2d_into(
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
             conv2d_direct(&packed, x, activation, out).map(|_| ())
+        }
+        Conv2dImpl::Winograd => {
+            let packed = packed_winograd(geom, weight, bias)?;
+            let input = input.as_standard_layout();
+            let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
+            conv2d_winograd(&packed, x, activation, out).map(|_| ())
         }
     }
 }

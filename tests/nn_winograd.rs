@@ -1,0 +1,199 @@
+//! Winograd F(2x2, 3x3) convolution (SPEC.md §7.11): within its budget of the f64 reference, the
+//! same bits from every kernel and any thread count, exact where the arithmetic is exact.
+
+use densefeat::nn::conv2d::{
+    conv2d_winograd_with, winograd_budget, winograd_magnitude_reference, PackedWinograd, WinogradKernel,
+};
+use densefeat::nn::{conv2d, Activation, Conv2dGeometry, Conv2dImpl};
+use densefeat::testing::within_budget;
+use ndarray::{Array1, Array3, Array4, Dimension};
+use proptest::prelude::*;
+
+/// Values in [-1, 1) from a seeded LCG.
+fn lcg(seed: u64) -> impl FnMut() -> f32 {
+    let mut s = seed ^ 0x9E37_79B9_7F4A_7C15;
+    move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((s >> 40) as f32 / (1u64 << 23) as f32) - 1.0
+    }
+}
+
+fn bits<D: Dimension>(a: &ndarray::Array<f32, D>) -> Vec<u32> {
+    a.iter().map(|v| v.to_bits()).collect()
+}
+
+fn thread_pool(n: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap()
+}
+
+#[derive(Clone, Debug)]
+struct Case {
+    g: Conv2dGeometry,
+    x: Array3<f32>,
+    w: Array4<f32>,
+    b: Array1<f32>,
+    act: Activation,
+}
+
+impl Case {
+    fn new((h, w, c_in, c_out): (usize, usize, usize, usize), act: Activation, seed: u64) -> Self {
+        let g = Conv2dGeometry::new(h, w, c_in, c_out, 1).unwrap();
+        let mut next = lcg(seed);
+        let x = Array3::from_shape_simple_fn(g.input_shape(), &mut next);
+        let w = Array4::from_shape_simple_fn(g.weight_shape(), &mut next);
+        let b = Array1::from_shape_simple_fn(c_out, &mut next);
+        Case { g, x, w, b, act }
+    }
+    fn run(&self, imp: Conv2dImpl) -> Array3<f32> {
+        conv2d(imp, &self.g, self.x.view(), self.w.view(), self.b.view(), self.act).unwrap()
+    }
+    fn run_kernel(&self, kernel: WinogradKernel) -> Array3<f32> {
+        let packed = PackedWinograd::new(&self.g, self.w.view(), self.b.view()).unwrap();
+        let mut out = Array3::from_elem(self.g.output_shape(), f32::NAN);
+        conv2d_winograd_with(
+            kernel,
+            &packed,
+            self.x.as_slice().unwrap(),
+            self.act,
+            out.as_slice_mut().unwrap(),
+        )
+        .unwrap();
+        out
+    }
+    /// `M_W` of SPEC.md §7.11, rounded to f32 for `within_budget`.
+    fn winograd_magnitude(&self) -> Array3<f32> {
+        let f = |v: &f32| f64::from(*v);
+        let m = winograd_magnitude_reference(
+            &self.g,
+            self.x.map(f).view(),
+            self.w.map(f).view(),
+            self.b.map(f).view(),
+        )
+        .unwrap();
+        m.mapv(|v| v as f32)
+    }
+    /// §7.5's `M = Σ |x| |w| + |b|` (the reference on absolute values).
+    fn magnitude(&self) -> Array3<f32> {
+        let abs = |v: f32| v.abs();
+        let (x, w, b) = (self.x.mapv(abs), self.w.mapv(abs), self.b.mapv(abs));
+        conv2d(Conv2dImpl::Reference, &self.g, x.view(), w.view(), b.view(), Activation::None).unwrap()
+    }
+    fn kernels(&self) -> impl Iterator<Item = WinogradKernel> + '_ {
+        WinogradKernel::ALL.into_iter().filter(|k| k.supports(&self.g))
+    }
+}
+
+/// Sizes around the 2x2 tile and the 14-tile group: odd and even, one tile, a group and a bit.
+const SIZES: [usize; 11] = [1, 2, 3, 4, 5, 7, 16, 17, 28, 29, 33];
+
+fn cases() -> impl Strategy<Value = Case> {
+    (
+        prop::sample::select(SIZES.to_vec()),
+        prop::sample::select(SIZES.to_vec()),
+        prop::sample::select(vec![1usize, 3, 16, 17, 32, 35]),
+        prop::sample::select(vec![1usize, 8, 32]),
+        any::<bool>(),
+        any::<u64>(),
+    )
+        .prop_map(|(h, w, c_in, c_out, relu, seed)| {
+            let act = if relu { Activation::Relu } else { Activation::None };
+            Case::new((h, w, c_in, c_out), act, seed)
+        })
+}
+
+proptest! {
+    /// Every kernel within `2 (c_in + 10) ε M_W` of the f64 reference, all kernels (and the public
+    /// entry point) with the same bits.
+    #[test]
+    fn winograd_matches_reference(case in cases()) {
+        let oracle = case.run(Conv2dImpl::Reference);
+        let magnitude = case.winograd_magnitude();
+        let rel = winograd_budget(case.g.c_in());
+        let portable = case.run_kernel(WinogradKernel::Portable);
+        within_budget(portable.view(), oracle.view(), magnitude.view(), rel)?;
+        for kernel in case.kernels() {
+            prop_assert_eq!(bits(&case.run_kernel(kernel)), bits(&portable), "kernel {}", kernel.name());
+        }
+        prop_assert_eq!(bits(&case.run(Conv2dImpl::Winograd)), bits(&portable));
+    }
+
+    /// `M_W >= M`: every product of the convolution appears in `M_W` with a coefficient of at
+    /// least one, so the Winograd budget is never tighter than the exact magnitude allows.
+    #[test]
+    fn winograd_magnitude_bounds_the_convolution_magnitude(case in cases()) {
+        let (mw, m) = (case.winograd_magnitude(), case.magnitude());
+        for (a, b) in mw.iter().zip(m.iter()) {
+            prop_assert!(*a >= *b * (1.0 - 1e-6), "M_W {} < M {}", a, b);
+        }
+    }
+}
+
+/// Small integer inputs and weights with even weights keep every intermediate an exact f32 (the
+/// transforms halve weights at most twice), so Winograd gives the exact result, which is also the
+/// reference's.
+#[test]
+fn winograd_is_exact_where_the_arithmetic_is_exact() {
+    for (shape, seed) in [((9, 11, 32, 32), 1), ((6, 5, 3, 8), 2), ((1, 1, 4, 32), 3)] {
+        let mut case = Case::new(shape, Activation::None, seed);
+        case.x.mapv_inplace(|v| (v * 8.0).round());
+        case.w.mapv_inplace(|v| 4.0 * (v * 4.0).round());
+        case.b.mapv_inplace(|v| (v * 8.0).round());
+        let oracle = case.run(Conv2dImpl::Reference);
+        for kernel in case.kernels() {
+            assert_eq!(bits(&case.run_kernel(kernel)), bits(&oracle), "shape {shape:?}, {}", kernel.name());
+        }
+    }
+}
+
+#[test]
+fn winograd_output_independent_of_thread_count() {
+    for (shape, seed) in
+        [((37, 29, 32, 32), 7), ((66, 47, 32, 32), 8), ((5, 300, 3, 32), 9), ((17, 13, 35, 8), 10)]
+    {
+        let case = Case::new(shape, Activation::Relu, seed);
+        for kernel in case.kernels() {
+            let run = |n| thread_pool(n).install(|| case.run_kernel(kernel));
+            let one = run(1);
+            for n in [2, 3, 8] {
+                assert_eq!(bits(&run(n)), bits(&one), "shape {shape:?}, {}, threads = {n}", kernel.name());
+            }
+        }
+    }
+}
+
+#[test]
+fn winograd_rejects_stride_2_and_bad_lengths() {
+    let g2 = Conv2dGeometry::new(6, 6, 32, 32, 2).unwrap();
+    let (w, b) = (Array4::<f32>::zeros((32, 32, 3, 3)), Array1::<f32>::zeros(32));
+    let err = PackedWinograd::new(&g2, w.view(), b.view()).unwrap_err();
+    assert!(err.to_string().contains("stride"), "{err}");
+    assert!(!Conv2dImpl::Winograd.supports(&g2));
+    let x = Array3::<f32>::zeros((6, 6, 32));
+    assert!(conv2d(Conv2dImpl::Winograd, &g2, x.view(), w.view(), b.view(), Activation::None).is_err());
+    let case = Case::new((5, 6, 3, 8), Activation::None, 4);
+    let packed = PackedWinograd::new(&case.g, case.w.view(), case.b.view()).unwrap();
+    let mut out = vec![0.0; case.g.output_shape().iter().product()];
+    let x = case.x.as_slice().unwrap();
+    let k = WinogradKernel::Portable;
+    assert!(conv2d_winograd_with(k, &packed, &x[1..], Activation::None, &mut out).is_err());
+    assert!(conv2d_winograd_with(k, &packed, x, Activation::None, &mut out[1..]).is_err());
+    // c_out = 8: the AVX-512 kernel is an error, not a fallback.
+    assert!(conv2d_winograd_with(WinogradKernel::Avx512F, &packed, x, Activation::None, &mut out).is_err());
+}
+
+/// `fastest_for` picks Winograd exactly for the stride-1, `c_in >= 16`, `c_out = 32` layers where
+/// its AVX-512F kernel runs.
+#[test]
+fn fastest_picks_winograd_for_wide_stride_1_layers_with_avx512() {
+    let avx512 = WinogradKernel::Avx512F.supports(&Conv2dGeometry::new(8, 8, 32, 32, 1).unwrap());
+    for (c_in, c_out, stride, want) in
+        [(32, 32, 1, avx512), (16, 32, 1, avx512), (3, 32, 1, false), (32, 32, 2, false), (32, 8, 1, false)]
+    {
+        let g = Conv2dGeometry::new(40, 40, c_in, c_out, stride).unwrap();
+        assert_eq!(
+            Conv2dImpl::fastest_for(&g) == Conv2dImpl::Winograd,
+            want,
+            "{c_in} -> {c_out}, s {stride}"
+        );
+    }
+}

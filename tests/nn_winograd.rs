@@ -182,12 +182,26 @@ fn winograd_rejects_stride_2_and_bad_lengths() {
 }
 
 /// `fastest_for` picks Winograd exactly for the stride-1, `c_in >= 16`, `c_out = 32` layers where
-/// its AVX-512F kernel runs.
+/// one of its SIMD kernels runs; `select` prefers AVX-512F, then AVX2+FMA.
 #[test]
-fn fastest_picks_winograd_for_wide_stride_1_layers_with_avx512() {
-    let avx512 = WinogradKernel::Avx512F.supports(&Conv2dGeometry::new(8, 8, 32, 32, 1).unwrap());
+fn fastest_picks_winograd_for_wide_stride_1_layers_with_simd() {
+    let g = Conv2dGeometry::new(8, 8, 32, 32, 1).unwrap();
+    let (avx512, avx2) = (WinogradKernel::Avx512F.supports(&g), WinogradKernel::Avx2Fma.supports(&g));
+    let simd = avx512 || avx2;
+    let want = if avx512 {
+        WinogradKernel::Avx512F
+    } else if avx2 {
+        WinogradKernel::Avx2Fma
+    } else {
+        WinogradKernel::Portable
+    };
+    assert_eq!(WinogradKernel::select(&g), want);
+    // The AVX2 kernel needs c_in a multiple of 8; the AVX-512 one takes any.
+    let g17 = Conv2dGeometry::new(8, 8, 17, 32, 1).unwrap();
+    assert!(!WinogradKernel::Avx2Fma.supports(&g17));
+    assert_eq!(WinogradKernel::Avx512F.supports(&g17), avx512);
     for (c_in, c_out, stride, want) in
-        [(32, 32, 1, avx512), (16, 32, 1, avx512), (3, 32, 1, false), (32, 32, 2, false), (32, 8, 1, false)]
+        [(32, 32, 1, simd), (16, 32, 1, simd), (3, 32, 1, false), (32, 32, 2, false), (32, 8, 1, false)]
     {
         let g = Conv2dGeometry::new(40, 40, c_in, c_out, stride).unwrap();
         assert_eq!(

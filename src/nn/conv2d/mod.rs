@@ -41,6 +41,8 @@ pub mod im2col;
 pub mod reference;
 pub mod winograd;
 #[cfg(target_arch = "x86_64")]
+pub(crate) mod winograd_avx2;
+#[cfg(target_arch = "x86_64")]
 pub(crate) mod winograd_avx512;
 
 use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};
@@ -79,8 +81,9 @@ pub enum Conv2dImpl {
     Direct,
     /// Winograd F(2x2, 3x3) for **stride-1** layers ([`conv2d_winograd`], SPEC.md §7.11): 2.25x fewer
     /// multiplications, parallel over tile rows, its own error budget ([`winograd_budget`]). Runs
-    /// the AVX-512F kernel when the CPU has AVX-512F and `c_out = 32`, else a portable one with the
-    /// same bits. A stride-2 geometry is an [`crate::Error::InvalidArgument`].
+    /// the AVX-512F kernel when the CPU has AVX-512F and `c_out = 32`, else the AVX2+FMA one
+    /// (`c_in` a multiple of 8 too), else a portable one, all with the same bits. A stride-2
+    /// geometry is an [`crate::Error::InvalidArgument`].
     Winograd,
 }
 
@@ -109,11 +112,11 @@ impl Conv2dImpl {
     }
 
     /// The fastest implementation for `geom` on this CPU (SPEC.md §7.11 has the measurements):
-    /// [`Conv2dImpl::Winograd`] for stride-1 layers with `c_in >= WINOGRAD_MIN_C_IN` where its
-    /// AVX-512F kernel runs (`c_out = 32`); else [`Conv2dImpl::Direct`] when one of its SIMD
-    /// kernels (AVX-512F, AVX2+FMA) runs `geom`; otherwise [`Conv2dImpl::Im2colGemm`].
+    /// [`Conv2dImpl::Winograd`] for stride-1 layers with `c_in >= WINOGRAD_MIN_C_IN` where one of
+    /// its SIMD kernels (AVX-512F, AVX2+FMA; `c_out = 32`) runs; else [`Conv2dImpl::Direct`] when
+    /// one of its SIMD kernels runs `geom`; otherwise [`Conv2dImpl::Im2colGemm`].
     pub fn fastest_for(geom: &Conv2dGeometry) -> Conv2dImpl {
-        if geom.c_in() >= WINOGRAD_MIN_C_IN && WinogradKernel::Avx512F.supports(geom) {
+        if geom.c_in() >= WINOGRAD_MIN_C_IN && WinogradKernel::select(geom) != WinogradKernel::Portable {
             Conv2dImpl::Winograd
         } else if DirectKernel::select(geom) != DirectKernel::Portable {
             Conv2dImpl::Direct

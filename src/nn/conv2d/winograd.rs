@@ -19,8 +19,8 @@
 //! convolution. Every addition is done in the order written in SPEC.md §7.11 (rows of the tile
 //! first, then columns), the dot products are FMA chains over `c = 0 .. c_in` starting from zero,
 //! and the bias is added last, so the bits depend only on the geometry: the AVX-512F kernel
-//! ([`WinogradKernel::Avx512F`]) and the portable one ([`WinogradKernel::Portable`], `f32::mul_add`)
-//! give the same bits, for any thread count. The error is bounded against the magnitude
+//! ([`WinogradKernel::Avx512F`]), the AVX2+FMA one ([`WinogradKernel::Avx2Fma`]) and the portable
+//! one ([`WinogradKernel::Portable`], `f32::mul_add`) give the same bits, for any thread count. The error is bounded against the magnitude
 //! [`winograd_magnitude_reference`] (the same algorithm on absolute values), not §7.5's `M`.
 //!
 //! Work units are tile rows (two output rows); within one, tiles run in groups of [`TILES`].
@@ -148,6 +148,10 @@ pub enum WinogradKernel {
     /// x86-64 AVX-512F: groups of [`TILES`] tiles x 32 output channels, channel-vectorised
     /// transforms. Only for `c_out = 32` on a CPU with AVX-512F (detected at run time).
     Avx512F,
+    /// x86-64 AVX2 + FMA (CPUs without AVX-512): blocks of 6 tiles x 16 output channels, run once
+    /// per channel half; transforms 8 channels per ymm. Only for `c_out = 32` and `c_in` a
+    /// multiple of 8. The same bits as [`WinogradKernel::Avx512F`].
+    Avx2Fma,
     /// Plain Rust, any `c_out`, every target; the dot products use `f32::mul_add` (a fused
     /// multiply-add everywhere), so it gives [`WinogradKernel::Avx512F`]'s bits.
     Portable,
@@ -155,15 +159,13 @@ pub enum WinogradKernel {
 
 impl WinogradKernel {
     /// Every kernel, for tests.
-    pub const ALL: [WinogradKernel; 2] = [WinogradKernel::Avx512F, WinogradKernel::Portable];
+    pub const ALL: [WinogradKernel; 3] =
+        [WinogradKernel::Avx512F, WinogradKernel::Avx2Fma, WinogradKernel::Portable];
 
-    /// The kernel [`conv2d_winograd`] runs for `geom` on this CPU.
+    /// The kernel [`conv2d_winograd`] runs for `geom` on this CPU: the first of AVX-512F,
+    /// AVX2+FMA and portable that supports it.
     pub fn select(geom: &Conv2dGeometry) -> WinogradKernel {
-        if WinogradKernel::Avx512F.supports(geom) {
-            WinogradKernel::Avx512F
-        } else {
-            WinogradKernel::Portable
-        }
+        WinogradKernel::ALL.into_iter().find(|k| k.supports(geom)).unwrap_or(WinogradKernel::Portable)
     }
 
     /// Whether this kernel can run `geom` (stride 1) on this CPU.
@@ -175,6 +177,12 @@ impl WinogradKernel {
                         && geom.c_out() == AVX512_C_OUT
                         && crate::runtime::has_avx512f()
                 }
+                WinogradKernel::Avx2Fma => {
+                    cfg!(target_arch = "x86_64")
+                        && geom.c_out() == AVX512_C_OUT
+                        && geom.c_in().is_multiple_of(8)
+                        && crate::runtime::has_avx2_fma()
+                }
                 WinogradKernel::Portable => true,
             }
     }
@@ -183,6 +191,7 @@ impl WinogradKernel {
     pub fn name(self) -> &'static str {
         match self {
             WinogradKernel::Avx512F => "winograd-f2x2-avx512f-14x32",
+            WinogradKernel::Avx2Fma => "winograd-f2x2-avx2-6x16",
             WinogradKernel::Portable => "winograd-f2x2-portable",
         }
     }
@@ -271,6 +280,12 @@ pub fn conv2d_winograd_with(
                 // against the geometry; `rows` holds output rows 2 ty .. (one or two of them).
                 WinogradKernel::Avx512F => unsafe {
                     super::winograd_avx512::group(packed, input, group, activation, scratch, rows);
+                },
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `supports` found AVX2, FMA, c_out = 32 and c_in a multiple of 8; lengths
+                // and rows as above.
+                WinogradKernel::Avx2Fma => unsafe {
+                    super::winograd_avx2::group(packed, input, group, activation, scratch, rows);
                 },
                 _ => group_portable(packed, input, group, activation, scratch, rows),
             }

@@ -69,7 +69,7 @@ unsafe fn input_transform(packed: &PackedWinograd, input: &[f32], g: Group, v: &
     });
     for t in 0..g.n {
         let tx = g.tx0 + t;
-        let interior = tx >= 1 && 2 * tx + 2 < w && c_in % LANES == 0;
+        let interior = tx >= 1 && 2 * tx + 2 < w && c_in.is_multiple_of(LANES);
         for c0 in (0..c_in).step_by(LANES) {
             let lanes = LANES.min(c_in - c0);
             let chan: __mmask16 = if lanes == LANES { !0 } else { (1u16 << lanes) - 1 };

@@ -1,13 +1,13 @@
 //! Convolution benches over the network's shapes (SPEC.md §7). Names: `<impl>_<op>_<shape>`.
 //! Throughput is reported in elements = FLOPs (`2 · 9 c_in · h_out · w_out · c_out`), so criterion's
 //! "elem/s" reads as FLOP/s. Threads: rayon's global pool, so `RAYON_NUM_THREADS=1 cargo bench
-//! --bench conv` measures one thread. Winograd (stride-1 shapes) multiplies 2.25x less; its
-//! "elem/s" uses the same direct count, so it reads as an effective rate.
+//! --bench conv` measures one thread. Winograd (stride-1 shapes) multiplies 2.25x (F2) or 4x (F4)
+//! less; its "elem/s" uses the same direct count, so it reads as an effective rate.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use densefeat::nn::conv2d::{
     conv2d_direct, conv2d_im2col, conv2d_winograd, direct, im2col, scratch_len, PackedConv2d, PackedWinograd,
-    WinogradKernel,
+    WinogradKernel, WinogradTile,
 };
 use densefeat::nn::{conv2d, Activation, Conv2dGeometry, Conv2dImpl};
 use densefeat::testing::within_budget;
@@ -78,15 +78,18 @@ fn bench_conv(c: &mut Criterion) {
                 black_box(&out);
             })
         });
-        if stride == 1 {
-            let wp = PackedWinograd::new(&g, wt.view(), b.view()).expect("packed");
-            let kernel = WinogradKernel::select(&g).name();
-            group.bench_function(format!("winograd_conv2d_{h}x{w}_c{c_in}to{c_out}_s1_{kernel}"), |bench| {
-                bench.iter(|| {
-                    conv2d_winograd(&wp, black_box(xs), Activation::Relu, &mut out).expect("run");
-                    black_box(&out);
-                })
-            });
+        for tile in [WinogradTile::F2x2, WinogradTile::F4x4].into_iter().filter(|_| stride == 1) {
+            let wp = PackedWinograd::new(tile, &g, wt.view(), b.view()).expect("packed");
+            let (t, kernel) = (tile.name(), WinogradKernel::select(&g).name());
+            group.bench_function(
+                format!("winograd_{t}_conv2d_{h}x{w}_c{c_in}to{c_out}_s1_{kernel}"),
+                |bench| {
+                    bench.iter(|| {
+                        conv2d_winograd(&wp, black_box(xs), Activation::Relu, &mut out).expect("run");
+                        black_box(&out);
+                    })
+                },
+            );
         }
     }
     group.finish();

@@ -1,7 +1,8 @@
 //! Interleaved A/B timing of the conv2d implementations on the network's shapes, for a shared,
 //! noisy machine: each round runs every (shape, implementation, thread count) once, in turn, and
 //! the report gives the median and best GFLOP/s (`2 · 9 c_in · h_out · w_out · c_out / time`; for
-//! Winograd, which multiplies 2.25x less, this is the direct convolution's count: an effective rate).
+//! Winograd, which multiplies 2.25x (F2) or 4x (F4) less, this is the direct convolution's count: an
+//! effective rate).
 //! On Linux it also gives GFLOP per on-CPU second of the pool's threads (from
 //! `/proc/thread-self/schedstat`, summed over the threads): time the threads spent descheduled by
 //! other load does not count, so this column approximates the kernel's speed per core when it runs.
@@ -14,7 +15,7 @@
 
 use densefeat::nn::conv2d::{
     conv2d_direct, conv2d_direct_with, conv2d_im2col, conv2d_winograd, direct, im2col, scratch_len,
-    DirectKernel, PackedConv2d, PackedWinograd, WinogradKernel,
+    DirectKernel, PackedConv2d, PackedWinograd, WinogradKernel, WinogradTile,
 };
 use densefeat::nn::{Activation, Conv2dGeometry};
 use ndarray::{Array1, Array3, Array4};
@@ -122,14 +123,16 @@ fn main() {
         let mut out = vec![0.0f32; g.output_shape().iter().product()];
         let mut scratch = vec![0.0f32; 8 * scratch_len(&g)];
         let lanes = 8.min(im2col::n_blocks(&g));
-        let winograd = (stride == 1).then(|| PackedWinograd::new(&g, wt.view(), b.view()).expect("pack"));
+        let pack = |t| PackedWinograd::new(t, &g, wt.view(), b.view()).expect("pack");
+        let winograd = (stride == 1).then(|| [pack(WinogradTile::F2x2), pack(WinogradTile::F4x4)]);
         let mut names = vec![
             "im2col".to_string(),
             format!("direct ({})", direct::kernel_name(&g)),
             "direct (portable)".into(),
         ];
         if winograd.is_some() {
-            names.push(format!("winograd ({})", WinogradKernel::select(&g).name()));
+            names.push(format!("winograd f2x2 ({})", WinogradKernel::select(&g).name()));
+            names.push(format!("winograd f4x4 ({})", WinogradKernel::select(&g).name()));
         }
         // times[impl][pool]
         let mut times = vec![vec![Vec::new(); pools.len()]; names.len()];
@@ -145,8 +148,8 @@ fn main() {
                             conv2d_im2col(&packed, xs, Activation::Relu, scr, &mut out).expect("run");
                         } else if i == 1 {
                             conv2d_direct(&packed, xs, Activation::Relu, &mut out).expect("run");
-                        } else if i == 3 {
-                            let wp = winograd.as_ref().expect("stride 1");
+                        } else if i >= 3 {
+                            let wp = &winograd.as_ref().expect("stride 1")[i - 3];
                             conv2d_winograd(wp, xs, Activation::Relu, &mut out).expect("run");
                         } else {
                             let portable = DirectKernel::Portable;

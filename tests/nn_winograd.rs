@@ -1,30 +1,18 @@
-//! Winograd F(2x2, 3x3) convolution (SPEC.md §7.11): within its budget of the f64 reference, the
-//! same bits from every kernel and any thread count, exact where the arithmetic is exact.
+//! Winograd F(2x2, 3x3) and F(4x4, 3x3) convolutions (SPEC.md §7.11): within their budgets of the
+//! f64 reference, the same bits from every kernel and any thread count, F(2x2) exact where the
+//! arithmetic is exact.
 
+mod common;
+
+use common::{bits, lcg, thread_pool};
 use densefeat::nn::conv2d::{
     conv2d_winograd_with, winograd_budget, winograd_magnitude_reference, PackedWinograd, WinogradKernel,
+    WinogradTile,
 };
 use densefeat::nn::{conv2d, Activation, Conv2dGeometry, Conv2dImpl};
 use densefeat::testing::within_budget;
-use ndarray::{Array1, Array3, Array4, Dimension};
+use ndarray::{Array1, Array3, Array4};
 use proptest::prelude::*;
-
-/// Values in [-1, 1) from a seeded LCG.
-fn lcg(seed: u64) -> impl FnMut() -> f32 {
-    let mut s = seed ^ 0x9E37_79B9_7F4A_7C15;
-    move || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((s >> 40) as f32 / (1u64 << 23) as f32) - 1.0
-    }
-}
-
-fn bits<D: Dimension>(a: &ndarray::Array<f32, D>) -> Vec<u32> {
-    a.iter().map(|v| v.to_bits()).collect()
-}
-
-fn thread_pool(n: usize) -> rayon::ThreadPool {
-    rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap()
-}
 
 #[derive(Clone, Debug)]
 struct Case {
@@ -47,8 +35,8 @@ impl Case {
     fn run(&self, imp: Conv2dImpl) -> Array3<f32> {
         conv2d(imp, &self.g, self.x.view(), self.w.view(), self.b.view(), self.act).unwrap()
     }
-    fn run_kernel(&self, kernel: WinogradKernel) -> Array3<f32> {
-        let packed = PackedWinograd::new(&self.g, self.w.view(), self.b.view()).unwrap();
+    fn run_kernel(&self, tile: WinogradTile, kernel: WinogradKernel) -> Array3<f32> {
+        let packed = PackedWinograd::new(tile, &self.g, self.w.view(), self.b.view()).unwrap();
         let mut out = Array3::from_elem(self.g.output_shape(), f32::NAN);
         conv2d_winograd_with(
             kernel,
@@ -61,9 +49,10 @@ impl Case {
         out
     }
     /// `M_W` of SPEC.md §7.11, rounded to f32 for `within_budget`.
-    fn winograd_magnitude(&self) -> Array3<f32> {
+    fn winograd_magnitude(&self, tile: WinogradTile) -> Array3<f32> {
         let f = |v: &f32| f64::from(*v);
         let m = winograd_magnitude_reference(
+            tile,
             &self.g,
             self.x.map(f).view(),
             self.w.map(f).view(),
@@ -101,29 +90,39 @@ fn cases() -> impl Strategy<Value = Case> {
         })
 }
 
+const TILES: [(WinogradTile, Conv2dImpl); 2] =
+    [(WinogradTile::F2x2, Conv2dImpl::WinogradF2), (WinogradTile::F4x4, Conv2dImpl::WinogradF4)];
+
 proptest! {
-    /// Every kernel within `2 (c_in + 10) ε M_W` of the f64 reference, all kernels (and the public
-    /// entry point) with the same bits.
+    /// Every kernel of both variants within `2 (n + 2) ε M_W` of the f64 reference, all kernels
+    /// (and the public entry point) with the same bits.
     #[test]
     fn winograd_matches_reference(case in cases()) {
         let oracle = case.run(Conv2dImpl::Reference);
-        let magnitude = case.winograd_magnitude();
-        let rel = winograd_budget(case.g.c_in());
-        let portable = case.run_kernel(WinogradKernel::Portable);
-        within_budget(portable.view(), oracle.view(), magnitude.view(), rel)?;
-        for kernel in case.kernels() {
-            prop_assert_eq!(bits(&case.run_kernel(kernel)), bits(&portable), "kernel {}", kernel.name());
+        for (tile, imp) in TILES {
+            let magnitude = case.winograd_magnitude(tile);
+            let rel = winograd_budget(tile, case.g.c_in());
+            let portable = case.run_kernel(tile, WinogradKernel::Portable);
+            within_budget(portable.view(), oracle.view(), magnitude.view(), rel)
+                .map_err(|e| TestCaseError::fail(format!("{tile:?}: {e}")))?;
+            for kernel in case.kernels() {
+                let got = case.run_kernel(tile, kernel);
+                prop_assert_eq!(bits(&got), bits(&portable), "{:?} kernel {}", tile, kernel.name());
+            }
+            prop_assert_eq!(bits(&case.run(imp)), bits(&portable), "{:?}", tile);
         }
-        prop_assert_eq!(bits(&case.run(Conv2dImpl::Winograd)), bits(&portable));
     }
 
     /// `M_W >= M`: every product of the convolution appears in `M_W` with a coefficient of at
     /// least one, so the Winograd budget is never tighter than the exact magnitude allows.
     #[test]
     fn winograd_magnitude_bounds_the_convolution_magnitude(case in cases()) {
-        let (mw, m) = (case.winograd_magnitude(), case.magnitude());
-        for (a, b) in mw.iter().zip(m.iter()) {
-            prop_assert!(*a >= *b * (1.0 - 1e-6), "M_W {} < M {}", a, b);
+        let m = case.magnitude();
+        for (tile, _) in TILES {
+            let mw = case.winograd_magnitude(tile);
+            for (a, b) in mw.iter().zip(m.iter()) {
+                prop_assert!(*a >= *b * (1.0 - 1e-6), "{:?}: M_W {} < M {}", tile, a, b);
+            }
         }
     }
 }
@@ -140,7 +139,8 @@ fn winograd_is_exact_where_the_arithmetic_is_exact() {
         case.b.mapv_inplace(|v| (v * 8.0).round());
         let oracle = case.run(Conv2dImpl::Reference);
         for kernel in case.kernels() {
-            assert_eq!(bits(&case.run_kernel(kernel)), bits(&oracle), "shape {shape:?}, {}", kernel.name());
+            let got = case.run_kernel(WinogradTile::F2x2, kernel);
+            assert_eq!(bits(&got), bits(&oracle), "shape {shape:?}, {}", kernel.name());
         }
     }
 }
@@ -151,11 +151,14 @@ fn winograd_output_independent_of_thread_count() {
         [((37, 29, 32, 32), 7), ((66, 47, 32, 32), 8), ((5, 300, 3, 32), 9), ((17, 13, 35, 8), 10)]
     {
         let case = Case::new(shape, Activation::Relu, seed);
-        for kernel in case.kernels() {
-            let run = |n| thread_pool(n).install(|| case.run_kernel(kernel));
-            let one = run(1);
-            for n in [2, 3, 8] {
-                assert_eq!(bits(&run(n)), bits(&one), "shape {shape:?}, {}, threads = {n}", kernel.name());
+        for (tile, _) in TILES {
+            for kernel in case.kernels() {
+                let run = |n| thread_pool(n).install(|| case.run_kernel(tile, kernel));
+                let one = run(1);
+                for n in [2, 3, 8] {
+                    let k = kernel.name();
+                    assert_eq!(bits(&run(n)), bits(&one), "shape {shape:?}, {tile:?} {k}, threads = {n}");
+                }
             }
         }
     }
@@ -165,13 +168,15 @@ fn winograd_output_independent_of_thread_count() {
 fn winograd_rejects_stride_2_and_bad_lengths() {
     let g2 = Conv2dGeometry::new(6, 6, 32, 32, 2).unwrap();
     let (w, b) = (Array4::<f32>::zeros((32, 32, 3, 3)), Array1::<f32>::zeros(32));
-    let err = PackedWinograd::new(&g2, w.view(), b.view()).unwrap_err();
-    assert!(err.to_string().contains("stride"), "{err}");
-    assert!(!Conv2dImpl::Winograd.supports(&g2));
-    let x = Array3::<f32>::zeros((6, 6, 32));
-    assert!(conv2d(Conv2dImpl::Winograd, &g2, x.view(), w.view(), b.view(), Activation::None).is_err());
+    for (tile, imp) in TILES {
+        let err = PackedWinograd::new(tile, &g2, w.view(), b.view()).unwrap_err();
+        assert!(err.to_string().contains("stride"), "{err}");
+        assert!(!imp.supports(&g2));
+        let x = Array3::<f32>::zeros((6, 6, 32));
+        assert!(conv2d(imp, &g2, x.view(), w.view(), b.view(), Activation::None).is_err());
+    }
     let case = Case::new((5, 6, 3, 8), Activation::None, 4);
-    let packed = PackedWinograd::new(&case.g, case.w.view(), case.b.view()).unwrap();
+    let packed = PackedWinograd::new(WinogradTile::F4x4, &case.g, case.w.view(), case.b.view()).unwrap();
     let mut out = vec![0.0; case.g.output_shape().iter().product()];
     let x = case.x.as_slice().unwrap();
     let k = WinogradKernel::Portable;
@@ -204,10 +209,7 @@ fn fastest_picks_winograd_for_wide_stride_1_layers_with_simd() {
         [(32, 32, 1, simd), (16, 32, 1, simd), (3, 32, 1, false), (32, 32, 2, false), (32, 8, 1, false)]
     {
         let g = Conv2dGeometry::new(40, 40, c_in, c_out, stride).unwrap();
-        assert_eq!(
-            Conv2dImpl::fastest_for(&g) == Conv2dImpl::Winograd,
-            want,
-            "{c_in} -> {c_out}, s {stride}"
-        );
+        let winograd = Conv2dImpl::fastest_for(&g).winograd_tile().is_some();
+        assert_eq!(winograd, want, "{c_in} -> {c_out}, s {stride}");
     }
 }

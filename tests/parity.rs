@@ -21,7 +21,7 @@ use densefeat::mapping::keyframe::{reconstruct, KeyframeConfig, Regularizer};
 use densefeat::mapping::FeatureKind;
 use densefeat::nn::conv2d::{winograd_budget, winograd_magnitude_reference};
 use densefeat::nn::weights::LayerParams;
-use densefeat::nn::{Activation, Conv2dGeometry, Conv2dImpl, NetworkConfig};
+use densefeat::nn::{Activation, Conv2dGeometry, NetworkConfig};
 use densefeat::sequence::open;
 use densefeat::testing::within_budget;
 
@@ -168,21 +168,18 @@ fn conv3x3_matches_reference_within_its_budget() {
             });
             let k = 9 * c_in + 1;
             let mut rel = 2.0 * k as f32 * EPS;
-            // The CPU backend runs Winograd F(2x2, 3x3) on wide stride-1 layers: its own budget
-            // against its own magnitude (SPEC.md §7.11).
+            // The CPU backend runs Winograd on wide stride-1 layers: its own budget against its own
+            // magnitude (SPEC.md §7.11).
             let g = Conv2dGeometry::new(h, w, c_in, c_out, stride).unwrap();
-            if b.name() == "cpu" && CpuBackend::default().conv_impl_for(&g) == Conv2dImpl::Winograd {
+            let tile = CpuBackend::default().conv_impl_for(&g).winograd_tile();
+            if let (Some(tile), "cpu") = (tile, b.name()) {
                 let f = |v: &f32| f64::from(*v);
                 let (al, ax) = (abs_layer(&l), x.mapv(f32::abs));
-                let mw = winograd_magnitude_reference(
-                    &g,
-                    ax.map(f).view(),
-                    al.weight.map(f).view(),
-                    al.bias.map(f).view(),
-                )
-                .unwrap();
+                let (aw, ab) = (al.weight.map(f), al.bias.map(f));
+                let mw =
+                    winograd_magnitude_reference(tile, &g, ax.map(f).view(), aw.view(), ab.view()).unwrap();
                 mag = mw.mapv(|v| v as f32);
-                rel = winograd_budget(c_in);
+                rel = winograd_budget(tile, c_in);
             }
             let label = format!("{} conv3x3 {h}x{w}x{c_in} -> {c_out} s{stride}", b.name());
             report_budget(&label, &got, &want, &mag, rel);

@@ -3,7 +3,7 @@
 //! 1. **Per layer, in place** ([`LayerCheckExecutor`]): while a network runs with the chosen
 //!    kernels, every convolution and transposed convolution is also run by its f64 reference on the
 //!    *same* input, and the fast output must be within the budget of the kernel that ran: §7.5's
-//!    `2 K ε M`, or §7.11's `2 (c_in + 10) ε M_W` for a Winograd layer. So the fast network is
+//!    `2 K ε M`, or §7.11's `2 (n + 2) ε M_W` for a Winograd layer. So the fast network is
 //!    exactly a composition of layers that each meet their budget.
 //! 2. **End to end** ([`relative_budget`]): `max |fast - ref| <= D · 2 K_max ε · max |ref|` for
 //!    every output map, `D` the number of layers on the longest path and `K_max` the largest
@@ -26,7 +26,7 @@ fn host_op(imp: NetworkImpl, op: impl FnOnce(&CpuBackend) -> Result<Tensor>) -> 
     Ok(op(&CpuBackend::with_network(imp))?.into_host().expect("the CPU backend returns host tensors"))
 }
 use crate::nn::weights::LayerParams;
-use crate::nn::{Activation, Conv2dImpl};
+use crate::nn::Activation;
 use crate::testing::within_budget;
 
 /// Relative budget of one layer with `k` products per output (SPEC.md §7.5).
@@ -107,8 +107,9 @@ impl Executor for LayerCheckExecutor {
         let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));
         let want = conv2d_reference(&g, xf.view(), wf.view(), bf.view(), act)?;
         let imp = CpuBackend::with_network(self.imp).conv_impl_for(&g);
-        let (magnitude, rel) = if imp == Conv2dImpl::Winograd {
-            (winograd_magnitude_reference(&g, xa.view(), aw.view(), ab.view())?, winograd_budget(g.c_in()))
+        let (magnitude, rel) = if let Some(tile) = imp.winograd_tile() {
+            let m = winograd_magnitude_reference(tile, &g, xa.view(), aw.view(), ab.view())?;
+            (m, winograd_budget(tile, g.c_in()))
         } else {
             (conv2d_reference(&g, xa.view(), aw.view(), ab.view(), Activation::None)?, layer_budget(g.k()))
         };

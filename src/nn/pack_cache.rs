@@ -14,7 +14,7 @@ use std::sync::Mutex;
 use ndarray::{ArrayView1, ArrayView4};
 
 use crate::error::Result;
-use crate::nn::conv2d::{PackedConv2d, PackedWinograd};
+use crate::nn::conv2d::{PackedConv2d, PackedWinograd, WinogradTile};
 use crate::nn::deconv2d::PackedDeconv2d;
 use crate::nn::geometry::{Conv2dGeometry, Deconv2dGeometry};
 
@@ -31,7 +31,8 @@ struct Entry<P> {
 
 static CONV: Mutex<Vec<Entry<PackedConv2d>>> = Mutex::new(Vec::new());
 static DECONV: Mutex<Vec<Entry<PackedDeconv2d>>> = Mutex::new(Vec::new());
-static WINOGRAD: Mutex<Vec<Entry<PackedWinograd>>> = Mutex::new(Vec::new());
+static WINOGRAD_F2: Mutex<Vec<Entry<PackedWinograd>>> = Mutex::new(Vec::new());
+static WINOGRAD_F4: Mutex<Vec<Entry<PackedWinograd>>> = Mutex::new(Vec::new());
 
 /// The bit patterns of `v`, without a copy.
 fn bits(v: &[f32]) -> &[u32] {
@@ -102,16 +103,22 @@ pub fn packed_deconv(
     lookup(&DECONV, weight, bias, || PackedDeconv2d::new(geom, weight, bias), |p| p.with_geometry(geom))
 }
 
-/// [`PackedWinograd::new`]`(geom, weight, bias)`, transformed once per distinct weight.
+/// [`PackedWinograd::new`]`(tile, geom, weight, bias)`, transformed once per distinct weight and
+/// variant.
 ///
 /// # Errors
 /// As [`PackedWinograd::new`].
 pub fn packed_winograd(
+    tile: WinogradTile,
     geom: &Conv2dGeometry,
     weight: ArrayView4<f32>,
     bias: ArrayView1<f32>,
 ) -> Result<PackedWinograd> {
     crate::nn::expect_shape("conv2d weight", weight.shape(), &geom.weight_shape())?;
     crate::nn::expect_shape("conv2d bias", bias.shape(), &[geom.c_out()])?;
-    lookup(&WINOGRAD, weight, bias, || PackedWinograd::new(geom, weight, bias), |p| p.with_geometry(geom))
+    let cache = match tile {
+        WinogradTile::F2x2 => &WINOGRAD_F2,
+        WinogradTile::F4x4 => &WINOGRAD_F4,
+    };
+    lookup(cache, weight, bias, || PackedWinograd::new(tile, geom, weight, bias), |p| p.with_geometry(geom))
 }

@@ -38,3 +38,22 @@ pub fn pinhole_and_distorted(
     });
     (pinhole, raw)
 }
+
+/// Values in [-1, 1) from a seeded LCG (all randomness of the kernel tests comes from a seed).
+pub fn lcg(seed: u64) -> impl FnMut() -> f32 {
+    let mut s = seed ^ 0x9E37_79B9_7F4A_7C15;
+    move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((s >> 40) as f32 / (1u64 << 23) as f32) - 1.0
+    }
+}
+
+/// The bit patterns of an array's values, for bit-for-bit comparisons.
+pub fn bits<D: ndarray::Dimension>(a: &ndarray::Array<f32, D>) -> Vec<u32> {
+    a.iter().map(|v| v.to_bits()).collect()
+}
+
+/// A rayon pool of `n` threads (the determinism tests run 1, 2, 3 and 8).
+pub fn thread_pool(n: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap()
+}

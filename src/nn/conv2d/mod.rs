@@ -40,10 +40,6 @@ pub mod direct_concat;
 pub mod im2col;
 pub mod reference;
 pub mod winograd;
-#[cfg(target_arch = "x86_64")]
-pub(crate) mod winograd_avx2;
-#[cfg(target_arch = "x86_64")]
-pub(crate) mod winograd_avx512;
 
 use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};
 
@@ -57,7 +53,7 @@ pub use im2col::{conv2d_im2col, scratch_len, PackedConv2d};
 pub use reference::conv2d_reference;
 pub use winograd::{
     conv2d_winograd, conv2d_winograd_with, winograd_budget, winograd_magnitude_reference, PackedWinograd,
-    WinogradKernel,
+    WinogradKernel, WinogradTile,
 };
 
 use crate::error::Result;
@@ -84,18 +80,35 @@ pub enum Conv2dImpl {
     /// the AVX-512F kernel when the CPU has AVX-512F and `c_out = 32`, else the AVX2+FMA one
     /// (`c_in` a multiple of 8 too), else a portable one, all with the same bits. A stride-2
     /// geometry is an [`crate::Error::InvalidArgument`].
-    Winograd,
+    WinogradF2,
+    /// Winograd F(4x4, 3x3), as [`Conv2dImpl::WinogradF2`] with 4x4 output tiles: 4x fewer
+    /// multiplications, a larger error budget.
+    WinogradF4,
 }
 
 impl Conv2dImpl {
     /// Every implementation, for tests and benches.
-    pub const ALL: [Conv2dImpl; 4] =
-        [Conv2dImpl::Reference, Conv2dImpl::Im2colGemm, Conv2dImpl::Direct, Conv2dImpl::Winograd];
+    pub const ALL: [Conv2dImpl; 5] = [
+        Conv2dImpl::Reference,
+        Conv2dImpl::Im2colGemm,
+        Conv2dImpl::Direct,
+        Conv2dImpl::WinogradF2,
+        Conv2dImpl::WinogradF4,
+    ];
 
-    /// Whether this implementation can run `geom` (every one but [`Conv2dImpl::Winograd`] runs
-    /// every geometry; Winograd needs stride 1).
+    /// Whether this implementation can run `geom` (every one runs every geometry except the
+    /// Winograd ones, which need stride 1).
     pub fn supports(self, geom: &Conv2dGeometry) -> bool {
-        self != Conv2dImpl::Winograd || geom.stride() == 1
+        self.winograd_tile().is_none() || geom.stride() == 1
+    }
+
+    /// The Winograd variant of this implementation, if it is one.
+    pub fn winograd_tile(self) -> Option<WinogradTile> {
+        match self {
+            Conv2dImpl::WinogradF2 => Some(WinogradTile::F2x2),
+            Conv2dImpl::WinogradF4 => Some(WinogradTile::F4x4),
+            _ => None,
+        }
     }
 
     /// The fastest implementation for the network's layers (all with `c_out = 32`) on this CPU:
@@ -112,12 +125,12 @@ impl Conv2dImpl {
     }
 
     /// The fastest implementation for `geom` on this CPU (SPEC.md §7.11 has the measurements):
-    /// [`Conv2dImpl::Winograd`] for stride-1 layers with `c_in >= WINOGRAD_MIN_C_IN` where one of
+    /// [`FASTEST_WINOGRAD`] for stride-1 layers with `c_in >= WINOGRAD_MIN_C_IN` where one of
     /// its SIMD kernels (AVX-512F, AVX2+FMA; `c_out = 32`) runs; else [`Conv2dImpl::Direct`] when
     /// one of its SIMD kernels runs `geom`; otherwise [`Conv2dImpl::Im2colGemm`].
     pub fn fastest_for(geom: &Conv2dGeometry) -> Conv2dImpl {
         if geom.c_in() >= WINOGRAD_MIN_C_IN && WinogradKernel::select(geom) != WinogradKernel::Portable {
-            Conv2dImpl::Winograd
+            FASTEST_WINOGRAD
         } else if DirectKernel::select(geom) != DirectKernel::Portable {
             Conv2dImpl::Direct
         } else {
@@ -125,6 +138,9 @@ impl Conv2dImpl {
         }
     }
 }
+
+/// The Winograd variant [`Conv2dImpl::fastest_for`] picks (SPEC.md §7.11 has the measurements).
+pub const FASTEST_WINOGRAD: Conv2dImpl = Conv2dImpl::WinogradF4;
 
 /// The fewest input channels for which [`Conv2dImpl::fastest_for`] picks Winograd: below it the
 /// transforms cost more than the saved multiplications (the network's `3 -> 32` layer).
@@ -201,8 +217,9 @@ pub fn conv2d_into(
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
             conv2d_direct(&packed, x, activation, out).map(|_| ())
         }
-        Conv2dImpl::Winograd => {
-            let packed = packed_winograd(geom, weight, bias)?;
+        Conv2dImpl::WinogradF2 | Conv2dImpl::WinogradF4 => {
+            let tile = imp.winograd_tile().unwrap_or(WinogradTile::F2x2);
+            let packed = packed_winograd(tile, geom, weight, bias)?;
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
             conv2d_winograd(&packed, x, activation, out).map(|_| ())

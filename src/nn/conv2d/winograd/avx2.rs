@@ -1,0 +1,276 @@
+//! The AVX2+FMA kernel of [`WinogradKernel::Avx2Fma`](super::WinogradKernel::Avx2Fma), both variants,
+//! for x86-64 CPUs without AVX-512: one group of up to [`TILES`] tiles of a tile row, `c_out = 32`,
+//! `c_in` a multiple of 8. The transforms run across channels (8 per ymm); the dot products run as
+//! the AVX2 direct kernel's register block (up to [`STRIP`] tiles x 16 output channels in 12 ymm
+//! accumulators, once per channel half). The same operations in the same order as the other
+//! Winograd kernels (module docs of [`super`]), so the same bits. x86-64 only; callers
+//! check AVX2 and FMA at run time.
+
+use std::arch::x86_64::{
+    __m256, _mm256_add_ps, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_max_ps, _mm256_mul_ps, _mm256_set1_ps,
+    _mm256_setzero_ps, _mm256_storeu_ps, _mm256_sub_ps,
+};
+
+use super::tiles::{winograd_rows, Tile, MAX_M, MAX_POINTS, MAX_R};
+use super::{Group, PackedWinograd, Scratch, SIMD_C_OUT};
+use crate::nn::Activation;
+
+/// f32 lanes of a ymm register.
+const LANES: usize = 8;
+
+/// `c · x`, rounded.
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+fn mulc(c: f32, x: __m256) -> __m256 {
+    _mm256_mul_ps(_mm256_set1_ps(c), x)
+}
+
+/// `fma(c, x, a)`.
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+fn fmac(c: f32, x: __m256, a: __m256) -> __m256 {
+    _mm256_fmadd_ps(_mm256_set1_ps(c), x, a)
+}
+
+/// `a + b`.
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+fn add(a: __m256, b: __m256) -> __m256 {
+    _mm256_add_ps(a, b)
+}
+
+/// `a - b`.
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+fn sub(a: __m256, b: __m256) -> __m256 {
+    _mm256_sub_ps(a, b)
+}
+
+winograd_rows!(
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    __m256,
+    add,
+    sub,
+    mulc,
+    fmac,
+    _mm256_setzero_ps()
+);
+
+/// Output channels per dot-product pass (two ymm registers).
+const HALF: usize = 16;
+
+/// Tiles per dot-product block: `2 · 6 = 12` accumulators, two weight registers, one broadcast.
+const STRIP: usize = 6;
+
+/// One group of variant `T`: input transform into V, dot products into M, output transform into
+/// `rows` (the tile row's output rows `M ty ..`, at most `M`, each `w · 32` floats).
+///
+/// # Safety
+/// The CPU has AVX2 and FMA; `packed` is a stride-1 geometry with `c_out = 32` and `c_in` a
+/// multiple of 8, packed for `T`; `input` holds the whole `[h, w, c_in]` map; `rows` holds
+/// `min(M, h - M ty) · w · 32` floats; the group's tiles exist (`tx0 + n <= ceil(w / M)`, `1 <= n
+/// <= TILES`); `scratch` was made for this geometry and variant.
+#[target_feature(enable = "avx2,fma")]
+pub(super) unsafe fn group<T: Tile>(
+    packed: &PackedWinograd,
+    input: &[f32],
+    g: Group,
+    activation: Activation,
+    scratch: &mut Scratch,
+    rows: &mut [f32],
+) {
+    let c_in = packed.geometry().c_in();
+    debug_assert_eq!(c_in % LANES, 0);
+    let (v, m, zeros) = scratch.parts();
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        input_transform::<T>(packed, input, g, v, zeros);
+        for t0 in (0..g.n).step_by(STRIP) {
+            for h in 0..2 {
+                dot_products(packed.transformed(), T::P, c_in, g.n, (t0, STRIP.min(g.n - t0)), h, v, m);
+            }
+        }
+        output_transform::<T>(packed, g, activation, m, rows);
+    }
+}
+
+/// `V[ξ][t][c]` for every tile of the group, 8 channels at a time; rows outside the image read
+/// `zeros`, columns outside it give zero.
+///
+/// # Safety
+/// As [`group`]; `v` holds `P · n · c_in` floats, `zeros` `w · c_in` zeros.
+#[allow(clippy::needless_range_loop)] // j indexes the columns of a row-major tile
+#[target_feature(enable = "avx2,fma")]
+unsafe fn input_transform<T: Tile>(
+    packed: &PackedWinograd,
+    input: &[f32],
+    g: Group,
+    v: &mut [f32],
+    zeros: &[f32],
+) {
+    let geom = packed.geometry();
+    let (h, w, c_in) = (geom.h(), geom.w(), geom.c_in());
+    debug_assert!(zeros.len() >= w * c_in);
+    let base = input.as_ptr();
+    let vp = v.as_mut_ptr();
+    let rows: [*const f32; MAX_R] = std::array::from_fn(|r| {
+        let iy = (T::M * g.ty + r).wrapping_sub(1);
+        if iy < h {
+            // SAFETY: iy < h is a row of the image.
+            unsafe { base.add(iy * w * c_in) }
+        } else {
+            zeros.as_ptr()
+        }
+    });
+    for t in 0..g.n {
+        let tx = g.tx0 + t;
+        for c0 in (0..c_in).step_by(LANES) {
+            let mut d = [[_mm256_setzero_ps(); MAX_R]; MAX_R];
+            for (r, dr) in d.iter_mut().enumerate().take(T::R) {
+                for (j, dk) in dr.iter_mut().enumerate().take(T::R) {
+                    let ix = (T::M * tx + j).wrapping_sub(1);
+                    if ix < w {
+                        // SAFETY: column ix is inside the image and channels c0 .. c0 + 8 exist;
+                        // the row pointer is an image row or `zeros` (w c_in floats).
+                        *dk = unsafe { _mm256_loadu_ps(rows[r].add(ix * c_in + c0)) };
+                    }
+                }
+            }
+            let mut e = [[_mm256_setzero_ps(); MAX_R]; MAX_R];
+            for (r, er) in e.iter_mut().enumerate().take(T::R) {
+                *er = bt_rows::<T>(&d[r]);
+            }
+            for j in 0..T::R {
+                let col: [__m256; MAX_R] = std::array::from_fn(|r| e[r][j]);
+                let vals = bt_rows::<T>(&col);
+                for (i, &val) in vals.iter().enumerate().take(T::R) {
+                    let at = ((T::R * i + j) * g.n + t) * c_in + c0;
+                    // SAFETY: at + 8 <= P n c_in (caller contract).
+                    unsafe { _mm256_storeu_ps(vp.add(at), val) };
+                }
+            }
+        }
+    }
+}
+
+/// `M[ξ][t][o]` for tiles `t0 .. t0 + p` and output channels `16 h .. 16 h + 16`, every point.
+///
+/// # Safety
+/// AVX2 and FMA; `u` holds `points · c_in · 32` floats, `v` `points · n · c_in`, `m` `points · n ·
+/// 32`; `t0 + p <= n`, `1 <= p <= STRIP`, `h < 2`.
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn dot_products(
+    u: &[f32],
+    points: usize,
+    c_in: usize,
+    n: usize,
+    (t0, p): (usize, usize),
+    h: usize,
+    v: &[f32],
+    m: &mut [f32],
+) {
+    debug_assert!(u.len() >= points * c_in * SIMD_C_OUT && t0 + p <= n && h < 2);
+    for xi in 0..points {
+        // SAFETY: the point's slices are inside the caller contract's ranges.
+        unsafe {
+            let up = u.as_ptr().add(xi * c_in * SIMD_C_OUT + h * HALF);
+            let vp = v.as_ptr().add((xi * n + t0) * c_in);
+            let mp = m.as_mut_ptr().add((xi * n + t0) * SIMD_C_OUT + h * HALF);
+            match (p, c_in) {
+                (6, 32) => block::<6, 32>(up, vp, c_in, mp),
+                (6, _) => block::<6, 0>(up, vp, c_in, mp),
+                (5, _) => block::<5, 0>(up, vp, c_in, mp),
+                (4, _) => block::<4, 0>(up, vp, c_in, mp),
+                (3, _) => block::<3, 0>(up, vp, c_in, mp),
+                (2, _) => block::<2, 0>(up, vp, c_in, mp),
+                (1, _) => block::<1, 0>(up, vp, c_in, mp),
+                _ => unreachable!("a block of {p} tiles"),
+            }
+        }
+    }
+}
+
+/// `P` tiles x 16 output channels of one point (FMA chain from zero over `c`). `CI` is `c_in` as a
+/// constant, or 0 to use `c_in`.
+///
+/// # Safety
+/// AVX2 and FMA; `u + 32 c .. + 16` for `c < c_in`, `v .. v + P c_in` readable; `m + 32 t .. + 16`
+/// writable for `t < P`.
+#[target_feature(enable = "avx2,fma")]
+unsafe fn block<const P: usize, const CI: usize>(u: *const f32, v: *const f32, c_in: usize, m: *mut f32) {
+    let ci = if CI == 0 { c_in } else { CI };
+    let mut acc = [[_mm256_setzero_ps(); 2]; P];
+    for c in 0..ci {
+        // SAFETY: c < c_in keeps every read inside the caller contract's ranges.
+        unsafe {
+            let w = u.add(c * SIMD_C_OUT);
+            let (w0, w1) = (_mm256_loadu_ps(w), _mm256_loadu_ps(w.add(LANES)));
+            let x0 = v.add(c);
+            for (t, a) in acc.iter_mut().enumerate() {
+                let x = _mm256_set1_ps(*x0.add(t * ci));
+                a[0] = _mm256_fmadd_ps(x, w0, a[0]);
+                a[1] = _mm256_fmadd_ps(x, w1, a[1]);
+            }
+        }
+    }
+    for (t, a) in acc.iter().enumerate() {
+        // SAFETY: tile t's 16 floats are inside the caller contract.
+        unsafe {
+            _mm256_storeu_ps(m.add(t * SIMD_C_OUT), a[0]);
+            _mm256_storeu_ps(m.add(t * SIMD_C_OUT + LANES), a[1]);
+        }
+    }
+}
+
+/// `act((Aᵀ M A) + b)` for every tile of the group into its (up to) `M x M` output pixels, 8
+/// channels at a time.
+///
+/// # Safety
+/// As [`group`].
+#[target_feature(enable = "avx2,fma")]
+unsafe fn output_transform<T: Tile>(
+    packed: &PackedWinograd,
+    g: Group,
+    activation: Activation,
+    m: &[f32],
+    rows: &mut [f32],
+) {
+    let geom = packed.geometry();
+    let (h, w) = (geom.h(), geom.w());
+    let relu = activation == Activation::Relu;
+    let zero = _mm256_setzero_ps();
+    let out = rows.as_mut_ptr();
+    let n_rows = T::M.min(h - T::M * g.ty);
+    for q in 0..SIMD_C_OUT / LANES {
+        // SAFETY: the bias holds 32 floats.
+        let b = unsafe { _mm256_loadu_ps(packed.bias().as_ptr().add(q * LANES)) };
+        for t in 0..g.n {
+            let tx = g.tx0 + t;
+            let mut x = [zero; MAX_POINTS];
+            for (xi, xv) in x.iter_mut().enumerate().take(T::P) {
+                // SAFETY: point ξ's tile t lives at (ξ n + t) 32 + 8 q .. + 8 inside `m`.
+                *xv = unsafe { _mm256_loadu_ps(m.as_ptr().add((xi * g.n + t) * SIMD_C_OUT + q * LANES)) };
+            }
+            let mut s = [[zero; MAX_M]; MAX_R];
+            for (a, sa) in s.iter_mut().enumerate().take(T::R) {
+                let row: [__m256; MAX_R] =
+                    std::array::from_fn(|k| if k < T::R { x[T::R * a + k] } else { zero });
+                *sa = at_rows::<T>(&row);
+            }
+            for (j, ox) in (T::M * tx..w.min(T::M * tx + T::M)).enumerate() {
+                let col: [__m256; MAX_R] = std::array::from_fn(|a| s[a][j]);
+                let y = at_rows::<T>(&col);
+                for (r, &yr) in y.iter().enumerate().take(n_rows) {
+                    let mut val = _mm256_add_ps(yr, b);
+                    if relu {
+                        val = _mm256_max_ps(val, zero);
+                    }
+                    // SAFETY: output row r < n_rows of the tile row, column ox < w: inside `rows`.
+                    unsafe { _mm256_storeu_ps(out.add((r * w + ox) * SIMD_C_OUT + q * LANES), val) };
+                }
+            }
+        }
+    }
+}

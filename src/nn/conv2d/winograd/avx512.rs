@@ -1,0 +1,292 @@
+//! The AVX-512F kernel of [`WinogradKernel::Avx512F`](super::WinogradKernel::Avx512F), both
+//! variants: one group of up to [`TILES`] tiles of a tile row, `c_out = 32`. The transforms run
+//! across channels (16 per zmm, the last chunk masked); the points' dot products over `c_in` run as the direct
+//! kernel's register block (tiles x 32 channels in `2 n` accumulators, one broadcast per tile and
+//! channel, two FMAs). The same operations in the same order as the portable kernel (module docs
+//! of [`super`]), so the same bits. x86-64 only; callers check AVX-512F at run time.
+
+use std::arch::x86_64::{
+    __m512, __mmask16, _mm512_add_ps, _mm512_fmadd_ps, _mm512_loadu_ps, _mm512_mask_storeu_ps,
+    _mm512_maskz_loadu_ps, _mm512_max_ps, _mm512_mul_ps, _mm512_set1_ps, _mm512_setzero_ps, _mm512_storeu_ps,
+    _mm512_sub_ps,
+};
+
+use super::tiles::{winograd_rows, Tile, MAX_M, MAX_POINTS, MAX_R};
+use super::{Group, PackedWinograd, Scratch, SIMD_C_OUT, TILES};
+use crate::nn::Activation;
+
+/// f32 lanes of a zmm register.
+const LANES: usize = 16;
+
+/// `c · x`, rounded.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn mulc(c: f32, x: __m512) -> __m512 {
+    _mm512_mul_ps(_mm512_set1_ps(c), x)
+}
+
+/// `fma(c, x, a)`.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn fmac(c: f32, x: __m512, a: __m512) -> __m512 {
+    _mm512_fmadd_ps(_mm512_set1_ps(c), x, a)
+}
+
+/// `a + b`.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn add(a: __m512, b: __m512) -> __m512 {
+    _mm512_add_ps(a, b)
+}
+
+/// `a - b`.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn sub(a: __m512, b: __m512) -> __m512 {
+    _mm512_sub_ps(a, b)
+}
+
+winograd_rows!(
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    __m512,
+    add,
+    sub,
+    mulc,
+    fmac,
+    _mm512_setzero_ps()
+);
+
+/// One group of variant `T`: input transform into V, dot products into M, output transform into
+/// `rows` (the tile row's output rows `M ty ..`, at most `M` of them, each `w · 32` floats).
+///
+/// # Safety
+/// The CPU has AVX-512F; `packed` is a stride-1 geometry with `c_out = 32` packed for `T`; `input`
+/// holds the whole `[h, w, c_in]` map; `rows` holds `min(M, h - M ty) · w · 32` floats; the
+/// group's tiles exist (`tx0 + n <= ceil(w / M)`, `1 <= n <= TILES`); `scratch` was made for this
+/// geometry and variant.
+#[target_feature(enable = "avx512f")]
+pub(super) unsafe fn group<T: Tile>(
+    packed: &PackedWinograd,
+    input: &[f32],
+    g: Group,
+    activation: Activation,
+    scratch: &mut Scratch,
+    rows: &mut [f32],
+) {
+    let c_in = packed.geometry().c_in();
+    let (v, m, zeros) = scratch.parts();
+    debug_assert!(v.len() >= T::P * TILES * c_in && m.len() >= T::P * TILES * SIMD_C_OUT);
+    debug_assert!(g.n >= 1 && g.n <= TILES);
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        input_transform::<T>(packed, input, g, v, zeros);
+        dot_products(packed.transformed(), T::P, c_in, g.n, v, m);
+        output_transform::<T>(packed, g, activation, m, rows);
+    }
+}
+
+/// `V[ξ][t][c] = (Bᵀ d B)[ξ]` for every tile `t` of the group and channel `c`, 16 channels at a
+/// time. Interior tiles (whole window inside the image's columns) with `c_in` a multiple of 16 read
+/// their rows through row pointers, a row outside the image pointing at `zeros`; the others use
+/// masked loads (zero, no access, outside the image).
+///
+/// # Safety
+/// As [`group`]; `v` holds `P · n · c_in` floats, `zeros` `w · c_in` zeros.
+#[allow(clippy::needless_range_loop)] // j indexes the columns of a row-major tile
+#[target_feature(enable = "avx512f")]
+unsafe fn input_transform<T: Tile>(
+    packed: &PackedWinograd,
+    input: &[f32],
+    g: Group,
+    v: &mut [f32],
+    zeros: &[f32],
+) {
+    let geom = packed.geometry();
+    let (h, w, c_in) = (geom.h(), geom.w(), geom.c_in());
+    debug_assert!(zeros.len() >= w * c_in);
+    let base = input.as_ptr();
+    let vp = v.as_mut_ptr();
+    let rows: [*const f32; MAX_R] = std::array::from_fn(|r| {
+        let iy = (T::M * g.ty + r).wrapping_sub(1);
+        if iy < h {
+            // SAFETY: iy < h is a row of the image.
+            unsafe { base.add(iy * w * c_in) }
+        } else {
+            zeros.as_ptr()
+        }
+    });
+    for t in 0..g.n {
+        let tx = g.tx0 + t;
+        let interior = tx >= 1 && T::M * tx + T::R - 2 < w && c_in.is_multiple_of(LANES);
+        for c0 in (0..c_in).step_by(LANES) {
+            let lanes = LANES.min(c_in - c0);
+            let chan: __mmask16 = if lanes == LANES { !0 } else { (1u16 << lanes) - 1 };
+            let mut d = [[_mm512_setzero_ps(); MAX_R]; MAX_R];
+            for (r, dr) in d.iter_mut().enumerate().take(T::R) {
+                for (j, dk) in dr.iter_mut().enumerate().take(T::R) {
+                    let (iy, ix) = ((T::M * g.ty + r).wrapping_sub(1), (T::M * tx + j).wrapping_sub(1));
+                    if interior {
+                        // SAFETY: column ix is inside the image and 16 channels from c0 exist; the
+                        // row pointer is an image row or `zeros` (w c_in floats).
+                        *dk = unsafe { _mm512_loadu_ps(rows[r].add(ix * c_in + c0)) };
+                    } else if iy < h && ix < w {
+                        // SAFETY: (iy, ix) is inside the image, and channels c0 .. c0 + lanes exist.
+                        *dk = unsafe { _mm512_maskz_loadu_ps(chan, base.add((iy * w + ix) * c_in + c0)) };
+                    }
+                }
+            }
+            let mut e = [[_mm512_setzero_ps(); MAX_R]; MAX_R];
+            for (r, er) in e.iter_mut().enumerate().take(T::R) {
+                *er = bt_rows::<T>(&d[r]);
+            }
+            for j in 0..T::R {
+                let col: [__m512; MAX_R] = std::array::from_fn(|r| e[r][j]);
+                let vals = bt_rows::<T>(&col);
+                for (i, &val) in vals.iter().enumerate().take(T::R) {
+                    let at = ((T::R * i + j) * g.n + t) * c_in + c0;
+                    // SAFETY: at + lanes <= P n c_in (caller contract).
+                    unsafe {
+                        if lanes == LANES {
+                            _mm512_storeu_ps(vp.add(at), val);
+                        } else {
+                            _mm512_mask_storeu_ps(vp.add(at), chan, val);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// `M[ξ][t][o] = Σ_c V[ξ][t][c] U[ξ][c][o]` (FMA chain from zero, `c` ascending) for the group's
+/// `n` tiles and each of the `points` points.
+///
+/// # Safety
+/// AVX-512F; `u` holds `points · c_in · 32` floats, `v` `points · n · c_in`, `m` `points · n · 32`.
+#[target_feature(enable = "avx512f")]
+unsafe fn dot_products(u: &[f32], points: usize, c_in: usize, n: usize, v: &[f32], m: &mut [f32]) {
+    debug_assert!(u.len() >= points * c_in * SIMD_C_OUT);
+    for xi in 0..points {
+        // SAFETY: the point's slices are inside the caller contract's ranges.
+        unsafe {
+            let up = u.as_ptr().add(xi * c_in * SIMD_C_OUT);
+            let vp = v.as_ptr().add(xi * n * c_in);
+            let mp = m.as_mut_ptr().add(xi * n * SIMD_C_OUT);
+            if c_in == 32 {
+                any_block::<32>(n, up, vp, c_in, mp);
+            } else {
+                any_block::<0>(n, up, vp, c_in, mp);
+            }
+        }
+    }
+}
+
+/// [`block`] for a group of `n` tiles, `CI` as in [`block`].
+///
+/// # Safety
+/// As [`block`] with `P = n`.
+#[target_feature(enable = "avx512f")]
+unsafe fn any_block<const CI: usize>(n: usize, u: *const f32, v: *const f32, c_in: usize, m: *mut f32) {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        match n {
+            14 => block::<14, CI>(u, v, c_in, m),
+            13 => block::<13, CI>(u, v, c_in, m),
+            12 => block::<12, CI>(u, v, c_in, m),
+            11 => block::<11, CI>(u, v, c_in, m),
+            10 => block::<10, CI>(u, v, c_in, m),
+            9 => block::<9, CI>(u, v, c_in, m),
+            8 => block::<8, CI>(u, v, c_in, m),
+            7 => block::<7, CI>(u, v, c_in, m),
+            6 => block::<6, CI>(u, v, c_in, m),
+            5 => block::<5, CI>(u, v, c_in, m),
+            4 => block::<4, CI>(u, v, c_in, m),
+            3 => block::<3, CI>(u, v, c_in, m),
+            2 => block::<2, CI>(u, v, c_in, m),
+            1 => block::<1, CI>(u, v, c_in, m),
+            _ => unreachable!("a group of {n} tiles"),
+        }
+    }
+}
+
+/// `P` tiles x 32 output channels of one Winograd point: `P · 2` accumulators. `CI` is `c_in` as
+/// a constant (so each tile's broadcast is a fixed offset from one pointer), or 0 to use `c_in`.
+///
+/// # Safety
+/// AVX-512F; `u .. u + 32 c_in`, `v .. v + P c_in` readable, `m .. m + 32 P` writable.
+#[target_feature(enable = "avx512f")]
+unsafe fn block<const P: usize, const CI: usize>(u: *const f32, v: *const f32, c_in: usize, m: *mut f32) {
+    let ci = if CI == 0 { c_in } else { CI };
+    let mut acc = [[_mm512_setzero_ps(); 2]; P];
+    for c in 0..ci {
+        // SAFETY: c < c_in keeps every read inside the caller contract's ranges.
+        unsafe {
+            let w = u.add(c * SIMD_C_OUT);
+            let (w0, w1) = (_mm512_loadu_ps(w), _mm512_loadu_ps(w.add(LANES)));
+            let x0 = v.add(c);
+            for (t, a) in acc.iter_mut().enumerate() {
+                let x = _mm512_set1_ps(*x0.add(t * ci));
+                a[0] = _mm512_fmadd_ps(x, w0, a[0]);
+                a[1] = _mm512_fmadd_ps(x, w1, a[1]);
+            }
+        }
+    }
+    for (t, a) in acc.iter().enumerate() {
+        // SAFETY: tile t's 32 floats are inside `m .. m + 32 P`.
+        unsafe {
+            _mm512_storeu_ps(m.add(t * SIMD_C_OUT), a[0]);
+            _mm512_storeu_ps(m.add(t * SIMD_C_OUT + LANES), a[1]);
+        }
+    }
+}
+
+/// `act((Aᵀ M A) + b)` for every tile of the group into its (up to) `M x M` output pixels.
+///
+/// # Safety
+/// As [`group`].
+#[target_feature(enable = "avx512f")]
+unsafe fn output_transform<T: Tile>(
+    packed: &PackedWinograd,
+    g: Group,
+    activation: Activation,
+    m: &[f32],
+    rows: &mut [f32],
+) {
+    let geom = packed.geometry();
+    let (h, w) = (geom.h(), geom.w());
+    let relu = activation == Activation::Relu;
+    let zero = _mm512_setzero_ps();
+    let out = rows.as_mut_ptr();
+    let n_rows = T::M.min(h - T::M * g.ty);
+    for half in 0..SIMD_C_OUT / LANES {
+        // SAFETY: the bias holds 32 floats.
+        let b = unsafe { _mm512_loadu_ps(packed.bias().as_ptr().add(half * LANES)) };
+        for t in 0..g.n {
+            let tx = g.tx0 + t;
+            let mut x = [zero; MAX_POINTS];
+            for (xi, xv) in x.iter_mut().enumerate().take(T::P) {
+                // SAFETY: point ξ's tile t lives at (ξ n + t) 32 + 16 half .. + 16 inside `m`.
+                *xv = unsafe { _mm512_loadu_ps(m.as_ptr().add((xi * g.n + t) * SIMD_C_OUT + half * LANES)) };
+            }
+            let mut s = [[zero; MAX_M]; MAX_R];
+            for (a, sa) in s.iter_mut().enumerate().take(T::R) {
+                let row: [__m512; MAX_R] =
+                    std::array::from_fn(|k| if k < T::R { x[T::R * a + k] } else { zero });
+                *sa = at_rows::<T>(&row);
+            }
+            for (j, ox) in (T::M * tx..w.min(T::M * tx + T::M)).enumerate() {
+                let col: [__m512; MAX_R] = std::array::from_fn(|a| s[a][j]);
+                let y = at_rows::<T>(&col);
+                for (r, &yr) in y.iter().enumerate().take(n_rows) {
+                    let mut val = _mm512_add_ps(yr, b);
+                    if relu {
+                        val = _mm512_max_ps(val, zero);
+                    }
+                    // SAFETY: output row r < n_rows of the tile row, column ox < w: inside `rows`.
+                    unsafe { _mm512_storeu_ps(out.add((r * w + ox) * SIMD_C_OUT + half * LANES), val) };
+                }
+            }
+        }
+    }
+}

@@ -11,50 +11,26 @@ use std::arch::x86_64::{
     _mm512_sub_ps,
 };
 
-use super::tiles::{winograd_rows, Tile, MAX_M, MAX_POINTS, MAX_R};
-use super::{Group, PackedWinograd, Scratch, SIMD_C_OUT, TILES};
+use super::tiles::{Tile, MAX_M, MAX_POINTS, MAX_R};
+use super::{window_rows, Group, PackedWinograd, Scratch, SIMD_C_OUT, TILES};
 use crate::nn::Activation;
 
 /// f32 lanes of a zmm register.
 const LANES: usize = 16;
 
-/// `c · x`, rounded.
-#[inline]
-#[target_feature(enable = "avx512f")]
-fn mulc(c: f32, x: __m512) -> __m512 {
-    _mm512_mul_ps(_mm512_set1_ps(c), x)
-}
-
-/// `fma(c, x, a)`.
-#[inline]
-#[target_feature(enable = "avx512f")]
-fn fmac(c: f32, x: __m512, a: __m512) -> __m512 {
-    _mm512_fmadd_ps(_mm512_set1_ps(c), x, a)
-}
-
-/// `a + b`.
-#[inline]
-#[target_feature(enable = "avx512f")]
-fn add(a: __m512, b: __m512) -> __m512 {
-    _mm512_add_ps(a, b)
-}
-
-/// `a - b`.
-#[inline]
-#[target_feature(enable = "avx512f")]
-fn sub(a: __m512, b: __m512) -> __m512 {
-    _mm512_sub_ps(a, b)
-}
-
-winograd_rows!(
-    #[inline]
-    #[target_feature(enable = "avx512f")]
+super::simd::simd_common!(
+    "avx512f",
     __m512,
-    add,
-    sub,
-    mulc,
-    fmac,
-    _mm512_setzero_ps()
+    LANES,
+    _mm512_loadu_ps,
+    _mm512_storeu_ps,
+    _mm512_add_ps,
+    _mm512_sub_ps,
+    _mm512_mul_ps,
+    _mm512_fmadd_ps,
+    _mm512_set1_ps,
+    _mm512_max_ps,
+    _mm512_setzero_ps
 );
 
 /// One group of variant `T`: input transform into V, dot products into M, output transform into
@@ -107,15 +83,7 @@ unsafe fn input_transform<T: Tile>(
     debug_assert!(zeros.len() >= w * c_in);
     let base = input.as_ptr();
     let vp = v.as_mut_ptr();
-    let rows: [*const f32; MAX_R] = std::array::from_fn(|r| {
-        let iy = (T::M * g.ty + r).wrapping_sub(1);
-        if iy < h {
-            // SAFETY: iy < h is a row of the image.
-            unsafe { base.add(iy * w * c_in) }
-        } else {
-            zeros.as_ptr()
-        }
-    });
+    let rows = window_rows::<T>(input, g, (h, w, c_in), zeros);
     for t in 0..g.n {
         let tx = g.tx0 + t;
         let interior = tx >= 1 && T::M * tx + T::R - 2 < w && c_in.is_multiple_of(LANES);
@@ -136,13 +104,9 @@ unsafe fn input_transform<T: Tile>(
                     }
                 }
             }
-            let mut e = [[_mm512_setzero_ps(); MAX_R]; MAX_R];
-            for (r, er) in e.iter_mut().enumerate().take(T::R) {
-                *er = bt_rows::<T>(&d[r]);
-            }
+            let vt = input_window::<T>(&d);
             for j in 0..T::R {
-                let col: [__m512; MAX_R] = std::array::from_fn(|r| e[r][j]);
-                let vals = bt_rows::<T>(&col);
+                let vals: [__m512; MAX_R] = std::array::from_fn(|i| vt[i][j]);
                 for (i, &val) in vals.iter().enumerate().take(T::R) {
                     let at = ((T::R * i + j) * g.n + t) * c_in + c0;
                     // SAFETY: at + lanes <= P n c_in (caller contract).
@@ -237,56 +201,6 @@ unsafe fn block<const P: usize, const CI: usize>(u: *const f32, v: *const f32, c
         unsafe {
             _mm512_storeu_ps(m.add(t * SIMD_C_OUT), a[0]);
             _mm512_storeu_ps(m.add(t * SIMD_C_OUT + LANES), a[1]);
-        }
-    }
-}
-
-/// `act((Aᵀ M A) + b)` for every tile of the group into its (up to) `M x M` output pixels.
-///
-/// # Safety
-/// As [`group`].
-#[target_feature(enable = "avx512f")]
-unsafe fn output_transform<T: Tile>(
-    packed: &PackedWinograd,
-    g: Group,
-    activation: Activation,
-    m: &[f32],
-    rows: &mut [f32],
-) {
-    let geom = packed.geometry();
-    let (h, w) = (geom.h(), geom.w());
-    let relu = activation == Activation::Relu;
-    let zero = _mm512_setzero_ps();
-    let out = rows.as_mut_ptr();
-    let n_rows = T::M.min(h - T::M * g.ty);
-    for half in 0..SIMD_C_OUT / LANES {
-        // SAFETY: the bias holds 32 floats.
-        let b = unsafe { _mm512_loadu_ps(packed.bias().as_ptr().add(half * LANES)) };
-        for t in 0..g.n {
-            let tx = g.tx0 + t;
-            let mut x = [zero; MAX_POINTS];
-            for (xi, xv) in x.iter_mut().enumerate().take(T::P) {
-                // SAFETY: point ξ's tile t lives at (ξ n + t) 32 + 16 half .. + 16 inside `m`.
-                *xv = unsafe { _mm512_loadu_ps(m.as_ptr().add((xi * g.n + t) * SIMD_C_OUT + half * LANES)) };
-            }
-            let mut s = [[zero; MAX_M]; MAX_R];
-            for (a, sa) in s.iter_mut().enumerate().take(T::R) {
-                let row: [__m512; MAX_R] =
-                    std::array::from_fn(|k| if k < T::R { x[T::R * a + k] } else { zero });
-                *sa = at_rows::<T>(&row);
-            }
-            for (j, ox) in (T::M * tx..w.min(T::M * tx + T::M)).enumerate() {
-                let col: [__m512; MAX_R] = std::array::from_fn(|a| s[a][j]);
-                let y = at_rows::<T>(&col);
-                for (r, &yr) in y.iter().enumerate().take(n_rows) {
-                    let mut val = _mm512_add_ps(yr, b);
-                    if relu {
-                        val = _mm512_max_ps(val, zero);
-                    }
-                    // SAFETY: output row r < n_rows of the tile row, column ox < w: inside `rows`.
-                    unsafe { _mm512_storeu_ps(out.add((r * w + ox) * SIMD_C_OUT + half * LANES), val) };
-                }
-            }
         }
     }
 }

@@ -32,6 +32,8 @@ mod avx2;
 mod avx512;
 mod magnitude;
 mod portable;
+#[cfg(target_arch = "x86_64")]
+mod simd;
 pub(crate) mod tiles;
 
 use std::sync::Arc;
@@ -260,6 +262,24 @@ pub(crate) struct Group {
     pub(crate) ty: usize,
     pub(crate) tx0: usize,
     pub(crate) n: usize,
+}
+
+/// Pointers to the `R` input rows a tile row of variant `T` reads (`M ty - 1 ..`), a row outside the
+/// image pointing at `zeros` (`w · c_in` zeros), so that the SIMD kernels load rows without checks.
+pub(crate) fn window_rows<T: Tile>(
+    input: &[f32],
+    g: Group,
+    (h, w, c_in): (usize, usize, usize),
+    zeros: &[f32],
+) -> [*const f32; tiles::MAX_R] {
+    std::array::from_fn(|r| {
+        let iy = (T::M * g.ty + r).wrapping_sub(1);
+        if iy < h {
+            input[iy * w * c_in..].as_ptr()
+        } else {
+            zeros.as_ptr()
+        }
+    })
 }
 
 /// Winograd convolution of a channels-last input slice `[h, w, c_in]` into `out` (`[h, w, c_out]`,

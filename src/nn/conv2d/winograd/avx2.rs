@@ -1,5 +1,5 @@
-//! The AVX2+FMA kernel of [`WinogradKernel::Avx2Fma`](super::WinogradKernel::Avx2Fma), both variants,
-//! for x86-64 CPUs without AVX-512: one group of up to [`TILES`] tiles of a tile row, `c_out = 32`,
+//! The AVX2+FMA kernel of [`WinogradKernel::Avx2Fma`](super::WinogradKernel::Avx2Fma), both
+//! variants, for x86-64 CPUs without AVX-512: one group of up to [`TILES`] tiles of a tile row, `c_out = 32`,
 //! `c_in` a multiple of 8. The transforms run across channels (8 per ymm); the dot products run as
 //! the AVX2 direct kernel's register block (up to [`STRIP`] tiles x 16 output channels in 12 ymm
 //! accumulators, once per channel half). The same operations in the same order as the other

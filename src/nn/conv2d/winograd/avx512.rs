@@ -1,9 +1,10 @@
 //! The AVX-512F kernel of [`WinogradKernel::Avx512F`](super::WinogradKernel::Avx512F), both
 //! variants: one group of up to [`TILES`] tiles of a tile row, `c_out = 32`. The transforms run
-//! across channels (16 per zmm, the last chunk masked); the points' dot products over `c_in` run as the direct
-//! kernel's register block (tiles x 32 channels in `2 n` accumulators, one broadcast per tile and
-//! channel, two FMAs). The same operations in the same order as the portable kernel (module docs
-//! of [`super`]), so the same bits. x86-64 only; callers check AVX-512F at run time.
+//! across channels (16 per zmm, the last chunk masked); the points' dot products over `c_in` run
+//! as the direct kernel's register block (tiles x 32 channels in `2 n` accumulators, one
+//! broadcast per tile and channel, two FMAs). The same operations in the same order as the
+//! portable kernel (module docs of [`super`]), so the same bits. x86-64 only; callers check
+//! AVX-512F at run time.
 
 use std::arch::x86_64::{
     __m512, __mmask16, _mm512_add_ps, _mm512_fmadd_ps, _mm512_loadu_ps, _mm512_mask_storeu_ps,

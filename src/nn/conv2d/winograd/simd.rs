@@ -4,8 +4,8 @@
 
 /// Generates, in the invoking kernel module, for the vector type `$v` of `$lanes` f32 lanes and the
 /// target feature `$feat`: `mulc`, `fmac`, `add`, `sub`, `bt_rows`, `at_rows`, `input_window::<T>`
-/// (`Bᵀ d B` of one window) and `output_transform::<T>` (`act((Aᵀ M A) + b)` for every tile of a group into its up to `M x M`
-/// output pixels, `$lanes` channels at a time).
+/// (`Bᵀ d B` of one window) and `output_transform::<T>` (`act((Aᵀ M A) + b)` for every tile of a
+/// group into its up to `M x M` output pixels, `$lanes` channels at a time).
 macro_rules! simd_common {
     ($feat:literal, $v:ty, $lanes:expr, $load:path, $store:path, $addp:path, $subp:path, $mulp:path,
      $fmaddp:path, $set1:path, $maxp:path, $zero:path) => {

@@ -76,7 +76,6 @@ pub(super) unsafe fn group<T: Tile>(
 ///
 /// # Safety
 /// As [`group`]; `v` holds `P · n · c_in` floats, `zeros` `w · c_in` zeros.
-#[allow(clippy::needless_range_loop)] // j indexes the columns of a row-major tile
 #[target_feature(enable = "avx2,fma")]
 unsafe fn input_transform<T: Tile>(
     packed: &PackedWinograd,
@@ -104,10 +103,8 @@ unsafe fn input_transform<T: Tile>(
                     }
                 }
             }
-            let vt = input_window::<T>(&d);
-            for j in 0..T::R {
-                let vals: [__m256; MAX_R] = std::array::from_fn(|i| vt[i][j]);
-                for (i, &val) in vals.iter().enumerate().take(T::R) {
+            for (i, vi) in input_window::<T>(&d).iter().enumerate().take(T::R) {
+                for (j, &val) in vi.iter().enumerate().take(T::R) {
                     let at = ((T::R * i + j) * g.n + t) * c_in + c0;
                     // SAFETY: at + 8 <= P n c_in (caller contract).
                     unsafe { _mm256_storeu_ps(vp.add(at), val) };

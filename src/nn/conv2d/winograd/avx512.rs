@@ -64,13 +64,11 @@ pub(super) unsafe fn group<T: Tile>(
 }
 
 /// `V[ξ][t][c] = (Bᵀ d B)[ξ]` for every tile `t` of the group and channel `c`, 16 channels at a
-/// time. Interior tiles (whole window inside the image's columns) with `c_in` a multiple of 16 read
-/// their rows through row pointers, a row outside the image pointing at `zeros`; the others use
-/// masked loads (zero, no access, outside the image).
+/// time (the last chunk masked). Rows are read through row pointers, a row outside the image
+/// pointing at `zeros`; columns outside the image give zero.
 ///
 /// # Safety
 /// As [`group`]; `v` holds `P · n · c_in` floats, `zeros` `w · c_in` zeros.
-#[allow(clippy::needless_range_loop)] // j indexes the columns of a row-major tile
 #[target_feature(enable = "avx512f")]
 unsafe fn input_transform<T: Tile>(
     packed: &PackedWinograd,
@@ -82,33 +80,27 @@ unsafe fn input_transform<T: Tile>(
     let geom = packed.geometry();
     let (h, w, c_in) = (geom.h(), geom.w(), geom.c_in());
     debug_assert!(zeros.len() >= w * c_in);
-    let base = input.as_ptr();
     let vp = v.as_mut_ptr();
     let rows = window_rows::<T>(input, g, (h, w, c_in), zeros);
     for t in 0..g.n {
         let tx = g.tx0 + t;
-        let interior = tx >= 1 && T::M * tx + T::R - 2 < w && c_in.is_multiple_of(LANES);
         for c0 in (0..c_in).step_by(LANES) {
             let lanes = LANES.min(c_in - c0);
             let chan: __mmask16 = if lanes == LANES { !0 } else { (1u16 << lanes) - 1 };
             let mut d = [[_mm512_setzero_ps(); MAX_R]; MAX_R];
             for (r, dr) in d.iter_mut().enumerate().take(T::R) {
                 for (j, dk) in dr.iter_mut().enumerate().take(T::R) {
-                    let (iy, ix) = ((T::M * g.ty + r).wrapping_sub(1), (T::M * tx + j).wrapping_sub(1));
-                    if interior {
-                        // SAFETY: column ix is inside the image and 16 channels from c0 exist; the
-                        // row pointer is an image row or `zeros` (w c_in floats).
-                        *dk = unsafe { _mm512_loadu_ps(rows[r].add(ix * c_in + c0)) };
-                    } else if iy < h && ix < w {
-                        // SAFETY: (iy, ix) is inside the image, and channels c0 .. c0 + lanes exist.
-                        *dk = unsafe { _mm512_maskz_loadu_ps(chan, base.add((iy * w + ix) * c_in + c0)) };
+                    let ix = (T::M * tx + j).wrapping_sub(1);
+                    if ix < w {
+                        // SAFETY: column ix is inside the image and channels c0 .. c0 + lanes
+                        // exist (masked-off lanes are not accessed); the row pointer is an image
+                        // row or `zeros` (w c_in floats).
+                        *dk = unsafe { _mm512_maskz_loadu_ps(chan, rows[r].add(ix * c_in + c0)) };
                     }
                 }
             }
-            let vt = input_window::<T>(&d);
-            for j in 0..T::R {
-                let vals: [__m512; MAX_R] = std::array::from_fn(|i| vt[i][j]);
-                for (i, &val) in vals.iter().enumerate().take(T::R) {
+            for (i, vi) in input_window::<T>(&d).iter().enumerate().take(T::R) {
+                for (j, &val) in vi.iter().enumerate().take(T::R) {
                     let at = ((T::R * i + j) * g.n + t) * c_in + c0;
                     // SAFETY: at + lanes <= P n c_in (caller contract).
                     unsafe {

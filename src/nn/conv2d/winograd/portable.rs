@@ -1,7 +1,7 @@
 //! The portable Winograd kernel: the three stages in plain Rust, any channel counts, every target,
 //! with the SIMD kernels' bits (the same [`fold`] rule, FMAs by `f32::mul_add`).
 
-use super::tiles::{fold, Tile, MAX_POINTS, MAX_R};
+use super::tiles::{fmac_f32 as fma, fold, mulc_f32 as mul, Tile, MAX_POINTS, MAX_R};
 use super::{Group, PackedWinograd, Scratch};
 use crate::nn::Activation;
 
@@ -64,14 +64,6 @@ pub(super) fn group<T: Tile>(
             }
         }
     }
-}
-
-fn mul(c: f32, x: f32) -> f32 {
-    c * x
-}
-
-fn fma(c: f32, x: f32, a: f32) -> f32 {
-    c.mul_add(x, a)
 }
 
 /// `Bᵀ d B` of one window `d(r, j)`, row-major over `ξ = R i + j`, rows first.

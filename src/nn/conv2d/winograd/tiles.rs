@@ -106,6 +106,16 @@ pub(crate) fn fold<V: Copy>(
     acc.unwrap_or(zero)
 }
 
+/// The fold's product on f32: `c · x`, rounded.
+pub(crate) fn mulc_f32(c: f32, x: f32) -> f32 {
+    c * x
+}
+
+/// The fold's fused multiply-add on f32: `fma(c, x, a)`, one rounding.
+pub(crate) fn fmac_f32(c: f32, x: f32, a: f32) -> f32 {
+    c.mul_add(x, a)
+}
+
 /// `G g Gᵀ` of one 3x3 kernel `g(ky, kx)` for variant `T`, row-major over `ξ = R i + j`, in f64
 /// (rows of the kernel first: `h[ky][j] = Σ_kx g[ky][kx] G[j][kx]`, then `Σ_ky G[i][ky] h[ky][j]`,
 /// terms in index order, folds from `0.0`).
@@ -188,17 +198,14 @@ pub(crate) use winograd_rows;
 mod tests {
     use super::*;
 
+    use fmac_f32 as fmac;
+    use mulc_f32 as mulc;
+
     fn add(a: f32, b: f32) -> f32 {
         a + b
     }
     fn sub(a: f32, b: f32) -> f32 {
         a - b
-    }
-    fn mulc(c: f32, x: f32) -> f32 {
-        c * x
-    }
-    fn fmac(c: f32, x: f32, a: f32) -> f32 {
-        c.mul_add(x, a)
     }
     winograd_rows!(f32, add, sub, mulc, fmac, 0.0f32);
 

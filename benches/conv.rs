@@ -1,15 +1,20 @@
-//! Convolution benches over the network's shapes (SPEC.md §7). Names: `<impl>_<op>_<shape>`.
+//! Convolution and transposed-convolution benches over the network's shapes (SPEC.md §7). Names:
+//! `<impl>_<op>_<shape>`.
 //! Throughput is reported in elements = FLOPs (`2 · 9 c_in · h_out · w_out · c_out`), so criterion's
 //! "elem/s" reads as FLOP/s. Threads: rayon's global pool, so `RAYON_NUM_THREADS=1 cargo bench
 //! --bench conv` measures one thread. Winograd (stride-1 shapes) multiplies 2.25x (F2) or 4x (F4)
-//! less; its "elem/s" uses the same direct count, so it reads as an effective rate.
+//! less; its "elem/s" uses the same direct count, so it reads as an effective rate. Transposed
+//! convolutions (`deconv2d`, with the U-Net sum as the decoder runs them) count `2 · 25 c_in c_out h w`
+//! for an `h x w` input.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use densefeat::nn::conv2d::{
     conv2d_direct, conv2d_im2col, conv2d_winograd, direct, im2col, scratch_len, PackedConv2d, PackedWinograd,
     WinogradKernel, WinogradTile,
 };
-use densefeat::nn::{conv2d, Activation, Conv2dGeometry, Conv2dImpl};
+use densefeat::nn::{
+    conv2d, deconv2d_into, Activation, Conv2dGeometry, Conv2dImpl, Deconv2dGeometry, Deconv2dImpl,
+};
 use densefeat::testing::within_budget;
 use ndarray::{Array1, Array3, Array4};
 use std::hint::black_box;
@@ -95,5 +100,45 @@ fn bench_conv(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_conv);
+/// The decoder's largest transposed-convolution inputs: 640x480 and 1280x960 at B1 stride 2 (the
+/// latter the 640x480 network at B1 stride 1).
+const DECONV_SHAPES: [(usize, usize, usize, usize); 2] = [(120, 160, 32, 32), (240, 320, 32, 32)];
+
+fn bench_deconv(c: &mut Criterion) {
+    let mut group = c.benchmark_group("deconv2d");
+    group.sample_size(20);
+    for (h, w, c_in, c_out) in DECONV_SHAPES {
+        let g = Deconv2dGeometry::new(h, w, c_in, c_out).expect("valid shape");
+        let mut next = pattern(h * w, 2);
+        let x = Array3::from_shape_simple_fn(g.input_shape(), &mut next);
+        let wt = Array4::from_shape_simple_fn(g.weight_shape(), &mut next);
+        let b = Array1::from_shape_simple_fn(c_out, &mut next);
+        let skip: Vec<f32> = (0..g.output_shape().iter().product()).map(|_| next()).collect();
+        let mut out = vec![0.0; skip.len()];
+        group.throughput(Throughput::Elements((2 * 25 * c_in * c_out * h * w) as u64));
+        for imp in [Deconv2dImpl::Direct, Deconv2dImpl::WinogradF2, Deconv2dImpl::WinogradF4] {
+            group.bench_function(
+                format!("{imp:?}_deconv2d_add_{h}x{w}_c{c_in}to{c_out}").to_lowercase(),
+                |bench| {
+                    bench.iter(|| {
+                        deconv2d_into(
+                            imp,
+                            &g,
+                            black_box(x.view()),
+                            wt.view(),
+                            b.view(),
+                            Some(&skip),
+                            &mut out,
+                        )
+                        .expect("run");
+                        black_box(&out);
+                    })
+                },
+            );
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_conv, bench_deconv);
 criterion_main!(benches);

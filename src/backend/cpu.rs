@@ -13,7 +13,7 @@ use crate::nn::network::{concat_conv_geometry, conv_geometry, deconv_geometry};
 use crate::nn::weights::LayerParams;
 use crate::nn::{
     add, concat_channels_into, conv2d_concat_into, conv2d_into, deconv2d_into, downsample2x, expect_shape,
-    Activation, Conv2dImpl, NetworkImpl,
+    Activation, Conv2dImpl, Deconv2dImpl, NetworkImpl,
 };
 
 /// Kernel choices of the CPU backend. [`CpuBackend::default`] is the fast one; tests build others
@@ -44,6 +44,16 @@ impl CpuBackend {
     pub fn conv_impl_for(&self, geom: &crate::nn::Conv2dGeometry) -> Conv2dImpl {
         match self.network.conv {
             Conv2dImpl::Direct => Conv2dImpl::fastest_for(geom),
+            other => other,
+        }
+    }
+
+    /// The transposed-convolution implementation this backend runs for `geom`: with `network.deconv
+    /// = Direct` (the product's choice) [`Deconv2dImpl::fastest_for`] the layer (Winograd or Direct,
+    /// SPEC.md §7.3), otherwise `network.deconv` itself.
+    pub fn deconv_impl_for(&self, geom: &crate::nn::Deconv2dGeometry) -> Deconv2dImpl {
+        match self.network.deconv {
+            Deconv2dImpl::Direct => Deconv2dImpl::fastest_for(geom),
             other => other,
         }
     }
@@ -167,7 +177,7 @@ impl Backend for CpuBackend {
         let g = deconv_geometry(x.dim(), l)?;
         let mut out = output_array(g.output_shape(), None);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
-        deconv2d_into(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view(), None, o)?;
+        deconv2d_into(self.deconv_impl_for(&g), &g, x.view(), l.weight.view(), l.bias.view(), None, o)?;
         Ok(Tensor::host(out))
     }
 
@@ -189,8 +199,9 @@ impl Backend for CpuBackend {
         let Some(ss) = skip.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
         let mut out = output_array(g.output_shape(), spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
-        // Direct fuses the sum into its store; the others add in a second pass (same bits).
-        deconv2d_into(self.network.deconv, &g, x.view(), l.weight.view(), l.bias.view(), Some(ss), o)?;
+        // Direct and Winograd fuse the sum into their store; the others add in a second pass (same
+        // bits).
+        deconv2d_into(self.deconv_impl_for(&g), &g, x.view(), l.weight.view(), l.bias.view(), Some(ss), o)?;
         Ok(Tensor::host(out))
     }
 

@@ -18,7 +18,7 @@ use crate::backend::{Backend, CpuBackend, Tensor};
 use crate::error::Result;
 use crate::nn::config::NetworkConfig;
 use crate::nn::conv2d::{conv2d_reference, winograd_budget, winograd_magnitude_reference};
-use crate::nn::deconv2d::deconv2d_reference;
+use crate::nn::deconv2d::{deconv2d_reference, deconv2d_winograd_magnitude_reference};
 use crate::nn::network::{Executor, NetworkImpl};
 
 /// One CPU-backend op on host arrays, with the kernels `imp`.
@@ -123,8 +123,14 @@ impl Executor for LayerCheckExecutor {
         let (aw, ab) = abs_params(l);
         let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));
         let want = deconv2d_reference(&g, xf.view(), wf.view(), bf.view())?;
-        let magnitude = deconv2d_reference(&g, xa.view(), aw.view(), ab.view())?;
-        self.check(&format!("deconv {:?}", x.shape()), &got, &want, &magnitude, layer_budget(g.k()));
+        let imp = CpuBackend::with_network(self.imp).deconv_impl_for(&g);
+        let (magnitude, rel) = if let Some(tile) = imp.winograd_tile() {
+            let m = deconv2d_winograd_magnitude_reference(tile, &g, xa.view(), aw.view(), ab.view())?;
+            (m, winograd_budget(tile, g.c_in()))
+        } else {
+            (deconv2d_reference(&g, xa.view(), aw.view(), ab.view())?, layer_budget(g.k()))
+        };
+        self.check(&format!("deconv {:?}, {imp:?}", x.shape()), &got, &want, &magnitude, rel);
         Ok(got)
     }
     fn concat(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {

@@ -15,6 +15,7 @@ use ndarray::{ArrayView1, ArrayView4};
 
 use crate::error::Result;
 use crate::nn::conv2d::{PackedConv2d, PackedWinograd, WinogradTile};
+use crate::nn::deconv2d::winograd::{equivalent_geometry, pack_deconv_winograd};
 use crate::nn::deconv2d::PackedDeconv2d;
 use crate::nn::geometry::{Conv2dGeometry, Deconv2dGeometry};
 
@@ -33,6 +34,8 @@ static CONV: Mutex<Vec<Entry<PackedConv2d>>> = Mutex::new(Vec::new());
 static DECONV: Mutex<Vec<Entry<PackedDeconv2d>>> = Mutex::new(Vec::new());
 static WINOGRAD_F2: Mutex<Vec<Entry<PackedWinograd>>> = Mutex::new(Vec::new());
 static WINOGRAD_F4: Mutex<Vec<Entry<PackedWinograd>>> = Mutex::new(Vec::new());
+static DECONV_WINOGRAD_F2: Mutex<Vec<Entry<PackedWinograd>>> = Mutex::new(Vec::new());
+static DECONV_WINOGRAD_F4: Mutex<Vec<Entry<PackedWinograd>>> = Mutex::new(Vec::new());
 
 /// The bit patterns of `v`, without a copy.
 fn bits(v: &[f32]) -> &[u32] {
@@ -121,4 +124,25 @@ pub fn packed_winograd(
         WinogradTile::F4x4 => &WINOGRAD_F4,
     };
     lookup(cache, weight, bias, || PackedWinograd::new(tile, geom, weight, bias), |p| p.with_geometry(geom))
+}
+
+/// [`pack_deconv_winograd`]`(tile, geom, weight, bias)` (a transposed convolution by Winograd,
+/// SPEC.md §7.3), transformed once per distinct weight and variant.
+///
+/// # Errors
+/// As [`pack_deconv_winograd`].
+pub fn packed_deconv_winograd(
+    tile: WinogradTile,
+    geom: &Deconv2dGeometry,
+    weight: ArrayView4<f32>,
+    bias: ArrayView1<f32>,
+) -> Result<PackedWinograd> {
+    crate::nn::expect_shape("deconv2d weight", weight.shape(), &geom.weight_shape())?;
+    crate::nn::expect_shape("deconv2d bias", bias.shape(), &[geom.c_out()])?;
+    let cache = match tile {
+        WinogradTile::F2x2 => &DECONV_WINOGRAD_F2,
+        WinogradTile::F4x4 => &DECONV_WINOGRAD_F4,
+    };
+    let g = equivalent_geometry(geom)?;
+    lookup(cache, weight, bias, || pack_deconv_winograd(tile, geom, weight, bias), |p| p.with_geometry(&g))
 }

@@ -52,8 +52,8 @@ pub use direct_concat::conv2d_direct_concat_with;
 pub use im2col::{conv2d_im2col, scratch_len, PackedConv2d};
 pub use reference::conv2d_reference;
 pub use winograd::{
-    conv2d_winograd, conv2d_winograd_with, winograd_budget, winograd_magnitude_reference, PackedWinograd,
-    WinogradKernel, WinogradTile,
+    conv2d_winograd, conv2d_winograd_with, winograd_budget, winograd_magnitude_reference, OutputLayout,
+    PackedWinograd, WinogradKernel, WinogradTile,
 };
 
 use crate::error::Result;

@@ -27,6 +27,7 @@ pub mod backward;
 pub mod direct;
 pub mod fast;
 pub mod reference;
+pub mod winograd;
 
 use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};
 
@@ -37,9 +38,13 @@ pub use backward::{
 pub use direct::{deconv2d_direct, deconv2d_direct_with};
 pub use fast::{deconv2d_fast, scratch_len, PackedDeconv2d};
 pub use reference::deconv2d_reference;
+pub use winograd::{
+    deconv2d_winograd, deconv2d_winograd_magnitude_reference, deconv2d_winograd_with, pack_deconv_winograd,
+};
 
 use crate::error::Result;
-use crate::nn::pack_cache::packed_deconv;
+use crate::nn::conv2d::{OutputLayout, WinogradKernel, WinogradTile, WINOGRAD_MIN_C_IN};
+use crate::nn::pack_cache::{packed_deconv, packed_deconv_winograd};
 use crate::nn::{default_lanes, expect_len, expect_shape, Deconv2dGeometry};
 
 /// Which transposed-convolution implementation to run. Every variant is always compiled and tested.
@@ -55,13 +60,53 @@ pub enum Deconv2dImpl {
     /// ([`deconv2d_direct`]: AVX-512F, else AVX2+FMA) where the CPU has one and `c_out = 32`;
     /// [`Deconv2dImpl::ParityGemm`] otherwise.
     Direct,
+    /// The four parity convolutions as one stride-1 3x3 convolution with `4 c_out` outputs run by
+    /// Winograd F(2x2, 3x3) ([`deconv2d_winograd`], SPEC.md §7.3, §7.11), each value stored at its
+    /// output pixel: its own error budget ([`crate::nn::conv2d::winograd_budget`] against
+    /// [`deconv2d_winograd_magnitude_reference`]). AVX-512F kernel where the CPU has it and `c_out`
+    /// is a multiple of 16, else AVX2+FMA (`c_out` a multiple of 8, `c_in` too), else portable,
+    /// all with the same bits.
+    WinogradF2,
+    /// As [`Deconv2dImpl::WinogradF2`] with F(4x4, 3x3): 0.36 of the direct multiplications.
+    WinogradF4,
 }
 
 impl Deconv2dImpl {
     /// Every implementation, for tests and benches.
-    pub const ALL: [Deconv2dImpl; 3] =
-        [Deconv2dImpl::Reference, Deconv2dImpl::ParityGemm, Deconv2dImpl::Direct];
+    pub const ALL: [Deconv2dImpl; 5] = [
+        Deconv2dImpl::Reference,
+        Deconv2dImpl::ParityGemm,
+        Deconv2dImpl::Direct,
+        Deconv2dImpl::WinogradF2,
+        Deconv2dImpl::WinogradF4,
+    ];
+
+    /// The Winograd variant of this implementation, if it is one.
+    pub fn winograd_tile(self) -> Option<WinogradTile> {
+        match self {
+            Deconv2dImpl::WinogradF2 => Some(WinogradTile::F2x2),
+            Deconv2dImpl::WinogradF4 => Some(WinogradTile::F4x4),
+            _ => None,
+        }
+    }
+
+    /// The fastest implementation for `geom` on this CPU (SPEC.md §7.3 has the measurements):
+    /// [`FASTEST_WINOGRAD_DECONV`] with `c_in >= WINOGRAD_MIN_C_IN` where one of the SIMD Winograd
+    /// kernels runs the equivalent convolution, else [`Deconv2dImpl::Direct`] (which falls back to
+    /// [`Deconv2dImpl::ParityGemm`] itself).
+    pub fn fastest_for(geom: &Deconv2dGeometry) -> Deconv2dImpl {
+        let simd = winograd::equivalent_geometry(geom)
+            .is_ok_and(|g| WinogradKernel::select_for(&g, OutputLayout::Deconv) != WinogradKernel::Portable);
+        if simd && geom.c_in() >= WINOGRAD_MIN_C_IN {
+            FASTEST_WINOGRAD_DECONV
+        } else {
+            Deconv2dImpl::Direct
+        }
+    }
 }
+
+/// The Winograd variant [`Deconv2dImpl::fastest_for`] picks.
+pub const FASTEST_WINOGRAD_DECONV: Deconv2dImpl = Deconv2dImpl::WinogradF4;
 
 /// Runs the chosen implementation on f32 arrays, allocating the output and any scratch. (The
 /// reference computes in f64 and rounds once to f32.)
@@ -120,6 +165,13 @@ pub fn deconv2d_into(
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
             return deconv2d_direct(&packed, x, skip, out);
+        }
+        Deconv2dImpl::WinogradF2 | Deconv2dImpl::WinogradF4 => {
+            let tile = imp.winograd_tile().unwrap_or(WinogradTile::F2x2);
+            let packed = packed_deconv_winograd(tile, geom, weight, bias)?;
+            let input = input.as_standard_layout();
+            let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
+            return deconv2d_winograd(&packed, x, skip, out).map(|_| ());
         }
         Deconv2dImpl::ParityGemm | Deconv2dImpl::Direct => {
             let packed = packed_deconv(geom, weight, bias)?;

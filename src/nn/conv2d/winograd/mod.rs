@@ -24,7 +24,13 @@
 //! error is bounded against the magnitude [`winograd_magnitude_reference`] (the same algorithm on
 //! absolute values), not §7.5's `M`.
 //!
-//! Work units are tile rows (`m` output rows); within one, tiles run in groups of [`TILES`].
+//! Work units are tile rows (`m` output rows); within one, tiles run in groups of [`TILES`], and
+//! the SIMD kernels run the dot products and the output transform once per 32 output channels.
+//!
+//! **Transposed convolutions** (SPEC.md §7.3) run here too: the 5x5 stride-2 transposed
+//! convolution is one stride-1 3x3 convolution of its input with `4 c_out` outputs (one block of
+//! `c_out` per output parity, [`OutputLayout::Deconv`]), whose value `(y, x, (2 q_y + q_x) c_out + o)`
+//! is stored at output pixel `(2y + q_y, 2x + q_x)`, channel `o` (`crate::nn::deconv2d::winograd`).
 
 #[cfg(target_arch = "x86_64")]
 mod avx2;
@@ -52,8 +58,44 @@ use crate::nn::{expect_len, expect_shape, Activation};
 /// accumulators (the direct kernel's register blocking).
 pub const TILES: usize = 14;
 
-/// Output channels of the SIMD kernels.
+/// Output channels per pass of the SIMD kernels' dot products and output transform; they run
+/// `c_out` a multiple of it.
 pub const SIMD_C_OUT: usize = 32;
+
+/// Where output value `(y, x, o)` of the (3x3, stride-1) convolution goes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum OutputLayout {
+    /// `[h, w, c_out]`, value `(y, x, o)` at `(y, x, o)`: a convolution.
+    Conv,
+    /// `[2h, 2w, c_out / 4]`, value `(y, x, p c + o)` (`c = c_out / 4`, parity `p = 2 q_y + q_x`) at
+    /// `(2y + q_y, 2x + q_x, o)`: a transposed convolution as four parity convolutions.
+    Deconv,
+}
+
+impl OutputLayout {
+    /// Offset of value `(r, x, o)` in the output rows of a tile row (`r` the row within it, `w`
+    /// the input width, `c_out` the convolution's output channels).
+    #[inline(always)]
+    pub(crate) fn offset(self, w: usize, c_out: usize, r: usize, x: usize, o: usize) -> usize {
+        match self {
+            OutputLayout::Conv => (r * w + x) * c_out + o,
+            OutputLayout::Deconv => {
+                let c = c_out / 4;
+                let (p, o) = (o / c, o % c);
+                ((2 * r + p / 2) * 2 * w + 2 * x + p % 2) * c + o
+            }
+        }
+    }
+
+    /// Whether `lanes`-wide channel vectors never straddle a parity block, so that the SIMD
+    /// kernels can store them whole.
+    fn fits_lanes(self, c_out: usize, lanes: usize) -> bool {
+        match self {
+            OutputLayout::Conv => true,
+            OutputLayout::Deconv => (c_out / 4).is_multiple_of(lanes),
+        }
+    }
+}
 
 /// Which Winograd variant: the output tile's side.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -99,6 +141,7 @@ pub struct PackedWinograd {
     geom: Conv2dGeometry,
     u: Arc<[f32]>,
     bias: Arc<[f32]>,
+    layout: OutputLayout,
 }
 
 impl PackedWinograd {
@@ -130,7 +173,13 @@ impl PackedWinograd {
                 }
             }
         }
-        Ok(PackedWinograd { tile, geom: *geom, u: u.into(), bias: bias.to_vec().into() })
+        Ok(PackedWinograd {
+            tile,
+            geom: *geom,
+            u: u.into(),
+            bias: bias.to_vec().into(),
+            layout: OutputLayout::Conv,
+        })
     }
 
     /// The same transformed weights for another stride-1 geometry with the same channel counts.
@@ -141,6 +190,17 @@ impl PackedWinograd {
         check_geometry(geom)?;
         expect_shape("conv2d weight", &self.geom.weight_shape(), &geom.weight_shape())?;
         Ok(PackedWinograd { geom: *geom, ..self.clone() })
+    }
+
+    /// The same weights with their outputs stored by `layout` (`c_out` a multiple of 4 for
+    /// [`OutputLayout::Deconv`], which `crate::nn::deconv2d::winograd` checks).
+    pub(crate) fn with_layout(self, layout: OutputLayout) -> Self {
+        PackedWinograd { layout, ..self }
+    }
+
+    /// Where the outputs go.
+    pub fn layout(&self) -> OutputLayout {
+        self.layout
     }
 
     /// The variant.
@@ -199,17 +259,38 @@ impl WinogradKernel {
     /// The kernel [`conv2d_winograd`] runs for `geom` on this CPU: the first of AVX-512F,
     /// AVX2+FMA and portable that supports it.
     pub fn select(geom: &Conv2dGeometry) -> WinogradKernel {
-        WinogradKernel::ALL.into_iter().find(|k| k.supports(geom)).unwrap_or(WinogradKernel::Portable)
+        Self::select_for(geom, OutputLayout::Conv)
     }
 
-    /// Whether this kernel can run `geom` (stride 1) on this CPU.
+    /// [`WinogradKernel::select`] for outputs stored by `layout`.
+    pub fn select_for(geom: &Conv2dGeometry, layout: OutputLayout) -> WinogradKernel {
+        WinogradKernel::ALL
+            .into_iter()
+            .find(|k| k.supports_layout(geom, layout))
+            .unwrap_or(WinogradKernel::Portable)
+    }
+
+    /// Whether this kernel can run `geom` (stride 1) on this CPU: the SIMD kernels need `c_out` a
+    /// multiple of 32 ([`SIMD_C_OUT`]; 32 is the network's).
     pub fn supports(self, geom: &Conv2dGeometry) -> bool {
-        let simd = cfg!(target_arch = "x86_64") && geom.c_out() == SIMD_C_OUT;
+        self.supports_layout(geom, OutputLayout::Conv)
+    }
+
+    /// [`WinogradKernel::supports`] for outputs stored by `layout` (a transposed convolution's
+    /// SIMD kernels also need its `c_out / 4` a multiple of their vector width: 16 for AVX-512F,
+    /// 8 for AVX2).
+    pub fn supports_layout(self, geom: &Conv2dGeometry, layout: OutputLayout) -> bool {
+        let c_out = geom.c_out();
+        let simd = cfg!(target_arch = "x86_64") && c_out > 0 && c_out.is_multiple_of(SIMD_C_OUT);
         geom.stride() == 1
             && match self {
-                WinogradKernel::Avx512F => simd && crate::runtime::has_avx512f(),
+                WinogradKernel::Avx512F => {
+                    simd && layout.fits_lanes(c_out, 16) && crate::runtime::has_avx512f()
+                }
                 WinogradKernel::Avx2Fma => {
-                    simd && geom.c_in().is_multiple_of(8) && crate::runtime::has_avx2_fma()
+                    simd && layout.fits_lanes(c_out, 8)
+                        && geom.c_in().is_multiple_of(8)
+                        && crate::runtime::has_avx2_fma()
                 }
                 WinogradKernel::Portable => true,
             }
@@ -253,6 +334,20 @@ impl Scratch {
         let (head, m) = head.split_at_mut(self.at[1]);
         let v = &mut head[self.at[0]..self.at[0] + self.len[0]];
         (v, &mut m[..self.len[1]], &zeros[..self.len[2]])
+    }
+}
+
+/// The output rows of one tile row, the matching `skip` values, and the layout.
+pub(crate) struct Rows<'a> {
+    pub(crate) rows: &'a mut [f32],
+    pub(crate) skip: Option<&'a [f32]>,
+    pub(crate) layout: OutputLayout,
+}
+
+impl Rows<'_> {
+    /// A shorter-lived handle on the same rows.
+    fn reborrow(&mut self) -> Rows<'_> {
+        Rows { rows: self.rows, skip: self.skip, layout: self.layout }
     }
 }
 
@@ -316,32 +411,68 @@ pub fn conv2d_winograd_with(
     let c_out = geom.c_out();
     expect_len("conv2d input", input.len(), h * w * c_in)?;
     expect_len("conv2d output", out.len(), h * w * c_out)?;
-    if !kernel.supports(geom) {
+    if packed.layout != OutputLayout::Conv {
+        return Err(Error::invalid_argument(
+            "conv2d Winograd weights",
+            "packed for a transposed convolution (use deconv2d_winograd)",
+        ));
+    }
+    dispatch(kernel, packed, input, activation, None, out)
+}
+
+/// Runs `kernel` (after checking it supports the packed geometry and layout) on slices whose
+/// lengths the caller checked: `input [h, w, c_in]`, `out` and `skip` (added to every output value
+/// after the bias and activation) of the layout's size.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if `kernel` cannot run this geometry and layout on this CPU.
+pub(crate) fn dispatch(
+    kernel: WinogradKernel,
+    packed: &PackedWinograd,
+    input: &[f32],
+    activation: Activation,
+    skip: Option<&[f32]>,
+    out: &mut [f32],
+) -> Result<()> {
+    let geom = packed.geometry();
+    if !kernel.supports_layout(geom, packed.layout) {
         return Err(Error::invalid_argument(
             "conv2d Winograd kernel",
-            format!("{} cannot run c_in = {c_in}, c_out = {c_out} on this CPU", kernel.name()),
+            format!(
+                "{} cannot run c_in = {}, c_out = {} ({:?} layout) on this CPU",
+                kernel.name(),
+                geom.c_in(),
+                geom.c_out(),
+                packed.layout
+            ),
         ));
     }
     match packed.tile {
-        WinogradTile::F2x2 => run::<F2>(kernel, packed, input, activation, out),
-        WinogradTile::F4x4 => run::<F4>(kernel, packed, input, activation, out),
+        WinogradTile::F2x2 => run::<F2>(kernel, packed, input, activation, skip, out),
+        WinogradTile::F4x4 => run::<F4>(kernel, packed, input, activation, skip, out),
     }
     Ok(())
 }
 
-/// The driver: tile rows in parallel, groups of [`TILES`] tiles in turn.
+/// The driver: tile rows in parallel, groups of [`TILES`] tiles in turn. A tile row's outputs are
+/// `M w c_out` consecutive floats in either layout (`M` rows of `w c_out`, or `2M` rows of
+/// `2w c_out / 4`), and so are its `skip` values.
 fn run<T: Tile>(
     kernel: WinogradKernel,
     packed: &PackedWinograd,
     input: &[f32],
     act: Activation,
+    skip: Option<&[f32]>,
     out: &mut [f32],
 ) {
     let geom = packed.geometry();
     let (w, c_in, c_out) = (geom.w(), geom.c_in(), geom.c_out());
     let tiles = w.div_ceil(T::M);
+    let chunk = T::M * w * c_out;
     let init = || Scratch::new(T::P, w, c_in, c_out);
-    out.par_chunks_mut(T::M * w * c_out).enumerate().for_each_init(init, |scratch, (ty, rows)| {
+    out.par_chunks_mut(chunk).enumerate().for_each_init(init, |scratch, (ty, rows)| {
+        let skip = skip.map(|s| &s[ty * chunk..ty * chunk + rows.len()]);
+        let mut out = Rows { rows, skip, layout: packed.layout };
         for tx0 in (0..tiles).step_by(TILES) {
             let group = Group { ty, tx0, n: TILES.min(tiles - tx0) };
             match kernel {
@@ -349,15 +480,15 @@ fn run<T: Tile>(
                 // SAFETY: `supports` found AVX-512F and c_out = 32; the slice lengths were checked
                 // against the geometry; `rows` holds the tile row's output rows (up to M).
                 WinogradKernel::Avx512F => unsafe {
-                    avx512::group::<T>(packed, input, group, act, scratch, rows);
+                    avx512::group::<T>(packed, input, group, act, scratch, out.reborrow());
                 },
                 #[cfg(target_arch = "x86_64")]
                 // SAFETY: `supports` found AVX2, FMA, c_out = 32 and c_in a multiple of 8; lengths
                 // and rows as above.
                 WinogradKernel::Avx2Fma => unsafe {
-                    avx2::group::<T>(packed, input, group, act, scratch, rows);
+                    avx2::group::<T>(packed, input, group, act, scratch, out.reborrow());
                 },
-                _ => portable::group::<T>(packed, input, group, act, scratch, rows),
+                _ => portable::group::<T>(packed, input, group, act, scratch, out.reborrow()),
             }
         }
     });

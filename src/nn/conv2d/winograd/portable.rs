@@ -2,17 +2,17 @@
 //! with the SIMD kernels' bits (the same [`fold`] rule, FMAs by `f32::mul_add`).
 
 use super::tiles::{fmac_f32 as fma, fold, mulc_f32 as mul, Tile, MAX_POINTS, MAX_R};
-use super::{Group, PackedWinograd, Scratch};
+use super::{Group, PackedWinograd, Rows, Scratch};
 use crate::nn::Activation;
 
-/// One group of tiles of variant `T` into `rows` (the tile row's output rows).
+/// One group of tiles of variant `T` into `out` (the tile row's output rows, in its layout).
 pub(super) fn group<T: Tile>(
     packed: &PackedWinograd,
     input: &[f32],
     g: Group,
     activation: Activation,
     scratch: &mut Scratch,
-    rows: &mut [f32],
+    out: Rows<'_>,
 ) {
     let geom = packed.geometry();
     let (h, w, c_in, c_out) = (geom.h(), geom.w(), geom.c_in(), geom.c_out());
@@ -48,7 +48,7 @@ pub(super) fn group<T: Tile>(
             }
         }
     }
-    // Output transform, bias, activation.
+    // Output transform, bias, activation, skip value.
     let bias = packed.bias();
     for t in 0..g.n {
         let tx = g.tx0 + t;
@@ -58,7 +58,9 @@ pub(super) fn group<T: Tile>(
                 for (j, yrj) in yr.iter().enumerate().take(T::M) {
                     let (oy, ox) = (T::M * g.ty + r, T::M * tx + j);
                     if oy < h && ox < w {
-                        rows[(r * w + ox) * c_out + o] = relu_like_maxps(activation, yrj + bias[o]);
+                        let at = out.layout.offset(w, c_out, r, ox, o);
+                        let val = relu_like_maxps(activation, yrj + bias[o]);
+                        out.rows[at] = out.skip.map_or(val, |s| val + s[at]);
                     }
                 }
             }

@@ -67,27 +67,31 @@ macro_rules! simd_common {
             v
         }
 
-        /// `act((Aᵀ M A) + b)` for every tile of the group into its (up to) `M x M` output pixels.
+        /// `act((Aᵀ M A) + b)` (plus the skip value when given) for every tile of the group into
+        /// its (up to) `M x M` output pixels, output channels `32 og .. 32 og + 32` (the dot
+        /// products in `m` are theirs), stored by the layout.
         ///
         /// # Safety
-        /// As the module's `group`.
+        /// As the module's `group`; `og < c_out / 32`.
         #[target_feature(enable = $feat)]
         unsafe fn output_transform<T: Tile>(
             packed: &PackedWinograd,
             g: Group,
             activation: Activation,
             m: &[f32],
-            rows: &mut [f32],
+            out: &mut Rows<'_>,
+            og: usize,
         ) {
             let geom = packed.geometry();
-            let (h, w) = (geom.h(), geom.w());
+            let (h, w, c_out) = (geom.h(), geom.w(), geom.c_out());
             let relu = activation == Activation::Relu;
             let zero = $zero();
-            let out = rows.as_mut_ptr();
+            let (dst, skip, layout) = (out.rows.as_mut_ptr(), out.skip.map(<[f32]>::as_ptr), out.layout);
             let n_rows = T::M.min(h - T::M * g.ty);
             for q in 0..SIMD_C_OUT / $lanes {
-                // SAFETY: the bias holds 32 floats.
-                let b = unsafe { $load(packed.bias().as_ptr().add(q * $lanes)) };
+                let o = og * SIMD_C_OUT + q * $lanes;
+                // SAFETY: the bias holds c_out floats, o + lanes <= c_out.
+                let b = unsafe { $load(packed.bias().as_ptr().add(o)) };
                 for t in 0..g.n {
                     let tx = g.tx0 + t;
                     let mut x = [zero; MAX_POINTS];
@@ -109,8 +113,16 @@ macro_rules! simd_common {
                             if relu {
                                 val = $maxp(val, zero);
                             }
-                            // SAFETY: output row r < n_rows of the tile row, column ox < w.
-                            unsafe { $store(out.add((r * w + ox) * SIMD_C_OUT + q * $lanes), val) };
+                            let at = layout.offset(w, c_out, r, ox, o);
+                            // SAFETY: output row r < n_rows of the tile row, column ox < w, and the
+                            // layout keeps a vector inside one parity block (`supports_layout`);
+                            // `skip` has the rows' length.
+                            unsafe {
+                                if let Some(sk) = skip {
+                                    val = $addp(val, $load(sk.add(at)));
+                                }
+                                $store(dst.add(at), val);
+                            }
                         }
                     }
                 }

@@ -80,7 +80,7 @@ fn cases() -> impl Strategy<Value = Case> {
         prop::sample::select(SIZES.to_vec()),
         prop::sample::select(SIZES.to_vec()),
         prop::sample::select(vec![1usize, 3, 16, 17, 32, 35]),
-        prop::sample::select(vec![1usize, 8, 32]),
+        prop::sample::select(vec![1usize, 8, 32, 64]),
         any::<bool>(),
         any::<u64>(),
     )

@@ -77,7 +77,7 @@ pub enum Conv2dImpl {
     Direct,
     /// Winograd F(2x2, 3x3) for **stride-1** layers ([`conv2d_winograd`], SPEC.md §7.11): 2.25x fewer
     /// multiplications, parallel over tile rows, its own error budget ([`winograd_budget`]). Runs
-    /// the AVX-512F kernel when the CPU has AVX-512F and `c_out = 32`, else the AVX2+FMA one
+    /// the AVX-512F kernel when the CPU has AVX-512F and `c_out` is a multiple of 32, else the AVX2+FMA one
     /// (`c_in` a multiple of 8 too), else a portable one, all with the same bits. A stride-2
     /// geometry is an [`crate::Error::InvalidArgument`].
     WinogradF2,
@@ -126,7 +126,7 @@ impl Conv2dImpl {
 
     /// The fastest implementation for `geom` on this CPU (SPEC.md §7.11 has the measurements):
     /// [`FASTEST_WINOGRAD`] for stride-1 layers with `c_in >= WINOGRAD_MIN_C_IN` where one of
-    /// its SIMD kernels (AVX-512F, AVX2+FMA; `c_out = 32`) runs; else [`Conv2dImpl::Direct`] when
+    /// its SIMD kernels (AVX-512F, AVX2+FMA; `c_out` a multiple of 32) runs; else [`Conv2dImpl::Direct`] when
     /// one of its SIMD kernels runs `geom`; otherwise [`Conv2dImpl::Im2colGemm`].
     pub fn fastest_for(geom: &Conv2dGeometry) -> Conv2dImpl {
         if geom.c_in() >= WINOGRAD_MIN_C_IN && WinogradKernel::select(geom) != WinogradKernel::Portable {

@@ -240,10 +240,11 @@ fn check_geometry(geom: &Conv2dGeometry) -> Result<()> {
 #[non_exhaustive]
 pub enum WinogradKernel {
     /// x86-64 AVX-512F: groups of [`TILES`] tiles x 32 output channels, channel-vectorised
-    /// transforms. Only for `c_out = 32` on a CPU with AVX-512F (detected at run time).
+    /// transforms, per 32 output channels. Only for `c_out` a multiple of 32 on a CPU with AVX-512F
+    /// (detected at run time).
     Avx512F,
     /// x86-64 AVX2 + FMA (CPUs without AVX-512): blocks of 6 tiles x 16 output channels, run once
-    /// per channel half; transforms 8 channels per ymm. Only for `c_out = 32` and `c_in` a
+    /// per channel half; transforms 8 channels per ymm. Only for `c_out` a multiple of 32 and `c_in` a
     /// multiple of 8. The same bits as [`WinogradKernel::Avx512F`].
     Avx2Fma,
     /// Plain Rust, any `c_out`, every target; FMAs by `f32::mul_add` (fused everywhere), so it
@@ -477,14 +478,15 @@ fn run<T: Tile>(
             let group = Group { ty, tx0, n: TILES.min(tiles - tx0) };
             match kernel {
                 #[cfg(target_arch = "x86_64")]
-                // SAFETY: `supports` found AVX-512F and c_out = 32; the slice lengths were checked
-                // against the geometry; `rows` holds the tile row's output rows (up to M).
+                // SAFETY: `supports_layout` found AVX-512F and c_out a multiple of 32 (with whole
+                // vectors per parity block for a transposed convolution); the slice lengths were
+                // checked against the geometry; `out` holds the tile row's outputs (and skip values).
                 WinogradKernel::Avx512F => unsafe {
                     avx512::group::<T>(packed, input, group, act, scratch, out.reborrow());
                 },
                 #[cfg(target_arch = "x86_64")]
-                // SAFETY: `supports` found AVX2, FMA, c_out = 32 and c_in a multiple of 8; lengths
-                // and rows as above.
+                // SAFETY: `supports_layout` found AVX2, FMA, c_out a multiple of 32 and c_in of 8;
+                // lengths and outputs as above.
                 WinogradKernel::Avx2Fma => unsafe {
                     avx2::group::<T>(packed, input, group, act, scratch, out.reborrow());
                 },

@@ -19,7 +19,8 @@ The machine-state indicator `densefeat bench gemm --threads 1` (GFLOP/s; about 2
 2-vCPU build machine) is printed before and after, with the 1-minute load average per row.
 
 Correctness is not checked here: `ort_compare.py` and `torch_network.py` do that (and time each
-peer on its own).
+peer on its own). A peer whose Python packages are missing is skipped with a message naming the
+requirements file; the ratio is then to the fastest peer that ran.
 
 Usage: python3 benches/compare/peers.py [--densefeat PATH] [--runs 20] [--rounds 3]
 """
@@ -34,11 +35,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import onnxruntime as ort  # noqa: E402
-import torch  # noqa: E402
+try:
+    import ort_compare as oc  # noqa: E402
+except ImportError as e:  # onnxruntime / onnx missing
+    sys.exit(f"peers.py needs ort_compare.py's packages ({e}): pip install -r benches/compare/requirements.txt")
+try:
+    import torch  # noqa: E402
 
-import ort_compare as oc  # noqa: E402
-import torch_network as tn  # noqa: E402
+    import torch_network as tn  # noqa: E402
+except ImportError as e:
+    torch, tn = None, None
+    TORCH_MISSING = f"SKIPPED: PyTorch ({e}; pip install -r benches/compare/requirements-torch.txt)"
 
 CONFIGS = [(size, stride, threads) for size in ((320, 240), (640, 480)) for stride in (2, 1) for threads in (1, 2)]
 
@@ -59,7 +66,8 @@ def main() -> int:
     if args.rounds < 1:
         p.error("--rounds must be at least 1")
     exe = oc.find_densefeat(args.densefeat)
-    print(f"densefeat: {exe}\nonnxruntime {ort.__version__}, torch {torch.__version__}, cpus {os.cpu_count()}")
+    versions = f"onnxruntime {oc.ort.__version__}, " + (f"torch {torch.__version__}" if torch else TORCH_MISSING)
+    print(f"densefeat: {exe}\n{versions}, cpus {os.cpu_count()}")
     before = gemm_indicator(exe)
     print(f"machine state: `densefeat bench gemm --threads 1` {before:.1f} GFLOP/s (idle ~200), load {os.getloadavg()}\n")
     print(f"## Median ms, lowest over {args.rounds} interleaved rounds, {args.runs} runs each\n")
@@ -80,14 +88,14 @@ def main() -> int:
             x = oc.to_nchw(oc.bench_pattern(h, w))
             sess = oc.session(model, threads)
             quiet = oc.session(model, threads, spin=False) if threads > 1 else None
-            net, _, _, _ = tn.build(weights[stride])
+            net = tn.build(weights[stride])[0] if tn else None
             size = f"{w}x{h}"
             sides = {
                 "densefeat": lambda: oc.bench_forward_ms(exe, w, h, stride, threads, args.runs),
                 "ort": lambda: oc.ort_median_ms(sess, x, args.runs),
                 "ort_quiet": (lambda: oc.ort_median_ms(quiet, x, args.runs)) if quiet is not None else None,
-                "torch_cl": lambda: tn.bench_torch(net, size, threads, args.runs, True),
-                "torch_nchw": lambda: tn.bench_torch(net, size, threads, args.runs, False),
+                "torch_cl": (lambda: tn.bench_torch(net, size, threads, args.runs, True)) if tn else None,
+                "torch_nchw": (lambda: tn.bench_torch(net, size, threads, args.runs, False)) if tn else None,
             }
             names = [n for n, f in sides.items() if f is not None]
             best = {n: float("inf") for n in names}
@@ -97,13 +105,17 @@ def main() -> int:
                     best[n] = min(best[n], sides[n]())
             ours = best["densefeat"]
             ort_best = min(best["ort"], best.get("ort_quiet", float("inf")))
-            peer = min(ort_best, best["torch_cl"], best["torch_nchw"])
-            ratio = ours / peer
+            torch_best = min(best.get("torch_cl", float("inf")), best.get("torch_nchw", float("inf")))
+            ratio = ours / min(ort_best, torch_best)
             worst = max(worst, ratio)
-            quiet_ms = f"{best['ort_quiet']:.2f}" if "ort_quiet" in best else "—"
-            print(f"| {size} | {stride} | {threads} | {ours:.2f} | {best['ort']:.2f} | {quiet_ms} | "
-                  f"{best['torch_cl']:.2f} | {best['torch_nchw']:.2f} | {ours / ort_best:.2f} | "
-                  f"{ours / best['torch_cl']:.2f} | **{ratio:.2f}** | {os.getloadavg()[0]:.1f} |", flush=True)
+
+            def ms(name):
+                return f"{best[name]:.2f}" if name in best else "—"
+
+            vs_cl = f"{ours / best['torch_cl']:.2f}" if "torch_cl" in best else "—"
+            print(f"| {size} | {stride} | {threads} | {ours:.2f} | {ms('ort')} | {ms('ort_quiet')} | "
+                  f"{ms('torch_cl')} | {ms('torch_nchw')} | {ours / ort_best:.2f} | {vs_cl} | "
+                  f"**{ratio:.2f}** | {os.getloadavg()[0]:.1f} |", flush=True)
             del sess, quiet, net
     after = gemm_indicator(exe)
     print(f"\nworst densefeat / fastest peer: {worst:.2f}")

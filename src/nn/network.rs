@@ -42,7 +42,9 @@ impl NetworkImpl {
     /// The fast kernels (the default). In a network, `conv: Direct` runs every layer with
     /// [`Conv2dImpl::fastest_for`] its geometry: Winograd F(4x4, 3x3) for the stride-1 `32 -> 32`
     /// layers and Direct for the others, with the AVX-512F or AVX2+FMA kernels (the same bits),
-    /// `Im2colGemm` on CPUs with neither (SPEC.md §7.7, §7.11, §8.1).
+    /// `Im2colGemm` on CPUs with neither; and `deconv: Direct` each transposed convolution with
+    /// [`Deconv2dImpl::fastest_for`]: Winograd F(4x4, 3x3) on its equivalent convolution where a
+    /// SIMD kernel runs it, else Direct (SPEC.md §7.3, §7.7, §7.11, §8.1).
     pub const FAST: NetworkImpl = NetworkImpl { conv: Conv2dImpl::Direct, deconv: Deconv2dImpl::Direct };
     /// The f64 reference kernels (the oracle; single-threaded and slow).
     pub const REFERENCE: NetworkImpl =

@@ -124,3 +124,21 @@ fn bench_forward_requires_twenty_runs() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--runs"));
 }
+
+#[test]
+fn bench_forward_names_the_kernels_it_runs() {
+    let out = bin()
+        .args(["bench", "forward", "--size", "32x32", "--runs", "20", "--gemm-size", "64"])
+        .env("DENSEFEAT_NO_AVX512", "1")
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let line = stdout.lines().find(|l| l.starts_with("kernels (cpu backend")).expect("a kernels line");
+    for kind in ["conv s2 3->32: ", "conv s1 32->32: ", "concat + conv s2 35->32: ", "deconv 5x5 s2 + add: "]
+    {
+        assert!(line.contains(kind), "{kind} missing from {line}");
+    }
+    // With AVX-512 switched off at run time no AVX-512 kernel is named.
+    assert!(!line.contains("avx512"), "{line}");
+}

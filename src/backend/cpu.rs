@@ -9,11 +9,12 @@ use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use crate::nn::alloc::zeroed_vec;
+use crate::nn::conv2d::{OutputLayout, WinogradKernel};
 use crate::nn::network::{concat_conv_geometry, conv_geometry, deconv_geometry};
 use crate::nn::weights::LayerParams;
 use crate::nn::{
     add, concat_channels_into, conv2d_concat_into, conv2d_into, deconv2d_into, downsample2x, expect_shape,
-    Activation, Conv2dImpl, Deconv2dImpl, NetworkImpl,
+    Activation, Conv2dGeometry, Conv2dImpl, Deconv2dImpl, NetworkConfig, NetworkImpl,
 };
 
 /// Kernel choices of the CPU backend. [`CpuBackend::default`] is the fast one; tests build others
@@ -56,6 +57,57 @@ impl CpuBackend {
             Deconv2dImpl::Direct => Deconv2dImpl::fastest_for(geom),
             other => other,
         }
+    }
+
+    /// What this backend runs, on this CPU, for each layer kind of `config`'s network on an `h x w`
+    /// image: `(layer kind, "implementation (kernel)")`, in the profile's names (`densefeat bench
+    /// forward` prints it), e.g. `("conv s1 32->32", "WinogradF4 (winograd-avx512f-14x32)")`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] for an invalid configuration or an empty image.
+    pub fn network_kernels(
+        &self,
+        config: &NetworkConfig,
+        h: usize,
+        w: usize,
+    ) -> Result<Vec<(String, String)>> {
+        config.validate()?;
+        let c = config.channels;
+        let (ph, pw) = config.padded_size(h, w);
+        let mut kinds = Vec::new();
+        let mut conv = |name: String, g: Conv2dGeometry| {
+            let imp = self.conv_impl_for(&g);
+            let kernel = match imp {
+                Conv2dImpl::WinogradF2 | Conv2dImpl::WinogradF4 => WinogradKernel::select(&g).name(),
+                Conv2dImpl::Direct => crate::nn::conv2d::direct::kernel_name(&g),
+                Conv2dImpl::Im2colGemm => "matrixmultiply sgemm",
+                _ => "f64 loops",
+            };
+            kinds.push((name, format!("{imp:?} ({kernel})")));
+        };
+        let s = config.b1_stride;
+        let (h1, w1) = NetworkConfig::level_size(ph, pw, config.block_level(0));
+        conv(format!("conv s{s} 3->{c}"), Conv2dGeometry::new(ph, pw, 3, c, s)?);
+        conv(format!("conv s1 {c}->{c}"), Conv2dGeometry::new(h1, w1, c, c, 1)?);
+        if config.blocks > 1 {
+            let ci = config.block_in_channels(1);
+            conv(format!("concat + conv s2 {ci}->{c}"), Conv2dGeometry::new(h1, w1, ci, c, 2)?);
+            let g = crate::nn::Deconv2dGeometry::new(h1.div_ceil(2), w1.div_ceil(2), c, c)?;
+            let imp = self.deconv_impl_for(&g);
+            let kernel = match imp {
+                Deconv2dImpl::WinogradF2 | Deconv2dImpl::WinogradF4 => {
+                    let e = crate::nn::deconv2d::winograd::equivalent_geometry(&g)?;
+                    WinogradKernel::select_for(&e, OutputLayout::Deconv).name()
+                }
+                Deconv2dImpl::Direct if crate::nn::deconv2d::direct::supported(&g) => {
+                    crate::nn::deconv2d::direct::select(&g).name()
+                }
+                Deconv2dImpl::Direct | Deconv2dImpl::ParityGemm => "parity GEMMs, matrixmultiply",
+                _ => "f64 loops",
+            };
+            kinds.push(("deconv 5x5 s2 + add".into(), format!("{imp:?} ({kernel})")));
+        }
+        Ok(kinds)
     }
 
     /// The f64 reference kernels everywhere (single-threaded and slow: the oracle).

@@ -130,6 +130,11 @@ fn run_forward(args: &ForwardArgs) -> Result<()> {
         args.runs,
         100.0 * gflops / peak
     );
+    if backend.name() == "cpu" {
+        let kinds = crate::backend::CpuBackend::default().network_kernels(&config, h, w)?;
+        let list: Vec<String> = kinds.iter().map(|(kind, imp)| format!("{kind}: {imp}")).collect();
+        println!("\nkernels (cpu backend, this CPU): {}", list.join("; "));
+    }
     if args.profile {
         let (rows, total) =
             pool.install(|| crate::nn::profile_forward(&net, backend, image.view(), args.runs))?;

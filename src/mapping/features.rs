@@ -206,8 +206,10 @@ pub fn upsample_to(x: ArrayView3<f32>, levels: u32, out_h: usize, out_w: usize) 
     let cols: Vec<(usize, usize, f64)> = (0..out_w).map(|j| corner(j, w)).collect();
     let x = x.as_standard_layout();
     let Some(src) = x.as_slice() else { unreachable!("standard layout is contiguous") };
-    // Huge pages for the large map (one page fault per 2 MB instead of per 4 KB).
-    let mut out = crate::nn::alloc::zeroed_vec(out_h * out_w * c);
+    // Huge pages for the large map (one page fault per 2 MB instead of per 4 KB), starting on a
+    // cache line so that the cost volume's block kernel reads it without an aligned copy.
+    let mut map = crate::nn::alloc::zeroed_map_aligned([out_h, out_w, c]);
+    let Some(out) = map.as_slice_mut() else { unreachable!("a new map is standard layout") };
     #[cfg(target_arch = "x86_64")]
     let avx512 = is_x86_feature_detected!("avx512f");
     out.par_chunks_mut(out_w * c).enumerate().for_each(|(i, row)| {
@@ -221,7 +223,7 @@ pub fn upsample_to(x: ArrayView3<f32>, levels: u32, out_h: usize, out_w: usize) 
         }
         upsample_row(rows, &cols, b, c, row);
     });
-    Array3::from_shape_vec((out_h, out_w, c), out).expect("length is H·W·C")
+    map
 }
 
 #[cfg(target_arch = "x86_64")]

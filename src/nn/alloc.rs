@@ -33,6 +33,24 @@ pub fn zeroed_map(shape: [usize; 3]) -> Array3<f32> {
     a
 }
 
+/// Floats per cache line: [`zeroed_map_aligned`]'s alignment.
+const LINE_FLOATS: usize = 16;
+
+/// A zeroed `shape` map like [`zeroed_map`] whose first value starts a 64-byte cache line: the
+/// storage is `LINE_FLOATS - 1` floats longer and the array starts at the first aligned one (an
+/// owned array with an offset; its values and layout are [`zeroed_map`]'s). Kernels that load
+/// whole 64-byte chunks (the cost volume's block kernel, SPEC.md §9.4) then read it without an
+/// aligned copy.
+pub fn zeroed_map_aligned(shape: [usize; 3]) -> Array3<f32> {
+    let n: usize = shape.iter().product();
+    let v = zeroed_vec(n + LINE_FLOATS - 1);
+    // `f32` storage is 4-byte aligned, so a line boundary is at most 15 floats in.
+    let skip = (v.as_ptr() as usize).next_multiple_of(64).wrapping_sub(v.as_ptr() as usize) / 4;
+    let line = ndarray::Array1::from_vec(v).slice_move(ndarray::s![skip..skip + n]);
+    let Ok(a) = line.into_shape_with_order(shape) else { unreachable!("length is the shape's product") };
+    a
+}
+
 /// Asks the kernel to back the whole 2 MB pages inside `v` with huge pages (best effort).
 #[cfg(target_os = "linux")]
 fn advise_huge_pages(v: &[f32]) {
@@ -67,6 +85,11 @@ mod tests {
             assert_eq!(m.shape(), &shape);
             assert!(m.is_standard_layout());
             assert!(m.iter().all(|v| v.to_bits() == 0));
+            let a = zeroed_map_aligned(shape);
+            assert_eq!(a.shape(), &shape);
+            assert!(a.is_standard_layout() && a.as_slice().is_some());
+            assert!((a.as_ptr() as usize).is_multiple_of(64), "{shape:?}");
+            assert!(a.iter().all(|v| v.to_bits() == 0));
         }
     }
 }

@@ -77,47 +77,28 @@ pub(super) unsafe fn group<T: Tile>(
     }
 }
 
-/// `V[ξ][t][c]` for every tile of the group, 8 channels at a time; rows outside the image read
-/// `zeros`, columns outside it give zero.
+/// The 8 floats at `p` (`c_in` is a multiple of 8, so every chunk is whole).
 ///
 /// # Safety
-/// As [`group`]; `v` holds `P · n · c_in` floats, `zeros` `w · c_in` zeros.
+/// AVX2; `p .. p + 8` readable.
+#[inline]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn input_transform<T: Tile>(
-    packed: &PackedWinograd,
-    input: &[f32],
-    g: Group,
-    v: &mut [f32],
-    zeros: &[f32],
-) {
-    let geom = packed.geometry();
-    let (h, w, c_in) = (geom.h(), geom.w(), geom.c_in());
-    debug_assert!(zeros.len() >= w * c_in);
-    let vp = v.as_mut_ptr();
-    let rows = window_rows::<T>(input, g, (h, w, c_in), zeros);
-    for t in 0..g.n {
-        let tx = g.tx0 + t;
-        for c0 in (0..c_in).step_by(LANES) {
-            let mut d = [[_mm256_setzero_ps(); MAX_R]; MAX_R];
-            for (r, dr) in d.iter_mut().enumerate().take(T::R) {
-                for (j, dk) in dr.iter_mut().enumerate().take(T::R) {
-                    let ix = (T::M * tx + j).wrapping_sub(1);
-                    if ix < w {
-                        // SAFETY: column ix is inside the image and channels c0 .. c0 + 8 exist;
-                        // the row pointer is an image row or `zeros` (w c_in floats).
-                        *dk = unsafe { _mm256_loadu_ps(rows[r].add(ix * c_in + c0)) };
-                    }
-                }
-            }
-            for (i, vi) in input_window::<T>(&d).iter().enumerate().take(T::R) {
-                for (j, &val) in vi.iter().enumerate().take(T::R) {
-                    let at = ((T::R * i + j) * g.n + t) * c_in + c0;
-                    // SAFETY: at + 8 <= P n c_in (caller contract).
-                    unsafe { _mm256_storeu_ps(vp.add(at), val) };
-                }
-            }
-        }
-    }
+unsafe fn load_chunk(p: *const f32, lanes: usize) -> __m256 {
+    debug_assert_eq!(lanes, LANES);
+    // SAFETY: caller contract.
+    unsafe { _mm256_loadu_ps(p) }
+}
+
+/// Stores the 8 floats of `v` at `p`.
+///
+/// # Safety
+/// AVX2; `p .. p + 8` writable.
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn store_chunk(p: *mut f32, lanes: usize, v: __m256) {
+    debug_assert_eq!(lanes, LANES);
+    // SAFETY: caller contract.
+    unsafe { _mm256_storeu_ps(p, v) }
 }
 
 /// `M[ξ][t][o - 32 og]` for tiles `t0 .. t0 + p` and output channels `o` in `32 og + 16 h .. + 16`,

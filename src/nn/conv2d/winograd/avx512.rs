@@ -67,56 +67,41 @@ pub(super) unsafe fn group<T: Tile>(
     }
 }
 
-/// `V[ξ][t][c] = (Bᵀ d B)[ξ]` for every tile `t` of the group and channel `c`, 16 channels at a
-/// time (the last chunk masked). Rows are read through row pointers, a row outside the image
-/// pointing at `zeros`; columns outside the image give zero.
+/// The first `lanes <= 16` floats at `p` (masked: nothing past them is read), zeros above.
 ///
 /// # Safety
-/// As [`group`]; `v` holds `P · n · c_in` floats, `zeros` `w · c_in` zeros.
+/// AVX-512F; `p .. p + lanes` readable.
+#[inline]
 #[target_feature(enable = "avx512f")]
-unsafe fn input_transform<T: Tile>(
-    packed: &PackedWinograd,
-    input: &[f32],
-    g: Group,
-    v: &mut [f32],
-    zeros: &[f32],
-) {
-    let geom = packed.geometry();
-    let (h, w, c_in) = (geom.h(), geom.w(), geom.c_in());
-    debug_assert!(zeros.len() >= w * c_in);
-    let vp = v.as_mut_ptr();
-    let rows = window_rows::<T>(input, g, (h, w, c_in), zeros);
-    for t in 0..g.n {
-        let tx = g.tx0 + t;
-        for c0 in (0..c_in).step_by(LANES) {
-            let lanes = LANES.min(c_in - c0);
-            let chan: __mmask16 = if lanes == LANES { !0 } else { (1u16 << lanes) - 1 };
-            let mut d = [[_mm512_setzero_ps(); MAX_R]; MAX_R];
-            for (r, dr) in d.iter_mut().enumerate().take(T::R) {
-                for (j, dk) in dr.iter_mut().enumerate().take(T::R) {
-                    let ix = (T::M * tx + j).wrapping_sub(1);
-                    if ix < w {
-                        // SAFETY: column ix is inside the image and channels c0 .. c0 + lanes
-                        // exist (masked-off lanes are not accessed); the row pointer is an image
-                        // row or `zeros` (w c_in floats).
-                        *dk = unsafe { _mm512_maskz_loadu_ps(chan, rows[r].add(ix * c_in + c0)) };
-                    }
-                }
-            }
-            for (i, vi) in input_window::<T>(&d).iter().enumerate().take(T::R) {
-                for (j, &val) in vi.iter().enumerate().take(T::R) {
-                    let at = ((T::R * i + j) * g.n + t) * c_in + c0;
-                    // SAFETY: at + lanes <= P n c_in (caller contract).
-                    unsafe {
-                        if lanes == LANES {
-                            _mm512_storeu_ps(vp.add(at), val);
-                        } else {
-                            _mm512_mask_storeu_ps(vp.add(at), chan, val);
-                        }
-                    }
-                }
-            }
+unsafe fn load_chunk(p: *const f32, lanes: usize) -> __m512 {
+    // SAFETY: masked-off lanes are not accessed.
+    unsafe { _mm512_maskz_loadu_ps(chunk_mask(lanes), p) }
+}
+
+/// Stores the first `lanes <= 16` floats of `v` at `p` (masked when short).
+///
+/// # Safety
+/// AVX-512F; `p .. p + lanes` writable.
+#[inline]
+#[target_feature(enable = "avx512f")]
+unsafe fn store_chunk(p: *mut f32, lanes: usize, v: __m512) {
+    // SAFETY: a full chunk is `p .. p + 16`; masked-off lanes are not accessed.
+    unsafe {
+        if lanes == LANES {
+            _mm512_storeu_ps(p, v);
+        } else {
+            _mm512_mask_storeu_ps(p, chunk_mask(lanes), v);
         }
+    }
+}
+
+/// The mask of the first `lanes <= 16` lanes.
+#[inline]
+fn chunk_mask(lanes: usize) -> __mmask16 {
+    if lanes >= LANES {
+        !0
+    } else {
+        (1u16 << lanes) - 1
     }
 }
 

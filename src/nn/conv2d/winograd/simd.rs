@@ -1,11 +1,13 @@
 //! The parts the AVX-512 and AVX2 Winograd kernels share, written once and instantiated per
 //! register type by [`simd_common`]: lane helpers, the transform rows ([`super::tiles`]'s
-//! `winograd_rows`) and the output transform.
+//! `winograd_rows`), the input transform and the output transform.
 
 /// Generates, in the invoking kernel module, for the vector type `$v` of `$lanes` f32 lanes and the
 /// target feature `$feat`: `mulc`, `fmac`, `add`, `sub`, `bt_rows`, `at_rows`, `input_window::<T>`
-/// (`Bᵀ d B` of one window) and `output_transform::<T>` (`act((Aᵀ M A) + b)` for every tile of a
-/// group into its up to `M x M` output pixels, `$lanes` channels at a time).
+/// (`Bᵀ d B` of one window), `input_transform::<T>` (`V` of every tile of a group) and
+/// `output_transform::<T>` (`act((Aᵀ M A) + b)` for every tile of a group into its up to `M x M`
+/// output pixels), `$lanes` channels at a time. The invoking module provides
+/// `load_chunk(p, lanes)` and `store_chunk(p, lanes, v)` for the first `lanes <= $lanes` channels.
 macro_rules! simd_common {
     ($feat:literal, $v:ty, $lanes:expr, $load:path, $store:path, $addp:path, $subp:path, $mulp:path,
      $fmaddp:path, $set1:path, $maxp:path, $zero:path) => {
@@ -65,6 +67,53 @@ macro_rules! simd_common {
                 }
             }
             v
+        }
+
+        /// `V[ξ][t][c] = (Bᵀ d B)[ξ]` for every tile `t` of the group and channel `c`, `$lanes`
+        /// channels at a time (`load_chunk` / `store_chunk` for the last, shorter chunk). Rows are
+        /// read through row pointers, a row outside the image pointing at `zeros`; columns outside
+        /// the image give zero.
+        ///
+        /// # Safety
+        /// As the module's `group`; `v` holds `P · n · c_in` floats, `zeros` `w · c_in` zeros.
+        #[target_feature(enable = $feat)]
+        unsafe fn input_transform<T: Tile>(
+            packed: &PackedWinograd,
+            input: &[f32],
+            g: Group,
+            v: &mut [f32],
+            zeros: &[f32],
+        ) {
+            let geom = packed.geometry();
+            let (h, w, c_in) = (geom.h(), geom.w(), geom.c_in());
+            debug_assert!(zeros.len() >= w * c_in);
+            let vp = v.as_mut_ptr();
+            let rows = window_rows::<T>(input, g, (h, w, c_in), zeros);
+            for t in 0..g.n {
+                let tx = g.tx0 + t;
+                for c0 in (0..c_in).step_by($lanes) {
+                    let lanes = ($lanes).min(c_in - c0);
+                    let mut d = [[$zero(); MAX_R]; MAX_R];
+                    for (r, dr) in d.iter_mut().enumerate().take(T::R) {
+                        for (j, dk) in dr.iter_mut().enumerate().take(T::R) {
+                            let ix = (T::M * tx + j).wrapping_sub(1);
+                            if ix < w {
+                                // SAFETY: column ix is inside the image and channels c0 .. c0 +
+                                // lanes exist; the row pointer is an image row or `zeros` (w c_in
+                                // floats).
+                                *dk = unsafe { load_chunk(rows[r].add(ix * c_in + c0), lanes) };
+                            }
+                        }
+                    }
+                    for (i, vi) in input_window::<T>(&d).iter().enumerate().take(T::R) {
+                        for (j, &val) in vi.iter().enumerate().take(T::R) {
+                            let at = ((T::R * i + j) * g.n + t) * c_in + c0;
+                            // SAFETY: at + lanes <= P n c_in (caller contract).
+                            unsafe { store_chunk(vp.add(at), lanes, val) };
+                        }
+                    }
+                }
+            }
         }
 
         /// `act((Aᵀ M A) + b)` (plus the skip value when given) for every tile of the group into

@@ -318,10 +318,12 @@ pub(crate) struct Scratch {
 }
 
 impl Scratch {
-    /// Scratch for `points` points, a `w`-wide map with `c_in` input and `c_out` output channels.
-    fn new(points: usize, w: usize, c_in: usize, c_out: usize) -> Self {
+    /// Scratch for `points` points, a `w`-wide map with `c_in` input channels, and `M` holding
+    /// `m_channels` output channels per tile (the SIMD kernels fill it 32 channels at a time, the
+    /// portable one with all of `c_out`).
+    fn new(points: usize, w: usize, c_in: usize, m_channels: usize) -> Self {
         const ALIGN: usize = 16; // floats per 64 bytes
-        let len = [points * TILES * c_in, points * TILES * c_out, w * c_in];
+        let len = [points * TILES * c_in, points * TILES * m_channels, w * c_in];
         let buf = vec![0.0f32; len.iter().map(|l| l.next_multiple_of(ALIGN)).sum::<usize>() + ALIGN];
         let first = buf.as_ptr().align_offset(64).min(ALIGN);
         let at1 = first + len[0].next_multiple_of(ALIGN);
@@ -470,7 +472,8 @@ fn run<T: Tile>(
     let (w, c_in, c_out) = (geom.w(), geom.c_in(), geom.c_out());
     let tiles = w.div_ceil(T::M);
     let chunk = T::M * w * c_out;
-    let init = || Scratch::new(T::P, w, c_in, c_out);
+    let m_channels = if kernel == WinogradKernel::Portable { c_out } else { SIMD_C_OUT };
+    let init = || Scratch::new(T::P, w, c_in, m_channels);
     out.par_chunks_mut(chunk).enumerate().for_each_init(init, |scratch, (ty, rows)| {
         let skip = skip.map(|s| &s[ty * chunk..ty * chunk + rows.len()]);
         let mut out = Rows { rows, skip, layout: packed.layout };

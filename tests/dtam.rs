@@ -251,8 +251,11 @@ fn step_equals_the_reference_step() {
 #[test]
 fn several_steps_equal_as_many_reference_steps() {
     // `steps_with` forms `(τ a) / θ` once for its n steps: it must leave the reference's bits.
-    // Maps with steep jumps (the dual projection active) and a smooth one, n = 1, 4, 16.
-    for (h, w, jump) in [(3, 40, 5.0), (17, 29, 0.2), (1, 9, 3.0), (5, 17, 0.0), (9, 8, 2.0)] {
+    // Maps with steep jumps (the dual projection active) and a smooth one, tall maps (many
+    // row-parallel tasks), n = 1, 2, 3, 5 and 16.
+    let shapes =
+        [(3, 40, 5.0), (17, 29, 0.2), (1, 9, 3.0), (5, 17, 0.0), (9, 8, 2.0), (65, 5, 2.0), (150, 9, 5.0)];
+    for (h, w, jump) in shapes {
         let mut r = stream((h * 1000 + w) as u64);
         let init = Array2::from_shape_fn((h, w), |(y, x)| {
             (0.5 + jump * (((x / 5 + y / 3) % 2) as f64) + 0.1 * r()) as f32
@@ -263,7 +266,7 @@ fn several_steps_equal_as_many_reference_steps() {
         let mut reference = HuberTv::new(init.clone(), g, 1e-3);
         let mut auto = reference.clone();
         let mut portable = reference.clone();
-        for (i, n) in [1usize, 4, 16, 16].into_iter().enumerate() {
+        for (i, n) in [1usize, 2, 3, 5, 16, 16].into_iter().enumerate() {
             let theta = 0.5 * 0.3f64.powi(i as i32);
             for _ in 0..n {
                 reference.step_reference(a.view(), theta);
@@ -273,6 +276,30 @@ fn several_steps_equal_as_many_reference_steps() {
             let what = format!("{h}x{w}, {n} steps at θ {theta}");
             assert_builds_match(&reference, [&auto, &portable], a.view(), theta, &what);
         }
+    }
+}
+
+#[test]
+fn several_steps_are_independent_of_thread_count() {
+    // Rows are rayon tasks: 1, 2, 3 and 8 threads give the same bits over 16 steps.
+    let (h, w) = (200, 23);
+    let mut r = stream(77);
+    let init = Array2::from_shape_fn((h, w), |(y, x)| {
+        (0.5 + 2.0 * (((x / 4 + y / 7) % 2) as f64) + 0.1 * r()) as f32
+    });
+    let a = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
+    let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
+    let tv = HuberTv::new(init, edge_weights(grey.view(), 10.0, 1.0), 1e-3);
+    let run = |threads: usize| {
+        let mut tv = tv.clone();
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
+            tv.steps_with(a.view(), 0.05, 16, Dispatch::Auto);
+        });
+        tv.primal().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    };
+    let one = run(1);
+    for threads in [2, 3, 8] {
+        assert!(run(threads) == one, "{threads} threads");
     }
 }
 

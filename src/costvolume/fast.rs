@@ -2,7 +2,7 @@
 //!
 //! Per reference pixel `u`, `p(ρ) = R K⁻¹ u̇ + ρ t` is affine in `ρ`: `a = R K⁻¹ u̇` is computed
 //! once ([`Warp::point`] at `ρ = 0`) and each hypothesis costs three multiply-adds, a projection and
-//! a bounds check, with exactly the `f64` expressions of [`Warp::apply`] and `sample_bilinear`, so
+//! a bounds check, with exactly the `f64` expressions of [`Warp::apply_volume`] and `sample_bilinear`, so
 //! validity (and hence every count) matches the reference bit for bit. A branch-free loop over the
 //! hypotheses fills validity, corner offset and four `f32` bilinear weights (it vectorises, division
 //! included); the channel loop then reads the
@@ -202,13 +202,14 @@ fn row<const CH: usize>(
     for x in 0..w {
         // a = R K⁻¹ u̇ (+ 0·t, which leaves every later value's bits unchanged).
         let a = geo.warp.point(x as f64, y as f64, 0.0);
-        // Branch-free over k, the same f64 expressions as `Warp::apply` (p = a + ρ t, then
-        // `PinholeCamera::project`) and `image::sample`, so validity matches the reference exactly.
+        // Branch-free over k, the same f64 expressions as `Warp::apply_volume` (p = a + ρ t, then
+        // one division `1/p_z`) and `image::sample`, so validity matches the reference exactly.
         for k in 0..k_count {
             let rho = rhos[k];
             let (px, py, pz) = (a.x + t.x * rho, a.y + t.y * rho, a.z + t.z * rho);
-            let u = fx * px / pz + cx;
-            let v = fy * py / pz + cy;
+            let inv = 1.0 / pz;
+            let u = fx * px * inv + cx;
+            let v = fy * py * inv + cy;
             ok[k] = pz > 0.0 && pz.is_finite() && u >= 0.0 && u <= x_max && v >= 0.0 && v <= y_max;
             let (x0, y0) = (u.floor().min(x_cap), v.floor().min(y_cap));
             let (fa, fb) = (u - x0, v - y0);

@@ -123,8 +123,9 @@ fn geometry8(g: &RowGeo, rho: __m512d, live: __mmask8) -> (__mmask8, __m256i, [_
     let px = _mm512_add_pd(set(g.a[0]), _mm512_mul_pd(set(g.t[0]), rho));
     let py = _mm512_add_pd(set(g.a[1]), _mm512_mul_pd(set(g.t[1]), rho));
     let pz = _mm512_add_pd(set(g.a[2]), _mm512_mul_pd(set(g.t[2]), rho));
-    let u = _mm512_add_pd(_mm512_div_pd(_mm512_mul_pd(set(g.f[0]), px), pz), set(g.centre[0]));
-    let v = _mm512_add_pd(_mm512_div_pd(_mm512_mul_pd(set(g.f[1]), py), pz), set(g.centre[1]));
+    let inv = _mm512_div_pd(set(1.0), pz);
+    let u = _mm512_add_pd(_mm512_mul_pd(_mm512_mul_pd(set(g.f[0]), px), inv), set(g.centre[0]));
+    let v = _mm512_add_pd(_mm512_mul_pd(_mm512_mul_pd(set(g.f[1]), py), inv), set(g.centre[1]));
     // `pz > 0 && pz.is_finite() && u >= 0 && u <= x_max && v >= 0 && v <= y_max`; ordered
     // comparisons are false on NaN, as Rust's.
     let zero = _mm512_setzero_pd();

@@ -23,7 +23,7 @@
 //! Each row `[W, K]` is a contiguous block, so a rayon task per row owns its cells outright.
 //!
 //! # Implementations and determinism
-//! [`CostVolumeImpl::Reference`] is plain loops over [`Warp::apply`] and
+//! [`CostVolumeImpl::Reference`] is plain loops over [`Warp::apply_volume`] and
 //! [`sample_bilinear`](crate::image::sample_bilinear), accumulating in `f64`, one thread.
 //! [`CostVolumeImpl::Fast`] hoists the per-pixel geometry and runs a channel loop written for
 //! 16-lane vectorisation (AVX-512 selected at run time); see `fast.rs`. Both compute the warped
@@ -89,7 +89,7 @@ pub fn check_truncation(name: &str, tau: f32) -> Result<()> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum CostVolumeImpl {
-    /// Plain loops over [`Warp::apply`] and `sample_bilinear`, `f64` sums, one thread. The oracle.
+    /// Plain loops over [`Warp::apply_volume`] and `sample_bilinear`, `f64` sums, one thread. The oracle.
     Reference,
     /// Per-pixel geometry hoisted, shared bilinear weights, 16-lane channel loop, rayon over rows;
     /// AVX-512 when the CPU has it (see [`fast_kernel_name`]).

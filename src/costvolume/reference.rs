@@ -1,4 +1,4 @@
-//! The oracle: for every cell, warp with [`Warp::apply`], sample with [`sample_bilinear`], and add
+//! The oracle: for every cell, warp with [`Warp::apply_volume`], sample with [`sample_bilinear`], and add
 //! the `f64` L1 distance, truncated at `τ` (SPEC.md §9.13), to an `f64` running sum. One thread, no
 //! hoisting. Keep it naive.
 
@@ -23,10 +23,10 @@ pub(super) fn add_frame(
     for y in 0..h {
         for x in 0..w {
             for (k, &rho) in rhos.iter().enumerate() {
-                let Some(p) = warp.apply(x as f64, y as f64, rho) else {
+                let Some(uv) = warp.apply_volume(x as f64, y as f64, rho) else {
                     continue; // behind the live camera
                 };
-                if !sample_bilinear(live, p.uv.x, p.uv.y, &mut sample) {
+                if !sample_bilinear(live, uv.x, uv.y, &mut sample) {
                     continue; // outside the live image
                 }
                 let l1: f64 =

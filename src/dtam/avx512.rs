@@ -54,13 +54,13 @@ unsafe fn rho(k: __m512i, p: &SearchParams) -> __m512d {
     _mm512_mask_blend_pd(last, v, splat(p.rho_max))
 }
 
-/// `search::energy`: `(d - ρ)² / (2θ) + c / λ`.
+/// `search::energy`: `(d - ρ)² · 1/(2θ) + c · 1/λ`.
 #[inline(always)]
 unsafe fn energy(d: __m512d, rho: __m512d, c: __m512d, p: &SearchParams) -> __m512d {
     let diff = _mm512_sub_pd(d, rho);
     _mm512_add_pd(
-        _mm512_div_pd(_mm512_mul_pd(diff, diff), splat(2.0 * p.theta)),
-        _mm512_div_pd(c, splat(p.lambda)),
+        _mm512_mul_pd(_mm512_mul_pd(diff, diff), splat(p.inv_two_theta)),
+        _mm512_mul_pd(c, splat(p.inv_lambda)),
     )
 }
 

@@ -10,10 +10,13 @@
 //! `K = diag(g) ∇`. One step (σ = τ = 1/√8, since `‖K‖² <= 8 max g² <= 8`):
 //!
 //! ```text
-//! q ← Π_{|q|<=1} ( (q + σ g ∇d̄) / (1 + σ ε) )
-//! d' ← (d - τ ∇ᵀ(g q) + τ a / θ) / (1 + τ / θ)
+//! q ← Π_{|q|<=1} ( (q + σ g ∇d̄) · s_q ),   Π(n) = n · 1/max(|n|, 1)
+//! d' ← (d - τ ∇ᵀ(g q) + τ a / θ) · s_d
 //! d̄ ← 2 d' - d,   d ← d'
 //! ```
+//!
+//! with `s_q = 1/(1 + σ ε)` and `s_d = 1/(1 + τ / θ)` rounded once (SPEC.md §10: multiplications
+//! where the textbook form divides, the same up to an ulp and 1.4x faster).
 //!
 //! `∇` is the forward difference with a zero difference across the last column/row (Neumann), and
 //! `∇ᵀ = -div` its exact adjoint. The dual objective is
@@ -244,6 +247,7 @@ impl HuberTv {
     pub fn step_reference(&mut self, a: ArrayView2<f32>, theta: f64) {
         assert_eq!(a.dim(), self.d.dim(), "a must match d");
         let (s, eps) = (STEP, self.eps);
+        let (dual_scale, primal_scale) = (1.0 / (1.0 + s * eps), 1.0 / (1.0 + s / theta));
         let (d_bar, g) = (self.d_bar.view(), self.g.view());
         let w = self.d.ncols();
         // Dual ascent, projected onto the unit ball.
@@ -253,11 +257,11 @@ impl HuberTv {
             for (x, (qx, qy)) in rx.iter_mut().zip(ry.iter_mut()).enumerate() {
                 let (gx, gy) = grad(&d_bar, y, x);
                 let gw = g[[y, x]] as f64;
-                let nx = (*qx as f64 + s * gw * gx) / (1.0 + s * eps);
-                let ny = (*qy as f64 + s * gw * gy) / (1.0 + s * eps);
-                let scale = (nx * nx + ny * ny).sqrt().max(1.0);
-                *qx = (nx / scale) as f32;
-                *qy = (ny / scale) as f32;
+                let nx = (*qx as f64 + s * gw * gx) * dual_scale;
+                let ny = (*qy as f64 + s * gw * gy) * dual_scale;
+                let shrink = 1.0 / (nx * nx + ny * ny).sqrt().max(1.0);
+                *qx = (nx * shrink) as f32;
+                *qy = (ny * shrink) as f32;
             }
         });
         // Weighted dual field g q, then the primal proximal step.
@@ -269,7 +273,7 @@ impl HuberTv {
         d.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             for (x, d) in row.iter_mut().enumerate() {
                 let kt = grad_adjoint(&gqx, &gqy, y, x);
-                *d = ((*d as f64 - s * kt + s * a[[y, x]] as f64 / theta) / (1.0 + s / theta)) as f32;
+                *d = ((*d as f64 - s * kt + s * a[[y, x]] as f64 / theta) * primal_scale) as f32;
             }
         });
         Zip::from(&mut self.d_bar).and(&self.d).and(&old).for_each(|b, &d, &o| *b = 2.0 * d - o);
@@ -335,15 +339,15 @@ impl HuberTv {
 
 /// Per-step constants of the row kernels, each the reference's subexpression evaluated once.
 struct Coefficients {
-    /// `1 + σ ε`.
-    dual_den: f64,
-    /// `1 + τ / θ`.
-    primal_den: f64,
+    /// `1 / (1 + σ ε)`.
+    dual_scale: f64,
+    /// `1 / (1 + τ / θ)`.
+    primal_scale: f64,
 }
 
 impl Coefficients {
     fn new(eps: f64, theta: f64) -> Self {
-        Self { dual_den: 1.0 + STEP * eps, primal_den: 1.0 + STEP / theta }
+        Self { dual_scale: 1.0 / (1.0 + STEP * eps), primal_scale: 1.0 / (1.0 + STEP / theta) }
     }
 }
 
@@ -412,14 +416,14 @@ mod kernels {
         primal_row_any(rows, k);
     }
 
-    /// `q ← Π((q + σ g ∇d̄) / (1 + σ ε))` at one pixel: the reference's expression.
+    /// `q ← Π((q + σ g ∇d̄) · s_q)` at one pixel: the reference's expression.
     #[inline(always)]
     fn dual_px(qx: &mut f32, qy: &mut f32, gx: f64, gy: f64, gw: f64, k: &Coefficients) {
-        let nx = (*qx as f64 + STEP * gw * gx) / k.dual_den;
-        let ny = (*qy as f64 + STEP * gw * gy) / k.dual_den;
-        let scale = (nx * nx + ny * ny).sqrt().max(1.0);
-        *qx = (nx / scale) as f32;
-        *qy = (ny / scale) as f32;
+        let nx = (*qx as f64 + STEP * gw * gx) * k.dual_scale;
+        let ny = (*qy as f64 + STEP * gw * gy) * k.dual_scale;
+        let shrink = 1.0 / (nx * nx + ny * ny).sqrt().max(1.0);
+        *qx = (nx * shrink) as f32;
+        *qy = (ny * shrink) as f32;
     }
 
     #[inline(always)]
@@ -477,11 +481,11 @@ mod kernels {
         -div
     }
 
-    /// `d' ← (d - τ kt + τ a / θ) / (1 + τ / θ)`, `d̄ ← 2 d' - d` at one pixel (`at` = `(τ a) / θ`).
+    /// `d' ← (d - τ kt + τ a / θ) · s_d`, `d̄ ← 2 d' - d` at one pixel (`at` = `(τ a) / θ`).
     #[inline(always)]
     fn primal_px(d: &mut f32, d_bar: &mut f32, kt: f64, at: f64, k: &Coefficients) {
         let old = *d;
-        let new = ((old as f64 - STEP * kt + at) / k.primal_den) as f32;
+        let new = ((old as f64 - STEP * kt + at) * k.primal_scale) as f32;
         *d = new;
         *d_bar = 2.0 * new - old;
     }

@@ -73,11 +73,18 @@ impl CostRange {
     }
 }
 
-/// Energy of hypothesis `k` for a pixel.
+/// Energy of hypothesis `k` for a pixel: `(d - ρ)² · 1/(2θ) + c · 1/λ`, each reciprocal one
+/// rounded `f64` division (the compiler hoists them out of the loops over hypotheses).
 #[inline(always)]
 pub(crate) fn energy(d: f64, rho: f64, cost: f32, theta: f64, lambda: f64) -> f64 {
+    energy_scaled(d, rho, cost, 1.0 / (2.0 * theta), 1.0 / lambda)
+}
+
+/// [`energy`] with its two reciprocals given.
+#[inline(always)]
+pub(crate) fn energy_scaled(d: f64, rho: f64, cost: f32, inv_two_theta: f64, inv_lambda: f64) -> f64 {
     let diff = d - rho;
-    diff * diff / (2.0 * theta) + cost as f64 / lambda
+    diff * diff * inv_two_theta + cost as f64 * inv_lambda
 }
 
 /// Search one pixel over hypotheses `lo..=hi`; `None` if none of them was seen. The scalar
@@ -217,6 +224,10 @@ pub(crate) struct SearchParams<'a> {
     pub two_theta: f64,
     /// `λ`.
     pub lambda: f64,
+    /// `1/(2θ)`.
+    pub inv_two_theta: f64,
+    /// `1/λ`.
+    pub inv_lambda: f64,
 }
 
 impl<'a> SearchParams<'a> {
@@ -231,6 +242,8 @@ impl<'a> SearchParams<'a> {
             theta,
             two_theta: 2.0 * theta,
             lambda,
+            inv_two_theta: 1.0 / (2.0 * theta),
+            inv_lambda: 1.0 / lambda,
         }
     }
 }
@@ -480,7 +493,7 @@ pub(crate) fn search_lanes(costs: &[f32], p: &SearchParams, l: &Lanes) -> ([f64;
             let active = !l.flat[j] && kk <= l.hi[j];
             let kk = if active { kk } else { l.lo[j] };
             let c = cell(l.off[j] + kk);
-            let e = energy(l.d[j], rho(kk), c, p.theta, p.lambda);
+            let e = energy_scaled(l.d[j], rho(kk), c, p.inv_two_theta, p.inv_lambda);
             // `!(c >= UNSEEN)`: the scan skips only cells at or above UNSEEN (a NaN is scanned).
             let scanned = c < UNSEEN || c.is_nan();
             let take = active && scanned && (!found[j] || e < best[j]);
@@ -495,8 +508,8 @@ pub(crate) fn search_lanes(costs: &[f32], p: &SearchParams, l: &Lanes) -> ([f64;
         let inner = kk > 0 && kk + 1 < k;
         let (km, kp) = if inner { (kk - 1, kk + 1) } else { (kk, kk) };
         let (cm, cp) = (cell(l.off[j] + km), cell(l.off[j] + kp));
-        let em = energy(l.d[j], rho(km), cm, p.theta, p.lambda);
-        let ep = energy(l.d[j], rho(kp), cp, p.theta, p.lambda);
+        let em = energy_scaled(l.d[j], rho(km), cm, p.inv_two_theta, p.inv_lambda);
+        let ep = energy_scaled(l.d[j], rho(kp), cp, p.inv_two_theta, p.inv_lambda);
         let delta = if inner && cm < UNSEEN && cp < UNSEEN { parabola_offset(em, best[j], ep) } else { 0.0 };
         let refined = if delta == 0.0 { rho(kk) } else { p.rho_min + (kk as f64 + delta) * p.step };
         a[j] = if l.flat[j] || !found[j] { l.d[j] } else { refined };

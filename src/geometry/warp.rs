@@ -74,6 +74,20 @@ impl Warp {
         self.rk * Vector3::new(u, v, 1.0) + self.t * rho
     }
 
+    /// The cost volume's warp (SPEC.md §9.1): [`Warp::point`] projected with one division,
+    /// `x' = (f_x p_x) · (1/p_z) + c_x`, `y' = (f_y p_y) · (1/p_z) + c_y`; `None` unless `p_z > 0`
+    /// and finite. [`Warp::apply`] divides twice (`f_x p_x / p_z`); the two differ by an ulp.
+    #[inline]
+    pub fn apply_volume(&self, u: f64, v: f64, rho: f64) -> Option<Point2<f64>> {
+        let p = self.point(u, v, rho);
+        if !(p.z > 0.0 && p.z.is_finite()) {
+            return None;
+        }
+        let inv = 1.0 / p.z;
+        let cam = &self.target;
+        Some(Point2::new(cam.fx * p.x * inv + cam.cx, cam.fy * p.y * inv + cam.cy))
+    }
+
     /// Warp pixel `(u, v)` at inverse depth `rho >= 0`; `None` if the point is not in front of the
     /// target camera (`p_z <= 0`).
     #[inline]

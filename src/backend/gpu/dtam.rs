@@ -32,7 +32,7 @@ const SCHEDULE_BATCH: usize = 32;
 const TAIL_BATCH: usize = 8;
 /// Index of the per-iteration constants in the constant buffer (`dtam.wgsl`'s header).
 const ITERATION_CONSTANTS: usize = 8;
-/// Constants per iteration: `θ, 2θ, 1 + τ/θ, 0`.
+/// Constants per iteration: `θ, 2θ, 1/(1 + τ/θ), 1/(2θ)`.
 const PER_ITERATION: usize = 4;
 
 /// Where the time of a GPU solve went (for `densefeat bench tv --backend gpu`).
@@ -158,13 +158,13 @@ impl<'a> State<'a> {
         let terms_bytes = gpu.check_size(8 * pixels)?; // 4 f64 per pixel
         let ring_bytes = gpu.check_size(TAIL_BATCH * pixels.max(1))?;
         let p = super::params([pixels, h, w, k, UNSEEN_COST.to_bits() as usize]);
-        let mut c = vec![STEP, params.epsilon, 1.0 + STEP * params.epsilon, params.lambda];
-        c.extend([bins.rho_min, bins.step(), (k - 1) as f64, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let mut c = vec![STEP, params.epsilon, 1.0 / (1.0 + STEP * params.epsilon), params.lambda];
+        c.extend([bins.rho_min, bins.step(), (k - 1) as f64, 1.0 / params.lambda, 0.0, 0.0, 0.0, 0.0]);
         c.extend(bins.values());
         let table: Vec<f64> = (0..params.max_iterations)
             .flat_map(|n| {
                 let theta = params.theta(n);
-                [theta, 2.0 * theta, 1.0 + STEP / theta, 0.0]
+                [theta, 2.0 * theta, 1.0 / (1.0 + STEP / theta), 1.0 / (2.0 * theta)]
             })
             .collect();
         let init = init.as_standard_layout();

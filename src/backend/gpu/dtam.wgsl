@@ -5,8 +5,8 @@
 // in `total`), one invocation per output: no atomics, no workgroup reductions.
 //
 // p = [pixels, h, w, k, UNSEEN_COST bits]
-// c = [σ = τ, ε, 1 + σε, λ, ρ_min, Δρ, K-1, 0,      (global)
-//      θ, 2θ, 1 + τ/θ, 0,                            (this iteration: copied in per iteration)
+// c = [σ = τ, ε, 1/(1 + σε), λ, ρ_min, Δρ, K-1, 1/λ,  (global)
+//      θ, 2θ, 1/(1 + τ/θ), 1/(2θ),                  (this iteration: copied in per iteration)
 //      ρ_0 .. ρ_{K-1}]
 // q = (qx, qy) interleaved per pixel; range = (C_min, C_max) per pixel (C_min > C_max: nothing
 // seen); terms = (regulariser, coupling, data, gap²) per pixel; rows = the same sums per row;
@@ -27,14 +27,16 @@
 
 const STEP: u32 = 0u;
 const EPS: u32 = 1u;
-const DUAL_DEN: u32 = 2u;
+const DUAL_SCALE: u32 = 2u;
 const LAMBDA: u32 = 3u;
 const RHO_MIN: u32 = 4u;
 const DELTA: u32 = 5u;
 const LAST: u32 = 6u;
+const INV_LAMBDA: u32 = 7u;
 const THETA: u32 = 8u;
 const TWO_THETA: u32 = 9u;
-const PRIMAL_DEN: u32 = 10u;
+const PRIMAL_SCALE: u32 = 10u;
+const INV_TWO_THETA: u32 = 11u;
 const RHO0: u32 = 12u;
 
 fn flat(gid: vec3<u32>, nwg: vec3<u32>) -> u32 { return gid.x + gid.y * nwg.x * 64u; }
@@ -67,7 +69,7 @@ fn cost_range(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     range[2u * i + 1u] = hi;
 }
 
-// q ← Π_{|q|<=1}((q + σ g ∇d̄) / (1 + σε)).
+// q ← Π_{|q|<=1}((q + σ g ∇d̄) · 1/(1 + σε)), Π(n) = n · 1/max(|n|, 1).
 @compute @workgroup_size(64)
 fn dual(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = flat(gid, nwg);
@@ -83,14 +85,14 @@ fn dual(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (y + 1u < h) { gy = f64(d_bar[i + w]) - cc; }
     let gw = f64(g[i]);
     let s = c[STEP];
-    let nx = (f64(q[2u * i]) + s * gw * gx) / c[DUAL_DEN];
-    let ny = (f64(q[2u * i + 1u]) + s * gw * gy) / c[DUAL_DEN];
-    let scale = max(sqrt(nx * nx + ny * ny), f64(1.0));
-    q[2u * i] = f32(nx / scale);
-    q[2u * i + 1u] = f32(ny / scale);
+    let nx = (f64(q[2u * i]) + s * gw * gx) * c[DUAL_SCALE];
+    let ny = (f64(q[2u * i + 1u]) + s * gw * gy) * c[DUAL_SCALE];
+    let shrink = f64(1.0) / max(sqrt(nx * nx + ny * ny), f64(1.0));
+    q[2u * i] = f32(nx * shrink);
+    q[2u * i + 1u] = f32(ny * shrink);
 }
 
-// d' ← (d - τ ∇ᵀ(g q) + τ a / θ) / (1 + τ/θ), d̄ ← 2d' - d; `g q` in f32.
+// d' ← (d - τ ∇ᵀ(g q) + τ a / θ) · 1/(1 + τ/θ), d̄ ← 2d' - d; `g q` in f32.
 @compute @workgroup_size(64)
 fn primal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = flat(gid, nwg);
@@ -107,7 +109,7 @@ fn primal(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups
     let kt = -div;
     let s = c[STEP];
     let old = d[i];
-    let fresh = f32((f64(old) - s * kt + s * f64(a[i]) / c[THETA]) / c[PRIMAL_DEN]);
+    let fresh = f32((f64(old) - s * kt + s * f64(a[i]) / c[THETA]) * c[PRIMAL_SCALE]);
     d[i] = fresh;
     d_bar[i] = 2.0 * fresh - old;
 }
@@ -117,7 +119,7 @@ fn rho(k: u32) -> f64 { return c[RHO0 + k]; }
 // `search::energy`.
 fn energy(dv: f64, r: f64, cost: f32) -> f64 {
     let diff = dv - r;
-    return diff * diff / c[TWO_THETA] + f64(cost) / c[LAMBDA];
+    return diff * diff * c[INV_TWO_THETA] + f64(cost) * c[INV_LAMBDA];
 }
 
 // `costvolume::parabola_offset`.

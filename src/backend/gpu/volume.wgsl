@@ -37,10 +37,11 @@ fn add_frame(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let px = ((g[0] * u + g[1] * v) + g[2]) + g[9] * rho;
     let py = ((g[3] * u + g[4] * v) + g[5]) + g[10] * rho;
     let pz = ((g[6] * u + g[7] * v) + g[8]) + g[11] * rho;
-    // `PinholeCamera::project` and `image::sample`'s bounds (SPEC.md §2.1, §2.4). `p_z` is finite:
-    // every input is.
-    let uu = g[12] * px / pz + g[14];
-    let vv = g[13] * py / pz + g[15];
+    // `Warp::apply_volume` (one division) and `image::sample`'s bounds (SPEC.md §2.1, §9.1). `p_z`
+    // is finite: every input is.
+    let inv = f64(1.0) / pz;
+    let uu = g[12] * px * inv + g[14];
+    let vv = g[13] * py * inv + g[15];
     if (!(pz > f64(0.0) && uu >= f64(0.0) && uu <= g[16] && vv >= f64(0.0) && vv <= g[17])) {
         return;
     }

@@ -67,6 +67,24 @@ proptest! {
     }
 
     #[test]
+    fn volume_warp_is_the_warp_with_one_division(k in camera(), t in pose(),
+                                                 fu in 0.0..1.0f64, fv in 0.0..1.0f64, rho in 0.0..4.0f64) {
+        // `apply_volume` (the cost volume's projection, SPEC.md §9.1): the same point, `None` exactly
+        // where `apply` is, and within an ulp-level distance of it (one rounding of 1/p_z more).
+        let (u, v) = (fu * k.width as f64, fv * k.height as f64);
+        let w = Warp::new(&k, &k, &t);
+        let (full, one) = (w.apply(u, v, rho), w.apply_volume(u, v, rho));
+        prop_assert_eq!(full.is_some(), one.is_some());
+        if let (Some(a), Some(b)) = (full, one) {
+            prop_assert!((a.uv - b).norm() <= 1e-12 * (1.0 + a.uv.coords.norm()), "{:?} vs {b:?}", a.uv);
+            let p = w.point(u, v, rho);
+            let inv = 1.0 / p.z;
+            prop_assert_eq!(b.x, k.fx * p.x * inv + k.cx);
+            prop_assert_eq!(b.y, k.fy * p.y * inv + k.cy);
+        }
+    }
+
+    #[test]
     fn warp_at_zero_inverse_depth_is_the_limit(k in camera(), t in pose(), fu in 0.2..0.8f64, fv in 0.2..0.8f64) {
         // ρ = 0 (a point at infinity) is exact and continuous with small ρ.
         let (u, v) = (fu * k.width as f64, fv * k.height as f64);

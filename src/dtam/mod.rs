@@ -12,10 +12,11 @@
 //! - `g = exp(-α ‖∇I‖^β)` down-weights smoothing across image edges (`I` = grey level / 255);
 //! - `C(u, ρ)` the averaged cost volume (`crate::costvolume`), sampled at hypotheses `ρ_k`.
 //!
-//! Each iteration `n`: one Chambolle-Pock primal-dual step on `(d, q)` for fixed `a`
-//! ([`huber_tv`]); then, for fixed `d`, a point-wise exhaustive search for `a` over the hypotheses
-//! with a sub-bin parabola refinement ([`search`]); then `θ` decreases geometrically from
-//! `θ_start` to `θ_end`. The iteration that reaches `θ_end` is the last (DTAM's stopping rule).
+//! Each iteration `n`: `steps_per_search` Chambolle-Pock primal-dual steps on `(d, q)` for fixed
+//! `a` ([`huber_tv`]); then, for fixed `d`, a point-wise exhaustive search for `a` over the
+//! hypotheses with a sub-bin parabola refinement ([`search`]); `θ` decreases geometrically from
+//! `θ_start` to `θ_end` over the schedule's `iterations`, after which the solve stops once the
+//! energy has settled and `d` and `a` agree within a tenth of a bin (or at `max_iterations`).
 //! SPEC.md §10 gives every formula and default.
 //!
 //! **Implementation.** An iteration is three row-parallel passes: the dual and the primal halves of

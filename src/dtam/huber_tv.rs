@@ -404,9 +404,48 @@ mod kernels {
         primal_row_any(rows, k);
     }
 
+    /// The dual row on AVX-512 registers, 8 pixels at a time, the same operations as [`dual_px`]
+    /// lane for lane; where all 8 have `|n|² <= 1` the projection's factor is exactly 1 (`sqrt`
+    /// of at most 1 is at most 1, so `1/max(·, 1) = 1`) and its square roots and divisions are
+    /// skipped: 91-100 % of the groups in a real solve (SPEC.md §10). NaN fails the test and takes
+    /// the full path, whose `vmaxpd` returns the `1` operand for NaN as Rust's `max` does.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
     unsafe fn dual_row_avx512(rows: DualRows, k: &Coefficients) {
+        use std::arch::x86_64::*;
+        let w = rows.qx.len();
+        let (qx, qy, d_bar, g) = (rows.qx, &mut rows.qy[..w], &rows.d_bar[..w], &rows.g[..w]);
+        let load = |v: &[f32], x: usize| _mm512_cvtps_pd(_mm256_loadu_ps(v[x..x + GROUP].as_ptr()));
+        let (one, step, scale) = (_mm512_set1_pd(1.0), _mm512_set1_pd(STEP), _mm512_set1_pd(k.dual_scale));
+        let mut x = 0;
+        while x + GROUP < w {
+            let c = load(d_bar, x);
+            let gx = _mm512_sub_pd(load(d_bar, x + 1), c);
+            let gy = match rows.below {
+                Some(b) => _mm512_sub_pd(load(&b[..w], x), c),
+                None => _mm512_setzero_pd(),
+            };
+            let sg = _mm512_mul_pd(step, load(g, x));
+            let nx = _mm512_mul_pd(_mm512_add_pd(load(qx, x), _mm512_mul_pd(sg, gx)), scale);
+            let ny = _mm512_mul_pd(_mm512_add_pd(load(qy, x), _mm512_mul_pd(sg, gy)), scale);
+            let n2 = _mm512_add_pd(_mm512_mul_pd(nx, nx), _mm512_mul_pd(ny, ny));
+            let (nx, ny) = if _mm512_cmp_pd_mask::<_CMP_LE_OQ>(n2, one) == 0xff {
+                (nx, ny)
+            } else {
+                let shrink = _mm512_div_pd(one, _mm512_max_pd(_mm512_sqrt_pd(n2), one));
+                (_mm512_mul_pd(nx, shrink), _mm512_mul_pd(ny, shrink))
+            };
+            _mm256_storeu_ps(qx[x..x + GROUP].as_mut_ptr(), _mm512_cvtpd_ps(nx));
+            _mm256_storeu_ps(qy[x..x + GROUP].as_mut_ptr(), _mm512_cvtpd_ps(ny));
+            x += GROUP;
+        }
+        let rows = DualRows {
+            qx: &mut qx[x..],
+            qy: &mut qy[x..],
+            d_bar: &d_bar[x..],
+            below: rows.below.map(|b| &b[x..]),
+            g: &g[x..],
+        };
         dual_row_any(rows, k);
     }
 
@@ -415,6 +454,10 @@ mod kernels {
     unsafe fn primal_row_avx512(rows: PrimalRows, k: &Coefficients) {
         primal_row_any(rows, k);
     }
+
+    /// Pixels per group of [`dual_row_avx512`].
+    #[cfg(target_arch = "x86_64")]
+    const GROUP: usize = 8;
 
     /// `q ← Π((q + σ g ∇d̄) · s_q)` at one pixel: the reference's expression.
     #[inline(always)]

@@ -415,14 +415,15 @@ mod kernels {
         use std::arch::x86_64::*;
         let w = rows.qx.len();
         let (qx, qy, d_bar, g) = (rows.qx, &mut rows.qy[..w], &rows.d_bar[..w], &rows.g[..w]);
+        let below = rows.below.map(|b| &b[..w]);
         let load = |v: &[f32], x: usize| _mm512_cvtps_pd(_mm256_loadu_ps(v[x..x + GROUP].as_ptr()));
         let (one, step, scale) = (_mm512_set1_pd(1.0), _mm512_set1_pd(STEP), _mm512_set1_pd(k.dual_scale));
         let mut x = 0;
         while x + GROUP < w {
             let c = load(d_bar, x);
             let gx = _mm512_sub_pd(load(d_bar, x + 1), c);
-            let gy = match rows.below {
-                Some(b) => _mm512_sub_pd(load(&b[..w], x), c),
+            let gy = match below {
+                Some(b) => _mm512_sub_pd(load(b, x), c),
                 None => _mm512_setzero_pd(),
             };
             let sg = _mm512_mul_pd(step, load(g, x));
@@ -443,7 +444,7 @@ mod kernels {
             qx: &mut qx[x..],
             qy: &mut qy[x..],
             d_bar: &d_bar[x..],
-            below: rows.below.map(|b| &b[x..]),
+            below: below.map(|b| &b[x..]),
             g: &g[x..],
         };
         dual_row_any(rows, k);

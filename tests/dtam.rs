@@ -116,6 +116,77 @@ proptest! {
     }
 }
 
+/// Cost curves with one clear valley each (plus noise, quantised to `levels` values when given, so
+/// equal costs and energies are common), a fraction `unseen` of cells unseen and `odd` of them NaN,
+/// -0.0, -∞ or +∞: the wide ranges where the a-search runs its block bounds (SPEC.md §10.1).
+fn valley_volume(h: usize, w: usize, k: usize, seed: u64, unseen: f64, odd: f64, levels: u32) -> Array3<f32> {
+    let mut r = stream(seed ^ 0x5EED);
+    let mut costs = Array3::zeros((h, w, k));
+    for mut curve in costs.lanes_mut(ndarray::Axis(2)) {
+        let (centre, width, depth) = (r() * k as f64, 1.0 + r() * k as f64 / 4.0, r() * 40.0);
+        for (i, c) in curve.iter_mut().enumerate() {
+            let x = (i as f64 - centre) / width;
+            let v = 50.0 - depth * (-x * x).exp() + r() * 10.0;
+            let v = if levels > 0 { (v / 60.0 * f64::from(levels)).floor() } else { v };
+            *c = if r() < unseen {
+                UNSEEN_COST
+            } else if r() < odd {
+                [f32::NAN, -0.0, f32::NEG_INFINITY, f32::INFINITY][(r() * 4.0) as usize % 4]
+            } else {
+                v as f32
+            };
+        }
+    }
+    costs
+}
+
+proptest! {
+    #[test]
+    fn bounded_search_equals_the_definition(h in 1usize..4, w in 1usize..20, k in 40usize..300, seed: u64,
+                                              unseen in prop_oneof![Just(0.0), Just(0.3), Just(0.97)],
+                                              odd in prop_oneof![Just(0.0), Just(0.0), Just(0.002)],
+                                              levels in prop_oneof![Just(0u32), Just(3), Just(40)],
+                                              theta in prop_oneof![1e-3..0.05f64, 0.05..50.0f64],
+                                              lambda in 0.1..1000.0f64) {
+        let costs = valley_volume(h, w, k, seed, unseen, odd, levels);
+        let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
+        let mut r = stream(seed.wrapping_add(3));
+        let d = Array2::from_shape_fn((h, w), |_| (r() * 2.4 - 0.2) as f32);
+        let range = CostRange::new(costs.view());
+        // The scalar definition (pruned: with a NaN in the pruned range it can differ from the
+        // unpruned scan, which starts elsewhere); without odd values both are the same.
+        let definition = exhaustive_search_reference(costs.view(), &range, &bins, d.view(), theta, lambda);
+        if odd == 0.0 {
+            let full = exhaustive_search_full(costs.view(), &bins, d.view(), theta, lambda);
+            prop_assert_eq!(definition.mapv(f32::to_bits), full.mapv(f32::to_bits));
+        }
+        for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+            let got = exhaustive_search_with(costs.view(), &range, &bins, d.view(), theta, lambda, dispatch);
+            prop_assert_eq!(got.mapv(f32::to_bits), definition.mapv(f32::to_bits), "{:?}", dispatch);
+        }
+    }
+
+    #[test]
+    fn fused_solve_with_wide_ranges_equals_the_reference(h in 1usize..8, w in 1usize..20, k in 40usize..200,
+                                                         seed: u64, odd in prop_oneof![Just(0.0), Just(0.01)],
+                                                         theta_start in 0.5..20.0f64, lambda in 0.1..100.0f64) {
+        let costs = valley_volume(h, w, k, seed, 0.2, odd, 0);
+        let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
+        let mut r = stream(seed.wrapping_add(4));
+        let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
+        let init = Array2::from_shape_fn((h, w), |_| (r() * 2.4 - 0.2) as f32);
+        let params = DtamParams {
+            lambda, theta_start, theta_end: theta_start * 1e-4, iterations: 8, max_iterations: 10,
+            ..DtamParams::default()
+        };
+        let reference = fingerprint(solve_reference(costs.view(), &bins, grey.view(), init.view(), &params).unwrap());
+        for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+            let got = solve_with(costs.view(), &bins, grey.view(), init.view(), &params, dispatch).unwrap();
+            prop_assert_eq!(&fingerprint(got), &reference, "{:?}", dispatch);
+        }
+    }
+}
+
 /// [`random_volume`] with a fraction `odd` of cells replaced by NaN, -0.0, -∞ or +∞ (unseen).
 fn odd_volume(h: usize, w: usize, k: usize, seed: u64, unseen: f64, odd: f64) -> Array3<f32> {
     let mut costs = random_volume(h, w, k, seed, unseen);

@@ -172,7 +172,10 @@ fn bad_inputs_are_clear_errors() {
 
 #[test]
 fn memory_limit_fails_up_front() {
-    assert_eq!(memory_estimate(120, 160, 32, 3), 120 * 160 * 32 * 10 + 2 * 120 * 160 * 3 * 4);
+    assert_eq!(
+        memory_estimate(120, 160, 32, 3),
+        120 * 160 * 32 * 10 + 120 * 160 * 4 * 4 + 2 * 120 * 160 * 3 * 4
+    );
     let seq = fixture();
     let mut cfg = small_config();
     cfg.bins = 4096; // 120·160·4096·10 B = 750 MiB

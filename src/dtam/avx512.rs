@@ -1,5 +1,5 @@
 //! AVX-512 builds of the lane-wise kernels of the a-search and of the energy terms: the same IEEE
-//! operations as the portable code ([`search::search_lanes`], `fused::terms_lanes`), lane for lane
+//! operations as the portable code ([`search::scan_lanes`], [`search::refine_lanes`], `fused::terms_lanes`), lane for lane
 //! and in the same order, on whole `__m512d` registers (8 pixels), with the costs gathered from the
 //! pixels' curves. No fused multiply-adds, and every comparison keeps Rust's NaN semantics, hence
 //! the same bits (tested against the portable build and the scalar definition in tests/dtam.rs).
@@ -9,11 +9,11 @@
 
 use std::arch::x86_64::*;
 
-use super::search::{Lanes, SearchParams, LANES, UNSEEN};
+use super::search::{Lanes, Scan, SearchParams, LANES, UNSEEN};
 
 /// `v` in every lane.
 #[inline(always)]
-unsafe fn splat(v: f64) -> __m512d {
+pub(super) unsafe fn splat(v: f64) -> __m512d {
     _mm512_set1_pd(v)
 }
 
@@ -56,7 +56,7 @@ unsafe fn rho(k: __m512i, p: &SearchParams) -> __m512d {
 
 /// `search::energy`: `(d - ρ)² · 1/(2θ) + c · 1/λ`.
 #[inline(always)]
-unsafe fn energy(d: __m512d, rho: __m512d, c: __m512d, p: &SearchParams) -> __m512d {
+pub(super) unsafe fn energy(d: __m512d, rho: __m512d, c: __m512d, p: &SearchParams) -> __m512d {
     let diff = _mm512_sub_pd(d, rho);
     _mm512_add_pd(
         _mm512_mul_pd(_mm512_mul_pd(diff, diff), splat(p.inv_two_theta)),
@@ -121,17 +121,12 @@ unsafe fn scan_exact(costs: &[f32], p: &SearchParams, g: &Group) -> (__m512d, __
     (best, arg, found)
 }
 
-/// `search::search_lanes` on registers: [`scan_exact`], then the parabola refinement.
+/// `search::scan_lanes` on registers: [`scan_exact`] over every lane's `lo..=hi`.
 ///
 /// # Safety
 /// See the module documentation; `l.off[j] + k < costs.len()` for every `k < K`.
 #[inline(always)]
-pub(super) unsafe fn search_lanes(
-    costs: &[f32],
-    p: &SearchParams,
-    l: &Lanes,
-) -> ([f64; LANES], [bool; LANES]) {
-    let unseen = splat(UNSEEN as f64);
+pub(super) unsafe fn scan_lanes(costs: &[f32], p: &SearchParams, l: &Lanes) -> Scan {
     let g = Group {
         off: load_idx(&l.off),
         lo: load_idx(&l.lo),
@@ -141,7 +136,26 @@ pub(super) unsafe fn search_lanes(
         span: l.span,
     };
     let (best, arg, found) = scan_exact(costs, p, &g);
-    let (off, d, live) = (g.off, g.d, g.live);
+    let mut s = Scan { best: [0.0; LANES], arg: [0; LANES], found: [false; LANES] };
+    _mm512_storeu_pd(s.best.as_mut_ptr(), best);
+    _mm512_storeu_si512(s.arg.as_mut_ptr().cast(), arg);
+    s.found = std::array::from_fn(|j| found >> j & 1 == 1);
+    s
+}
+
+/// `search::refine_lanes` on registers: the parabola refinement of the lanes' scan results.
+///
+/// # Safety
+/// See the module documentation; `l.off[j] + k < costs.len()` for every `k < K`.
+#[inline(always)]
+pub(super) unsafe fn refine_lanes(costs: &[f32], p: &SearchParams, l: &Lanes, s: &Scan) -> [f64; LANES] {
+    let unseen = splat(UNSEEN as f64);
+    let off = load_idx(&l.off);
+    let d = _mm512_loadu_pd(l.d.as_ptr());
+    let live = !mask(&l.flat);
+    let best = _mm512_loadu_pd(s.best.as_ptr());
+    let arg = load_idx(&s.arg);
+    let found = mask(&s.found);
     // The parabola through k - 1, k, k + 1 (`costvolume::parabola_offset`).
     let one = _mm512_set1_epi64(1);
     let inner = _mm512_cmpgt_epi64_mask(arg, _mm512_setzero_si512())
@@ -166,7 +180,7 @@ pub(super) unsafe fn search_lanes(
     let a = _mm512_mask_blend_pd(live & found, d, refined);
     let mut out = [0.0; LANES];
     _mm512_storeu_pd(out.as_mut_ptr(), a);
-    (out, std::array::from_fn(|j| found >> j & 1 == 1))
+    out
 }
 
 /// `fused::terms_lanes` on registers: per lane `a as f32`, the coupling term, the data term and

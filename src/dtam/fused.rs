@@ -41,6 +41,7 @@ struct RowSums {
 struct Row<'a> {
     costs: &'a [f32],
     range: &'a [(f32, f32)],
+    minima: &'a [f32],
     d: &'a [f32],
     below: Option<&'a [f32]>,
     g: &'a [f32],
@@ -83,6 +84,7 @@ pub fn search_with_energy(
     let ranges = range.as_slice();
     assert_eq!(ranges.len(), h * w, "the cost range must match the cost volume");
     let p = SearchParams::new(bins, theta, lambda);
+    let minima = range.minima();
     let avx512 = dispatch.use_avx512();
     let eps = tv.epsilon();
     let out = a.as_slice_mut().expect("owned arrays are contiguous");
@@ -93,6 +95,7 @@ pub fn search_with_energy(
             let row = Row {
                 costs: &costs[y * w * k..][..w * k],
                 range: &ranges[y * w..][..w],
+                minima: &minima[y * w * p.blocks..][..w * p.blocks],
                 d: &d[y * w..][..w],
                 below: (y + 1 < h).then(|| &d[(y + 1) * w..][..w]),
                 g: &g[y * w..][..w],
@@ -136,7 +139,7 @@ unsafe fn fused_row_avx512(row: &Row, p: &SearchParams, a: &mut [f32]) -> RowSum
 fn fused_row_any<const AVX512: bool>(row: &Row, p: &SearchParams, a: &mut [f32]) -> RowSums {
     let w = a.len();
     let d = &row.d[..w];
-    let search = SearchRow { costs: row.costs, range: row.range, d };
+    let search = SearchRow { costs: row.costs, range: row.range, minima: row.minima, d };
     let mut sink = Terms::<AVX512> { a, d, costs: &row.costs[..w * p.k], p, coupling: 0.0, data: 0.0 };
     for_each_group::<AVX512>(&search, p, &mut sink);
     let Terms { a, coupling, data, .. } = sink;

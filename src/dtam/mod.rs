@@ -29,6 +29,9 @@
 
 #[cfg(target_arch = "x86_64")]
 mod avx512;
+mod bounds;
+#[cfg(target_arch = "x86_64")]
+mod bounds_avx512;
 mod edge;
 mod fused;
 pub mod huber_tv;

@@ -32,6 +32,7 @@
 use ndarray::{Array2, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
+use super::bounds;
 use super::Dispatch;
 use crate::costvolume::{parabola_offset, UNSEEN_COST};
 use crate::geometry::InverseDepthBins;
@@ -39,11 +40,14 @@ use crate::geometry::InverseDepthBins;
 /// Cells at or above this are unseen (`crate::costvolume::UNSEEN_COST`).
 pub const UNSEEN: f32 = UNSEEN_COST;
 
-/// Per-pixel extreme seen costs, computed once per cost volume.
+/// Per-pixel extreme seen costs and per-block least costs ([`bounds::block_minima`]), computed once
+/// per cost volume.
 #[derive(Clone, Debug)]
 pub struct CostRange {
     /// `(C_min, C_max)` per pixel; `(∞, -∞)` where nothing was seen.
     range: Array2<(f32, f32)>,
+    /// `[H, W, ⌈K/8⌉]`: each block's least seen cost (SPEC.md §10.1).
+    minima: Vec<f32>,
 }
 
 impl CostRange {
@@ -58,18 +62,30 @@ impl CostRange {
         };
         if h * w * k == 0 {
             let empty = (f32::INFINITY, f32::NEG_INFINITY);
-            return Self { range: Array2::from_elem((h, w), empty) };
+            return Self { range: Array2::from_elem((h, w), empty), minima: Vec::new() };
         }
         let costs = costs.as_standard_layout();
         let flat = costs.as_slice().expect("standard layout is contiguous");
         let range: Vec<(f32, f32)> =
             flat.par_chunks(w * k).flat_map_iter(|row| row.chunks(k).map(fold)).collect();
-        Self { range: Array2::from_shape_vec((h, w), range).expect("one range per pixel") }
+        let g = bounds::block_count(k);
+        let mut minima = vec![0.0f32; h * w * g];
+        minima.par_chunks_mut(w * g).zip(flat.par_chunks(w * k)).for_each(|(out, row)| {
+            for (out, curve) in out.chunks_mut(g).zip(row.chunks(k)) {
+                bounds::block_minima(curve, out);
+            }
+        });
+        Self { range: Array2::from_shape_vec((h, w), range).expect("one range per pixel"), minima }
     }
 
     /// `(C_min, C_max)` per pixel, row-major.
     pub(crate) fn as_slice(&self) -> &[(f32, f32)] {
         self.range.as_slice().expect("owned arrays are contiguous")
+    }
+
+    /// The block minima `[H, W, ⌈K/8⌉]`, row-major.
+    pub(crate) fn minima(&self) -> &[f32] {
+        &self.minima
     }
 }
 
@@ -191,11 +207,13 @@ pub fn exhaustive_search_with(
     let p = SearchParams::new(bins, theta, lambda);
     let avx512 = dispatch.use_avx512();
     let ranges = range.as_slice();
+    let (minima, g) = (range.minima(), p.blocks);
     let out = a.as_slice_mut().expect("owned arrays are contiguous");
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let rows = SearchRow {
             costs: &costs[y * w * k..][..w * k],
             range: &ranges[y * w..][..w],
+            minima: &minima[y * w * g..][..w * g],
             d: &d[y * w..][..w],
         };
         search_row(&rows, &p, row, avx512);
@@ -209,7 +227,13 @@ pub(crate) struct SearchParams<'a> {
     /// The bins, for the scalar fallback.
     pub bins: &'a InverseDepthBins,
     /// `ρ_k = bins.rho(k)` for every `k`.
-    rho: Vec<f64>,
+    pub rho: Vec<f64>,
+    /// Per block of [`bounds::BLOCK_BINS`] hypotheses, its least `ρ_k`.
+    pub rho_block_lo: Vec<f64>,
+    /// Per block, its greatest `ρ_k`.
+    pub rho_block_hi: Vec<f64>,
+    /// `⌈K/8⌉`, the blocks of a curve.
+    pub blocks: usize,
     /// `K`.
     pub k: usize,
     /// `ρ_min`.
@@ -232,9 +256,14 @@ pub(crate) struct SearchParams<'a> {
 
 impl<'a> SearchParams<'a> {
     pub fn new(bins: &'a InverseDepthBins, theta: f64, lambda: f64) -> Self {
+        let rho = bins.values();
+        let (rho_block_lo, rho_block_hi) = bounds::block_rho_extremes(&rho);
         Self {
             bins,
-            rho: bins.values(),
+            rho_block_lo,
+            rho_block_hi,
+            blocks: bounds::block_count(bins.count),
+            rho,
             k: bins.count,
             rho_min: bins.rho_min,
             rho_max: bins.rho_max,
@@ -248,10 +277,12 @@ impl<'a> SearchParams<'a> {
     }
 }
 
-/// One row's inputs: its `W·K` costs, `W` cost ranges and `W` values of `d`.
+/// One row's inputs: its `W·K` costs, `W` cost ranges, `W·⌈K/8⌉` block minima and `W` values of
+/// `d`.
 pub(crate) struct SearchRow<'a> {
     pub costs: &'a [f32],
     pub range: &'a [(f32, f32)],
+    pub minima: &'a [f32],
     pub d: &'a [f32],
 }
 
@@ -316,10 +347,10 @@ pub(crate) fn for_each_group<const AVX512: bool>(
 ) {
     let w = rows.d.len();
     let mut plans = [Plans::default(); 2];
-    plan_block(&mut plans[0], rows, p, 0);
+    plan_block::<AVX512>(&mut plans[0], rows, p, 0);
     for (b, start) in (0..w).step_by(BLOCK).enumerate() {
         if start + BLOCK < w {
-            plan_block(&mut plans[(b + 1) % 2], rows, p, start + BLOCK);
+            plan_block::<AVX512>(&mut plans[(b + 1) % 2], rows, p, start + BLOCK);
         }
         for g in (0..BLOCK).step_by(LANES) {
             let x0 = start + g;
@@ -345,7 +376,7 @@ struct Plans {
 
 /// Plan pixels `start..start + BLOCK` (clipped to the row) and prefetch their curves' lines.
 #[inline(always)]
-fn plan_block(plans: &mut Plans, rows: &SearchRow, p: &SearchParams, start: usize) {
+fn plan_block<const AVX512: bool>(plans: &mut Plans, rows: &SearchRow, p: &SearchParams, start: usize) {
     let end = (start + BLOCK).min(rows.d.len());
     let (range, d) = (&rows.range[start..end], &rows.d[start..end]);
     if end - start == BLOCK {
@@ -361,18 +392,45 @@ fn plan_block(plans: &mut Plans, rows: &SearchRow, p: &SearchParams, start: usiz
     #[cfg(target_arch = "x86_64")]
     for (i, x) in (start..end).enumerate() {
         use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        // The first, middle and last cache lines of the range with the parabola's neighbours: all of
-        // it when it spans at most 3 lines (it spans 1 or 2 once θ has shrunk), the start of each
-        // stretch the hardware prefetcher can then follow otherwise. Branch-free; harmless on flat
-        // pixels.
+        // The cache line where the search will most likely read: for a narrow range the line of the
+        // hypothesis nearest `d` (where the minimum lies once θ has shrunk), for a wide one the line
+        // of the block with the least seen cost (where the bounded search starts, unless the
+        // coupling term moves it). The block minima are read in order, pixel after pixel: the
+        // hardware prefetcher follows them.
         let curve = &rows.costs[x * p.k..][..p.k];
-        let lo = (plans.lo[i] as usize).saturating_sub(1);
-        let hi = (plans.hi[i] as usize + 1).min(p.k - 1);
-        for c in [lo, (lo + hi) / 2, hi] {
-            // SAFETY: a prefetch is a hint; it never faults, and `c < K` keeps it in the curve.
-            unsafe { _mm_prefetch::<_MM_HINT_T0>(curve[c..].as_ptr().cast()) };
+        let at = if (plans.hi[i] - plans.lo[i]) as usize >= NARROW {
+            least_block::<AVX512>(&rows.minima[x * p.blocks..][..p.blocks]) * bounds::BLOCK_BINS
+        } else {
+            plans.nearest[i] as usize
+        };
+        // SAFETY: a prefetch is a hint; it never faults, and `at < K` is inside the curve.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(curve[at..].as_ptr().cast()) };
+    }
+}
+
+/// The index of a least block minimum (a prefetch hint only: any index below the length is safe).
+#[inline(always)]
+fn least_block<const AVX512: bool>(minima: &[f32]) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if AVX512 && minima.len() <= 16 {
+        use std::arch::x86_64::*;
+        // SAFETY: `AVX512` is only set inside functions built with AVX-512F, which run only where the
+        // CPU reported it; the masked load reads `minima.len()` floats.
+        unsafe {
+            let m = ((1u32 << minima.len()) - 1) as u16;
+            let v = _mm512_mask_loadu_ps(_mm512_set1_ps(f32::INFINITY), m, minima.as_ptr());
+            let least = _mm512_reduce_min_ps(v);
+            let at = _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(v, _mm512_set1_ps(least));
+            return (at.trailing_zeros() as usize).min(minima.len() - 1);
         }
     }
+    let mut best = 0;
+    for (j, &m) in minima.iter().enumerate() {
+        if m < minima[best] {
+            best = j;
+        }
+    }
+    best
 }
 
 /// One pixel's plan: [`search_pixel`]'s `c_min > c_max`, `nearest`, `lo.min(nearest)` and
@@ -440,9 +498,10 @@ impl Lanes {
     }
 }
 
-/// [`search_pixel`] for the [`LANES`] pixels `x0..` of a row (planned in `plans` from index `i0`),
-/// one per lane, by [`search_lanes`] or its AVX-512 build (`AVX512`); lanes past the row's end
-/// hold junk.
+/// [`search_pixel`] for the [`LANES`] pixels `x0..` of a row (planned in `plans` from index `i0`):
+/// each live lane's bounded search ([`bounds::bounded_search`]: the definition's argmin over its
+/// `lo..=hi`), then the parabola refinement of all lanes at once, by [`refine_lanes`] or its
+/// AVX-512 build (`AVX512`); lanes past the row's end hold junk.
 #[inline(always)]
 fn search_group<const AVX512: bool>(
     rows: &SearchRow,
@@ -454,35 +513,85 @@ fn search_group<const AVX512: bool>(
     let (k, w) = (p.k, rows.d.len());
     let costs = &rows.costs[..w * k];
     let lanes = Lanes::new(rows, p, plans, i0, x0);
+    let scan = if lanes.span <= NARROW {
+        scan_group::<AVX512>(costs, p, &lanes)
+    } else {
+        bounded_group::<AVX512>(rows, p, &lanes, x0)
+    };
     #[cfg(target_arch = "x86_64")]
-    let (mut a, found) = if AVX512 {
+    let mut a = if AVX512 {
         // SAFETY: `AVX512` is only set inside functions built with AVX-512F, which run only where the
         // CPU reported it (`Dispatch::use_avx512`); every curve offset plus hypothesis is in `costs`.
-        unsafe { super::avx512::search_lanes(costs, p, &lanes) }
+        unsafe { super::avx512::refine_lanes(costs, p, &lanes, &scan) }
     } else {
-        search_lanes(costs, p, &lanes)
+        refine_lanes(costs, p, &lanes, &scan)
     };
     #[cfg(not(target_arch = "x86_64"))]
-    let (mut a, found) = search_lanes(costs, p, &lanes);
-    for j in 0..LANES.min(w - x0) {
-        if !lanes.flat[j] && !lanes.full[j] && !found[j] {
+    let mut a = refine_lanes(costs, p, &lanes, &scan);
+    for (j, a) in a.iter_mut().enumerate().take(LANES.min(w - x0)) {
+        if !lanes.flat[j] && !lanes.full[j] && !scan.found[j] {
             // A pruned range with nothing seen in it cannot happen (it holds the seen nearest
             // hypothesis); should it, the scalar definition falls back to the full search.
             let x = x0 + j;
-            a[j] = search_pixel(&costs[x * k..][..k], rows.range[x], p.bins, lanes.d[j], p.theta, p.lambda);
+            *a = search_pixel(&costs[x * k..][..k], rows.range[x], p.bins, lanes.d[j], p.theta, p.lambda);
         }
     }
     a
 }
 
-/// The portable lane search: `a` per lane and whether its scan found a seen hypothesis (where not,
-/// `a = d`). Each lane runs the scalar definition's scan over its own `lo..=hi`, skipping unseen
-/// cells: the first seen hypothesis is taken, then any with a strictly lower energy, so ties,
-/// infinities and NaNs resolve exactly as in [`search_range`]. The lanes step through their ranges
-/// together for `span` steps (a lane past its `hi` idles). Then the parabola refinement, lane-wise.
+/// The lane scan of a group ([`scan_lanes`] or its AVX-512 build).
+#[inline(always)]
+fn scan_group<const AVX512: bool>(costs: &[f32], p: &SearchParams, lanes: &Lanes) -> Scan {
+    #[cfg(target_arch = "x86_64")]
+    if AVX512 {
+        // SAFETY: `AVX512` is only set inside functions built with AVX-512F, which run only where the
+        // CPU reported it; every curve offset plus hypothesis is in `costs`.
+        return unsafe { super::avx512::scan_lanes(costs, p, lanes) };
+    }
+    scan_lanes(costs, p, lanes)
+}
+
+/// The bounded search of each live lane of a group ([`bounds::bounded_search`] or its AVX-512
+/// build).
+#[inline(always)]
+fn bounded_group<const AVX512: bool>(rows: &SearchRow, p: &SearchParams, lanes: &Lanes, x0: usize) -> Scan {
+    let (k, w) = (p.k, rows.d.len());
+    let mut scan = Scan { best: [f64::INFINITY; LANES], arg: [0; LANES], found: [false; LANES] };
+    for j in 0..LANES.min(w - x0) {
+        if lanes.flat[j] {
+            continue;
+        }
+        let x = x0 + j;
+        let (curve, minima) = (&rows.costs[x * k..][..k], &rows.minima[x * p.blocks..][..p.blocks]);
+        let (d, lo, hi) = (lanes.d[j], lanes.lo[j], lanes.hi[j]);
+        #[cfg(target_arch = "x86_64")]
+        let found = if AVX512 {
+            // SAFETY: as in `scan_group`; `curve` and `minima` are the pixel's whole slices.
+            unsafe { super::bounds_avx512::bounded_search(curve, minima, p, d, lo, hi) }
+        } else {
+            bounds::bounded_search(curve, minima, p, d, lo, hi)
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let found = bounds::bounded_search(curve, minima, p, d, lo, hi);
+        if let Some((kk, e)) = found {
+            (scan.best[j], scan.arg[j], scan.found[j]) = (e, kk, true);
+        }
+    }
+    scan
+}
+
+/// Groups whose longest range is at most this many hypotheses run the lane scan ([`scan_lanes`]);
+/// wider ones the bounded search of each lane ([`bounds`]). Both give the definition's argmin, so
+/// this affects the speed only.
+const NARROW: usize = 6 * bounds::BLOCK_BINS;
+
+/// The portable lane scan: each lane runs the scalar definition's scan over its own `lo..=hi`,
+/// skipping unseen cells: the first seen hypothesis is taken, then any with a strictly lower
+/// energy, so ties, infinities and NaNs resolve exactly as in [`search_range`]. The lanes step
+/// through their ranges together for `span` steps (a lane past its `hi` idles).
 /// [`crate::dtam::avx512`]'s build performs the same operations on whole registers.
 #[inline(always)]
-pub(crate) fn search_lanes(costs: &[f32], p: &SearchParams, l: &Lanes) -> ([f64; LANES], [bool; LANES]) {
+pub(crate) fn scan_lanes(costs: &[f32], p: &SearchParams, l: &Lanes) -> Scan {
     let k = p.k;
     let cell = |i: usize| costs[i.min(costs.len() - 1)]; // in bounds by construction
     let rho = |i: usize| p.rho[i.min(k - 1)];
@@ -502,19 +611,38 @@ pub(crate) fn search_lanes(costs: &[f32], p: &SearchParams, l: &Lanes) -> ([f64;
             found[j] |= take;
         }
     }
+    Scan { best, arg, found }
+}
+
+/// The result of each lane's scan: the least energy, its hypothesis and whether any was seen.
+pub(crate) struct Scan {
+    pub best: [f64; LANES],
+    pub arg: [usize; LANES],
+    pub found: [bool; LANES],
+}
+
+/// The portable refinement: per lane the parabola through the energies at `k* - 1, k*, k* + 1`
+/// (none at the ends or next to an unseen cell), `a = d` where the lane is flat or found nothing.
+/// [`crate::dtam::avx512`]'s build performs the same operations on whole registers.
+#[inline(always)]
+pub(crate) fn refine_lanes(costs: &[f32], p: &SearchParams, l: &Lanes, s: &Scan) -> [f64; LANES] {
+    let k = p.k;
+    let cell = |i: usize| costs[i.min(costs.len() - 1)]; // in bounds by construction
+    let rho = |i: usize| p.rho[i.min(k - 1)];
     let mut a = [0.0; LANES];
-    for j in 0..LANES {
-        let kk = arg[j];
+    for (j, a) in a.iter_mut().enumerate() {
+        let kk = s.arg[j];
         let inner = kk > 0 && kk + 1 < k;
         let (km, kp) = if inner { (kk - 1, kk + 1) } else { (kk, kk) };
         let (cm, cp) = (cell(l.off[j] + km), cell(l.off[j] + kp));
         let em = energy_scaled(l.d[j], rho(km), cm, p.inv_two_theta, p.inv_lambda);
         let ep = energy_scaled(l.d[j], rho(kp), cp, p.inv_two_theta, p.inv_lambda);
-        let delta = if inner && cm < UNSEEN && cp < UNSEEN { parabola_offset(em, best[j], ep) } else { 0.0 };
+        let delta =
+            if inner && cm < UNSEEN && cp < UNSEEN { parabola_offset(em, s.best[j], ep) } else { 0.0 };
         let refined = if delta == 0.0 { rho(kk) } else { p.rho_min + (kk as f64 + delta) * p.step };
-        a[j] = if l.flat[j] || !found[j] { l.d[j] } else { refined };
+        *a = if l.flat[j] || !s.found[j] { l.d[j] } else { refined };
     }
-    (a, found)
+    a
 }
 
 /// The original scalar implementation of [`exhaustive_search`] (ndarray indexing, one pixel at a

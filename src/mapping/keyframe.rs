@@ -206,11 +206,11 @@ impl KeyframeConfig {
 }
 
 /// Bytes [`reconstruct`] needs for a `height x width` grid with `bins` hypotheses and `channels`
-/// feature channels: `H·W·K·(4 + 4 + 2)` (f32 sums, the f32 costs copy DTAM reads, u16 counts)
-/// plus two feature maps `2·H·W·C·4` (keyframe and the live frame being added).
+/// feature channels: `H·W·K·(4 + 4 + 2)` (f32 sums, the f32 costs copy DTAM reads, u16 counts),
+/// `H·W·⌈K/8⌉·4` (DTAM's block minima, SPEC.md §10.1) plus two feature maps `2·H·W·C·4` (keyframe
+/// and the live frame being added): [`crate::memory::cost_volume_bytes`].
 pub fn memory_estimate(height: usize, width: usize, bins: usize, channels: usize) -> u64 {
-    let (h, w, k, c) = (height as u64, width as u64, bins as u64, channels as u64);
-    h * w * k * (4 + 4 + 2) + 2 * h * w * c * 4
+    crate::memory::cost_volume_bytes(height, width, bins, channels)
 }
 
 /// A depth estimate on the level-`L` grid.

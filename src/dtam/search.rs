@@ -40,7 +40,7 @@ use crate::geometry::InverseDepthBins;
 /// Cells at or above this are unseen (`crate::costvolume::UNSEEN_COST`).
 pub const UNSEEN: f32 = UNSEEN_COST;
 
-/// Per-pixel extreme seen costs and per-block least costs ([`bounds::block_minima`]), computed once
+/// Per-pixel extreme seen costs and per-block least costs (SPEC.md §10.1, "Block bounds"), computed once
 /// per cost volume.
 #[derive(Clone, Debug)]
 pub struct CostRange {

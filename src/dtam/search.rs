@@ -51,7 +51,7 @@ pub struct CostRange {
 }
 
 impl CostRange {
-    /// Scan the volume once (row-parallel; each pixel's fold is the sequential one over `k`).
+    /// Scan the volume once (row-parallel; each pixel's folds are the sequential ones over `k`).
     pub fn new(costs: ArrayView3<f32>) -> Self {
         let (h, w, k) = costs.dim();
         let fold = |curve: &[f32]| {
@@ -66,15 +66,19 @@ impl CostRange {
         }
         let costs = costs.as_standard_layout();
         let flat = costs.as_slice().expect("standard layout is contiguous");
-        let range: Vec<(f32, f32)> =
-            flat.par_chunks(w * k).flat_map_iter(|row| row.chunks(k).map(fold)).collect();
         let g = bounds::block_count(k);
+        let mut range = vec![(0.0f32, 0.0f32); h * w];
         let mut minima = vec![0.0f32; h * w * g];
-        minima.par_chunks_mut(w * g).zip(flat.par_chunks(w * k)).for_each(|(out, row)| {
-            for (out, curve) in out.chunks_mut(g).zip(row.chunks(k)) {
-                bounds::block_minima(curve, out);
-            }
-        });
+        // One pass: each curve's extremes and block minima while it is in cache.
+        range.par_chunks_mut(w).zip(minima.par_chunks_mut(w * g)).zip(flat.par_chunks(w * k)).for_each(
+            |((range, minima), row)| {
+                for ((range, minima), curve) in range.iter_mut().zip(minima.chunks_mut(g)).zip(row.chunks(k))
+                {
+                    *range = fold(curve);
+                    bounds::block_minima(curve, minima);
+                }
+            },
+        );
         Self { range: Array2::from_shape_vec((h, w), range).expect("one range per pixel"), minima }
     }
 
@@ -499,9 +503,10 @@ impl Lanes {
 }
 
 /// [`search_pixel`] for the [`LANES`] pixels `x0..` of a row (planned in `plans` from index `i0`):
-/// each live lane's bounded search ([`bounds::bounded_search`]: the definition's argmin over its
-/// `lo..=hi`), then the parabola refinement of all lanes at once, by [`refine_lanes`] or its
-/// AVX-512 build (`AVX512`); lanes past the row's end hold junk.
+/// the definition's argmin over each live lane's `lo..=hi`, by the lane scan ([`scan_group`]) when
+/// the longest range is at most [`NARROW`], else by each lane's bounded search ([`bounded_group`]);
+/// then the parabola refinement of all lanes at once, by [`refine_lanes`] or its AVX-512 build
+/// (`AVX512`); lanes past the row's end hold junk.
 #[inline(always)]
 fn search_group<const AVX512: bool>(
     rows: &SearchRow,

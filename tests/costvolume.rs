@@ -174,6 +174,18 @@ proptest! {
 }
 
 #[test]
+fn into_costs_is_costs_and_counts() {
+    for imp in [CostVolumeImpl::Fast, CostVolumeImpl::FastPortable, CostVolumeImpl::Reference] {
+        let cv = Case::from_seed(11, 9, 13, 3, 17, 3).run(imp);
+        let (costs, counts) = (cv.costs(), cv.counts());
+        assert!(costs.iter().any(|&c| c == UNSEEN_COST) && costs.iter().any(|&c| c < UNSEEN_COST));
+        let (c, n) = cv.into_costs();
+        assert_eq!(bits(&c), bits(&costs), "{imp:?}");
+        assert_eq!(n, counts, "{imp:?}");
+    }
+}
+
+#[test]
 fn add_frames_checks_every_frame_before_adding_any() {
     let case = Case::from_seed(3, 6, 8, 3, 5, 2);
     let mut cv = CostVolume::new(case.reference.clone(), case.camera, case.bins).unwrap();

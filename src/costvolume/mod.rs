@@ -59,6 +59,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
+use crate::nn::alloc::zeroed;
 
 pub use curve::{confidence, confidence_and_scale, cost_scale, filter_evidence, winner_take_all_costs};
 pub use fast::fast_kernel_name;
@@ -161,9 +162,12 @@ impl CostVolume {
         check_shape("reference features", reference.dim(), &camera, None)?;
         let reference = reference.as_standard_layout().into_owned();
         let cells = camera.height * camera.width * bins.count;
+        // Huge pages where the system allows (nn::alloc): the kernels' first touch of a cell is a
+        // read, then a write, which on 4 KB zero pages costs a copy-on-write fault and a TLB
+        // flush of every thread per page.
         let sums = match imp {
-            CostVolumeImpl::Reference => Sums::F64(vec![0.0; cells]),
-            CostVolumeImpl::Fast | CostVolumeImpl::FastPortable => Sums::F32(vec![0.0; cells]),
+            CostVolumeImpl::Reference => Sums::F64(zeroed(cells)),
+            CostVolumeImpl::Fast | CostVolumeImpl::FastPortable => Sums::F32(zeroed(cells)),
         };
         Ok(Self {
             rhos: bins.values(),
@@ -172,7 +176,7 @@ impl CostVolume {
             bins,
             imp,
             sums,
-            counts: vec![0; cells],
+            counts: zeroed(cells),
             frames: 0,
             truncation: NO_TRUNCATION,
         })
@@ -396,6 +400,27 @@ impl CostVolume {
             }
         });
         Array3::from_shape_vec(self.dim(), v).expect("length is H·W·K")
+    }
+
+    /// [`CostVolume::costs`] and [`CostVolume::counts`], consuming the volume: the f32 sums of the
+    /// fast kernels become the costs in place (the same values, without a second `H·W·K` array of
+    /// fresh memory; the reference's f64 sums are converted into a new array).
+    pub fn into_costs(self) -> (Array3<f32>, Array3<u16>) {
+        let dim = self.dim();
+        let row = (self.camera.width * self.bins.count).max(1);
+        let costs = match self.sums {
+            Sums::F32(mut v) => {
+                v.par_chunks_mut(row).zip(self.counts.par_chunks(row)).for_each(|(s, n)| {
+                    for (s, &n) in s.iter_mut().zip(n) {
+                        // `mean`'s expression.
+                        *s = if n == 0 { UNSEEN_COST } else { *s / f32::from(n) };
+                    }
+                });
+                Array3::from_shape_vec(dim, v).expect("length is H·W·K")
+            }
+            Sums::F64(_) => self.costs(),
+        };
+        (costs, Array3::from_shape_vec(dim, self.counts).expect("length is H·W·K"))
     }
 
     /// Every count `[H, W, K]`, borrowed.

@@ -9,7 +9,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use ndarray::{Array2, Array3};
+use ndarray::Array2;
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -464,10 +464,11 @@ pub fn reconstruct(
 
     progress(Stage::Wta, 0, 1);
     let t = Instant::now();
-    let mut costs: Array3<f32> = cv.costs();
-    filter_evidence(&mut costs, cv.counts_view(), cfg.min_evidence);
-    let (conf, scale) = confidence_and_scale(costs.view(), cv.counts_view(), cv.frames());
-    drop(cv);
+    let frames = cv.frames();
+    let (mut costs, counts) = cv.into_costs();
+    filter_evidence(&mut costs, counts.view(), cfg.min_evidence);
+    let (conf, scale) = confidence_and_scale(costs.view(), counts.view(), frames);
+    drop(counts);
     let w = backend.winner_take_all(costs.view(), &bins)?;
     timings.wta = t.elapsed().as_secs_f64();
     progress(Stage::Wta, 1, 1);

@@ -51,9 +51,17 @@ pub fn zeroed_map_aligned(shape: [usize; 3]) -> Array3<f32> {
     a
 }
 
+/// `n` zeros of a plain number type (`f32`, `f64`, `u16`, ...), the allocation advised onto huge
+/// pages when it is large (as [`zeroed_vec`]).
+pub fn zeroed<T: Clone + Default>(n: usize) -> Vec<T> {
+    let v = vec![T::default(); n];
+    advise_huge_pages(&v);
+    v
+}
+
 /// Asks the kernel to back the whole 2 MB pages inside `v` with huge pages (best effort).
 #[cfg(target_os = "linux")]
-fn advise_huge_pages(v: &[f32]) {
+fn advise_huge_pages<T>(v: &[T]) {
     let bytes = std::mem::size_of_val(v);
     if bytes < MIN_ADVISED_BYTES {
         return;
@@ -72,7 +80,7 @@ fn advise_huge_pages(v: &[f32]) {
 }
 
 #[cfg(not(target_os = "linux"))]
-fn advise_huge_pages(_: &[f32]) {}
+fn advise_huge_pages<T>(_: &[T]) {}
 
 #[cfg(test)]
 mod tests {

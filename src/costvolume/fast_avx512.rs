@@ -7,7 +7,8 @@
 //! validity, corner offsets and weights are the same values. Then:
 //! - three channels: the twelve corner values of the 16 hypotheses come from masked gathers (only
 //!   valid lanes load) and each lane computes `s = ((w0 a + w1 b) + w2 c) + w3 d` and
-//!   `(|r0 - s0| + |r2 - s2|) + |r1 - s1|`, the portable kernel's per-hypothesis order;
+//!   `(|r0 - s0| + |r2 - s2|) + |r1 - s1|`, the portable kernel's per-hypothesis order (from a
+//!   byte-valued map's packed words: one 8-byte gather per lane and corner row, [`corner_pairs`]);
 //! - any other channel count: per valid hypothesis, the channel loop with 16-lane partial sums
 //!   (channel `c` in lane `c mod 16`) and the same pairwise fold as `l1_distance`.
 //!
@@ -299,7 +300,7 @@ fn channel_l1(w: &[__m512; 4], at: [__m512; 4], r: f32) -> __m512 {
     _mm512_abs_ps(_mm512_sub_ps(_mm512_set1_ps(r), s))
 }
 
-/// [`l1_rgb16`] from the packed map: one gather per corner (offsets in pixels), each word split
+/// [`l1_rgb16`] from the packed map: the four corners' words (see [`corner_pairs`]), each word split
 /// into its three byte values, converted to `f32` exactly; then the same per-lane expressions.
 ///
 /// # Safety
@@ -308,17 +309,28 @@ fn channel_l1(w: &[__m512; 4], at: [__m512; 4], r: f32) -> __m512 {
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq")]
 unsafe fn l1_rgb16_packed(packed: &[u32], b: &Block, dx: i32, dy: i32, r: &[f32]) -> __m512 {
     let p = packed.as_ptr().cast::<i32>();
-    let at: [__m512i; 4] = [0, dx, dy, dy + dx].map(|o| {
-        // SAFETY: only valid lanes load, inside `packed` (the caller's contract).
+    let at: [__m512i; 4] = if dx == 1 {
+        // SAFETY: a valid lane's corner pairs `(o, o + 1)` and `(o + dy, o + dy + 1)` lie inside
+        // `packed` (the caller's contract with `dx = 1`).
         unsafe {
-            _mm512_mask_i32gather_epi32::<4>(
-                _mm512_setzero_si512(),
-                b.ok,
-                _mm512_add_epi32(b.offset, _mm512_set1_epi32(o)),
-                p,
-            )
+            let (a, b1) = corner_pairs(p, b.ok, b.offset);
+            let (c, d) = corner_pairs(p, b.ok, _mm512_add_epi32(b.offset, _mm512_set1_epi32(dy)));
+            [a, b1, c, d]
         }
-    });
+    } else {
+        // A one-pixel-wide map (`dx = 0`): one 4-byte gather per corner.
+        [0, dx, dy, dy + dx].map(|o| {
+            // SAFETY: only valid lanes load, inside `packed` (the caller's contract).
+            unsafe {
+                _mm512_mask_i32gather_epi32::<4>(
+                    _mm512_setzero_si512(),
+                    b.ok,
+                    _mm512_add_epi32(b.offset, _mm512_set1_epi32(o)),
+                    p,
+                )
+            }
+        })
+    };
     let byte = _mm512_set1_epi32(0xff);
     let channel = |v: __m512i, ch: u32| {
         let shifted = match ch {
@@ -333,6 +345,34 @@ unsafe fn l1_rgb16_packed(packed: &[u32], b: &Block, dx: i32, dy: i32, r: &[f32]
         *d = channel_l1(&b.w, at.map(|a| channel(a, ch as u32)), r[ch]);
     }
     _mm512_add_ps(_mm512_add_ps(d[0], d[2]), d[1])
+}
+
+/// The words `p[o]` and `p[o + 1]` of 16 lanes (0 outside `ok`): two horizontally adjacent
+/// corners of the packed map, each lane's pair loaded by one 8-byte gather (two gathers of 8 lanes,
+/// half the elements of two 16-lane 4-byte gathers; the same values), then split into the even
+/// (left) and odd (right) words.
+///
+/// # Safety
+/// `p + o` and `p + o + 1` must be readable in every lane of `ok`.
+#[inline]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq")]
+unsafe fn corner_pairs(p: *const i32, ok: __mmask16, o: __m512i) -> (__m512i, __m512i) {
+    let zero = _mm512_setzero_si512();
+    // SAFETY: only lanes of `ok` load, 8 bytes at `p + o` (the caller's contract).
+    let (lo, hi) = unsafe {
+        (
+            _mm512_mask_i32gather_epi64::<4>(zero, ok as u8, _mm512_castsi512_si256(o), p.cast()),
+            _mm512_mask_i32gather_epi64::<4>(
+                zero,
+                (ok >> 8) as u8,
+                _mm512_extracti64x4_epi64::<1>(o),
+                p.cast(),
+            ),
+        )
+    };
+    let even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+    let odd = _mm512_setr_epi32(1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
+    (_mm512_permutex2var_epi32(lo, even, hi), _mm512_permutex2var_epi32(lo, odd, hi))
 }
 
 /// `p[o]` in the lanes of `ok`, 0 elsewhere.

@@ -37,18 +37,13 @@ pub fn product(factors: &[u64]) -> u64 {
 }
 
 /// Cost volume of `height x width` cells, `bins` hypotheses, `channels` feature channels: f32 sums,
-/// the f32 costs copy, u16 counts (10 bytes a cell), DTAM's f32 block minima (one per 8 hypotheses),
-/// the reference feature map and one batch of live maps
-/// ([`crate::costvolume::batch_frames`]), each with a 4-byte-a-pixel packed copy when `channels`
-/// is 3 (SPEC.md §11.2).
+/// the f32 costs copy, u16 counts (10 bytes a cell), DTAM's f32 block minima (one per 8 hypotheses)
+/// and two feature maps (SPEC.md §11.2).
 pub fn cost_volume_bytes(height: usize, width: usize, bins: usize, channels: usize) -> u64 {
     let (h, w, k, c) = (height as u64, width as u64, bins as u64, channels as u64);
-    let batch = crate::costvolume::batch_frames(height, width, channels) as u64;
-    let packed = if channels == 3 { product(&[batch, h, w, 4]) } else { 0 };
     product(&[h, w, k, 10])
         .saturating_add(product(&[h, w, k.div_ceil(8), 4]))
-        .saturating_add(product(&[1 + batch, h, w, c, 4]))
-        .saturating_add(packed)
+        .saturating_add(product(&[2, h, w, c, 4]))
 }
 
 /// One forward pass of the feature network on a `height x width` image with `channels` channels

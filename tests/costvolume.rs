@@ -140,39 +140,6 @@ proptest! {
     }
 }
 
-proptest! {
-    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
-    /// Frames added in groups (one pass over the volume per group, SPEC.md §9.3) give the bits of
-    /// one `add_frame` per frame, for every implementation and kernel.
-    #[test]
-    fn add_frames_equals_add_frame_in_order(
-        seed: u64,
-        h in 1usize..14,
-        w in 1usize..14,
-        c in prop::sample::select(vec![1usize, 3, 32, 35]),
-        k in prop::sample::select(vec![2usize, 17, 40]),
-        frames in 1usize..7,
-        group in 1usize..5,
-        bytes: bool,
-        imp in prop::sample::select(vec![CostVolumeImpl::Fast, CostVolumeImpl::FastPortable, CostVolumeImpl::Reference]),
-    ) {
-        let case = Case::from_seed(seed, h, w, c, k, frames);
-        let case = Case { truncation: if c == 3 { 2.5 * c as f32 } else { NO_TRUNCATION }, ..if bytes { case.bytes() } else { case } };
-        let one_by_one = case.run(imp);
-        let mut grouped = CostVolume::with_impl(case.reference.clone(), case.camera, case.bins, imp)
-            .unwrap()
-            .with_truncation(case.truncation)
-            .unwrap();
-        for chunk in case.live.chunks(group) {
-            let views: Vec<_> = chunk.iter().map(|(f, t)| (f.view(), t)).collect();
-            grouped.add_frames(&views).unwrap();
-        }
-        prop_assert_eq!(grouped.frames(), frames);
-        prop_assert_eq!(grouped.counts(), one_by_one.counts());
-        prop_assert_eq!(bits(&grouped.costs()), bits(&one_by_one.costs()), "{:?}, group {}", imp, group);
-    }
-}
-
 #[test]
 fn into_costs_is_costs_and_counts() {
     for imp in [CostVolumeImpl::Fast, CostVolumeImpl::FastPortable, CostVolumeImpl::Reference] {
@@ -183,20 +150,6 @@ fn into_costs_is_costs_and_counts() {
         assert_eq!(bits(&c), bits(&costs), "{imp:?}");
         assert_eq!(n, counts, "{imp:?}");
     }
-}
-
-#[test]
-fn add_frames_checks_every_frame_before_adding_any() {
-    let case = Case::from_seed(3, 6, 8, 3, 5, 2);
-    let mut cv = CostVolume::new(case.reference.clone(), case.camera, case.bins).unwrap();
-    let wrong = Array3::<f32>::zeros((6, 7, 3));
-    let (good, t) = (&case.live[0].0, &case.live[0].1);
-    let err = cv.add_frames(&[(good.view(), t), (wrong.view(), t)]).unwrap_err().to_string();
-    assert!(err.contains("live features"), "{err}");
-    assert_eq!(cv.frames(), 0);
-    assert!(cv.counts().iter().all(|&n| n == 0), "nothing may be added");
-    cv.add_frames(&[]).unwrap();
-    assert_eq!(cv.frames(), 0);
 }
 
 proptest! {
@@ -248,24 +201,6 @@ fn output_independent_of_thread_count() {
         let case = Case { truncation: tau, ..if bytes { case.bytes() } else { case } };
         let run = |n| thread_pool(n).install(|| case.run(imp));
         let one = run(1);
-        // The same frames in one pass over the volume (SPEC.md §9.3), on 1 and 3 threads.
-        for n in [1, 3] {
-            let grouped = thread_pool(n).install(|| {
-                let mut cv = CostVolume::with_impl(case.reference.clone(), case.camera, case.bins, imp)
-                    .unwrap()
-                    .with_truncation(case.truncation)
-                    .unwrap();
-                let views: Vec<_> = case.live.iter().map(|(f, t)| (f.view(), t)).collect();
-                cv.add_frames(&views).unwrap();
-                cv
-            });
-            assert_eq!(
-                bits(&grouped.costs()),
-                bits(&one.costs()),
-                "C = {c}, {imp:?}, grouped, threads = {n}"
-            );
-            assert_eq!(grouped.counts(), one.counts());
-        }
         assert!(one.counts().iter().any(|&n| n == 3), "some cells must be seen by every frame");
         for n in [2, 3, 8] {
             let other = run(n);

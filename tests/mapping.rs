@@ -174,9 +174,7 @@ fn bad_inputs_are_clear_errors() {
 fn memory_limit_fails_up_front() {
     assert_eq!(
         memory_estimate(120, 160, 32, 3),
-        // Sums, costs, counts; block minima; the keyframe's map and a group of 16 live maps
-        // (SPEC.md §9.3) with their packed byte copies.
-        120 * 160 * 32 * 10 + 120 * 160 * 4 * 4 + 17 * 120 * 160 * 3 * 4 + 16 * 120 * 160 * 4
+        120 * 160 * 32 * 10 + 120 * 160 * 4 * 4 + 2 * 120 * 160 * 3 * 4
     );
     let seq = fixture();
     let mut cfg = small_config();

@@ -136,9 +136,6 @@ fn memory_estimate_of_640x480_with_128_bins() {
     let b = memory_estimate(480, 640, 128, 32);
     assert_eq!(b, 480 * 640 * 128 * 10 + 480 * 640 * 16 * 4 + 2 * 480 * 640 * 32 * 4);
     assert_eq!(b, 491_520_000); // 468.75 MiB, under the 2048 MiB default limit
-                                // RGB: the live frames are added 16 at a time (SPEC.md §9.3), each with a packed byte copy.
-    let rgb = memory_estimate(480, 640, 128, 3);
-    assert_eq!(rgb, 480 * 640 * 128 * 10 + 480 * 640 * 16 * 4 + 17 * 480 * 640 * 3 * 4 + 16 * 480 * 640 * 4);
 }
 
 #[test]

@@ -336,14 +336,6 @@ impl VolumeBuilder for CpuVolume {
         self.0.add_frame(host("cpu", live)?.view(), t_nr)
     }
 
-    fn add_frames(&mut self, frames: &[(Tensor, Pose)]) -> Result<()> {
-        let views = frames
-            .iter()
-            .map(|(live, t_nr)| Ok((host("cpu", live)?.view(), t_nr)))
-            .collect::<Result<Vec<_>>>()?;
-        self.0.add_frames(&views)
-    }
-
     fn frames(&self) -> usize {
         self.0.frames()
     }

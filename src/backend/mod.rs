@@ -244,15 +244,6 @@ pub trait VolumeBuilder: Send {
     /// # Errors
     /// Shape errors, the frame limit; [`Error::Unsupported`].
     fn add_frame(&mut self, live: &Tensor, t_nr: &Pose) -> Result<()>;
-    /// Add live frames in order: the same volume, bit for bit, as one
-    /// [`VolumeBuilder::add_frame`] per frame (the CPU backend adds them in one pass over the
-    /// volume, SPEC.md §9.3). How many to pass at once: [`crate::costvolume::batch_frames`].
-    ///
-    /// # Errors
-    /// As [`VolumeBuilder::add_frame`].
-    fn add_frames(&mut self, frames: &[(Tensor, Pose)]) -> Result<()> {
-        frames.iter().try_for_each(|(live, t_nr)| self.add_frame(live, t_nr))
-    }
     /// Frames added so far.
     fn frames(&self) -> usize;
     /// A host copy of the volume so far (for diagnostics that look at it while it fills).

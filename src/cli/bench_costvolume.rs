@@ -32,11 +32,6 @@ pub struct BenchCostvolumeArgs {
     /// Timed runs (at least 10) after two warm-up runs.
     #[arg(long, default_value_t = 10)]
     pub runs: usize,
-    /// Frames added per pass over the volume (`add_frames`, SPEC.md §9.3): each timed run adds this
-    /// many frames (the same live features, each frame's pose 1 cm further sideways) and the time
-    /// is reported per frame. 1 times `add_frame`.
-    #[arg(long, default_value_t = 1)]
-    pub batch: usize,
     /// Time the single-threaded reference instead of the fast kernel.
     #[arg(long)]
     pub reference: bool,
@@ -62,23 +57,11 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     let backend: Arc<dyn Backend> =
         if args.reference { Arc::new(CpuBackend::reference()) } else { args.backend.resolve()? };
     let (width, height) = parse_size(&args.size)?;
-    let bytes = crate::memory::cost_volume_bytes(height, width, args.bins, args.channels).saturating_add(
-        crate::memory::product(&[args.batch as u64, height as u64, width as u64, args.channels as u64, 4]),
-    );
+    let bytes = crate::memory::cost_volume_bytes(height, width, args.bins, args.channels);
     let what = format!("the {height}x{width}x{} volume with {} channels", args.bins, args.channels);
     args.memory.check(&what, bytes, "use a smaller --size, fewer --bins or --channels")?;
     if args.runs < 10 {
         return Err(Error::invalid_argument("--runs", format!("{}: must be at least 10", args.runs)));
-    }
-    if args.batch == 0 || (args.runs + 2).saturating_mul(args.batch) > crate::costvolume::MAX_FRAMES {
-        return Err(Error::invalid_argument(
-            "--batch",
-            format!(
-                "{}: must be at least 1, and (runs + 2) · batch at most {}",
-                args.batch,
-                crate::costvolume::MAX_FRAMES
-            ),
-        ));
     }
     if args.threads == 0 {
         return Err(Error::invalid_argument("--threads", "0: must be at least 1"));
@@ -94,12 +77,6 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     let upload = t.elapsed().as_secs_f64();
     // Untruncated (SPEC.md §9.13): the truncation is one `min` per hypothesis block either way.
     let mut cv = backend.cost_volume(&reference, cam, bins, crate::costvolume::NO_TRUNCATION)?;
-    let frames: Vec<_> = (0..args.batch)
-        .map(|i| {
-            let shift = nalgebra::Translation3::new(0.01 * i as f64, 0.0, 0.0);
-            (live.clone(), crate::geometry::Pose::from_parts(shift * t_nr.translation, t_nr.rotation))
-        })
-        .collect();
     let mut times = Vec::with_capacity(args.runs);
     let mut cpu_start = None;
     pool.install(|| -> Result<()> {
@@ -108,15 +85,11 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
                 cpu_start = crate::perf::process_cpu_seconds();
             }
             let start = Instant::now();
-            if args.batch == 1 {
-                cv.add_frame(&live, &t_nr)?;
-            } else {
-                cv.add_frames(&frames)?;
-            }
+            cv.add_frame(&live, &t_nr)?;
             // A device backend only submits: the clock stops when the frame is done.
             backend.synchronize()?;
             if run >= 2 {
-                times.push(start.elapsed().as_secs_f64() / args.batch as f64);
+                times.push(start.elapsed().as_secs_f64());
             }
         }
         Ok(())
@@ -124,9 +97,7 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     let t = Instant::now();
     let cv = cv.finish()?;
     let download = t.elapsed().as_secs_f64();
-    let cpu = cpu_start
-        .zip(crate::perf::process_cpu_seconds())
-        .map(|(a, b)| (b - a) / (args.runs * args.batch) as f64);
+    let cpu = cpu_start.zip(crate::perf::process_cpu_seconds()).map(|(a, b)| (b - a) / args.runs as f64);
     let total: f64 = times.iter().sum::<f64>() / args.runs as f64;
     times.sort_by(f64::total_cmp);
     let median = times[times.len() / 2];

@@ -83,117 +83,55 @@ pub(super) fn add_frame(
     counts: &mut [u16],
     dispatch: bool,
 ) {
-    add_frames(&[(geo, feats)], rhos, sums, counts, dispatch);
-}
-
-/// One live frame, prepared for the row kernels: its features (a cache-line-aligned copy where the
-/// block kernel wants one) and, for byte-valued RGB, the packed map.
-struct Prepared<'a> {
-    geo: &'a Geometry<'a>,
-    reference: &'a [f32],
-    channels: usize,
-    truncation: f32,
-    live: Live<'a>,
-    #[cfg(target_arch = "x86_64")]
-    packed: Option<super::fast_avx512::PackedRgb>,
-}
-
-enum Live<'a> {
-    Borrowed(&'a [f32]),
-    #[cfg(target_arch = "x86_64")]
-    Aligned(super::fast_avx512::AlignedCopy),
-}
-
-impl Prepared<'_> {
-    fn slices(&self) -> Slices<'_> {
-        let live = match &self.live {
-            Live::Borrowed(l) => l,
-            #[cfg(target_arch = "x86_64")]
-            Live::Aligned(a) => a.as_slice(),
-        };
-        Slices { reference: self.reference, live, channels: self.channels, truncation: self.truncation }
-    }
-}
-
-/// Add live frames in order into `sums` / `counts` (`[H, W, K]`): each row task adds every frame to
-/// its row before the next row, so a row's sums stay in cache across the frames. Each cell is
-/// updated in frame order: the same bits as one [`add_frame`] per frame. `dispatch`: use AVX-512
-/// when available.
-pub(super) fn add_frames(
-    frames: &[(&Geometry, &Slices)],
-    rhos: &[f64],
-    sums: &mut [f32],
-    counts: &mut [u16],
-    dispatch: bool,
-) {
-    let Some((first, _)) = frames.first() else { return };
-    let (w, k_count) = (first.camera.width, rhos.len());
+    let (w, k_count) = (geo.camera.width, rhos.len());
     let row_cells = w * k_count;
     let use_avx512 = dispatch && has_avx512();
-    let prepared: Vec<Prepared> = frames
-        .iter()
-        .map(|&(geo, feats)| {
-            #[cfg(target_arch = "x86_64")]
-            let use_blocks = use_avx512
-                && super::fast_avx512::available()
-                && super::fast_avx512::fits_i32(w, geo.camera.height, feats.channels);
-            // The block kernel loads whole 64-byte channel chunks of 16·N-channel maps: from a
-            // cache-line-aligned copy no load straddles two lines (a copy changes no value).
-            #[cfg(target_arch = "x86_64")]
-            let live = if use_blocks
-                && feats.channels.is_multiple_of(16)
-                && !(feats.live.as_ptr() as usize).is_multiple_of(64)
-            {
-                Live::Aligned(super::fast_avx512::AlignedCopy::new(feats.live))
-            } else {
-                Live::Borrowed(feats.live)
-            };
-            #[cfg(not(target_arch = "x86_64"))]
-            let live = Live::Borrowed(feats.live);
-            Prepared {
-                geo,
-                reference: feats.reference,
-                channels: feats.channels,
-                truncation: feats.truncation,
-                live,
-                // Byte-valued RGB (every value an integer 0..=255, as decoded images are): one
-                // packed word per pixel, so the block kernel gathers 4 words per hypothesis
-                // instead of 12 floats (same values).
-                #[cfg(target_arch = "x86_64")]
-                packed: if use_blocks {
-                    super::fast_avx512::PackedRgb::new(feats.live, feats.channels)
-                } else {
-                    None
-                },
-            }
-        })
-        .collect();
+    #[cfg(target_arch = "x86_64")]
+    let use_blocks = use_avx512
+        && super::fast_avx512::available()
+        && super::fast_avx512::fits_i32(w, geo.camera.height, feats.channels);
+    // The block kernel loads whole 64-byte channel chunks of 16·N-channel maps: from a
+    // cache-line-aligned copy no load straddles two lines (a copy changes no value).
+    #[cfg(target_arch = "x86_64")]
+    let aligned;
+    #[cfg(target_arch = "x86_64")]
+    let feats = if use_blocks
+        && feats.channels.is_multiple_of(16)
+        && !(feats.live.as_ptr() as usize).is_multiple_of(64)
+    {
+        aligned = super::fast_avx512::AlignedCopy::new(feats.live);
+        &Slices {
+            reference: feats.reference,
+            live: aligned.as_slice(),
+            channels: feats.channels,
+            truncation: feats.truncation,
+        }
+    } else {
+        feats
+    };
+    // Byte-valued RGB (every value an integer 0..=255, as decoded images are): one packed word per
+    // pixel, so the block kernel gathers 4 words per hypothesis instead of 12 floats (same values).
+    #[cfg(target_arch = "x86_64")]
+    let packed =
+        if use_blocks { super::fast_avx512::PackedRgb::new(feats.live, feats.channels) } else { None };
     sums.par_chunks_mut(row_cells).zip(counts.par_chunks_mut(row_cells)).enumerate().for_each_init(
         || Scratch::new(k_count),
         |scratch, (y, (sum_row, count_row))| {
-            for p in &prepared {
-                let (geo, feats) = (p.geo, &p.slices());
-                #[cfg(target_arch = "x86_64")]
-                if use_avx512
-                    && super::fast_avx512::available()
-                    && super::fast_avx512::fits_i32(w, geo.camera.height, feats.channels)
-                {
-                    // SAFETY: `available()` checked the CPU features, `fits_i32` the offsets;
-                    // `packed` is this frame's live map.
-                    unsafe {
-                        super::fast_avx512::row(geo, feats, p.packed.as_ref(), rhos, y, sum_row, count_row)
-                    };
-                    continue;
-                }
-                #[cfg(target_arch = "x86_64")]
-                if use_avx512 {
-                    // SAFETY: `has_avx512()` reported AVX-512F on this CPU.
-                    unsafe { row_avx512(geo, feats, rhos, y, sum_row, count_row, scratch) };
-                    continue;
-                }
-                let _ = use_avx512;
-                row_any(geo, feats, rhos, y, sum_row, count_row, scratch);
+            #[cfg(target_arch = "x86_64")]
+            if use_blocks {
+                // SAFETY: `available()` checked the CPU features, `fits_i32` the offsets; `packed`
+                // is this frame's live map.
+                unsafe { super::fast_avx512::row(geo, feats, packed.as_ref(), rhos, y, sum_row, count_row) };
+                return;
             }
+            #[cfg(target_arch = "x86_64")]
+            if use_avx512 {
+                // SAFETY: `has_avx512()` reported AVX-512F on this CPU.
+                unsafe { row_avx512(geo, feats, rhos, y, sum_row, count_row, scratch) };
+                return;
+            }
+            let _ = use_avx512;
+            row_any(geo, feats, rhos, y, sum_row, count_row, scratch);
         },
     );
 }

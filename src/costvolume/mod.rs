@@ -74,21 +74,6 @@ pub const UNSEEN_COST: f32 = f32::MAX;
 /// distances of finite features): the default of [`CostVolume::with_impl`].
 pub const NO_TRUNCATION: f32 = f32::MAX;
 
-/// Bytes of live feature maps a caller holds to add them in one [`CostVolume::add_frames`] call
-/// ([`batch_frames`]).
-pub const BATCH_BYTES: usize = 64 << 20;
-
-/// The most frames [`batch_frames`] suggests (the gain levels off well before it).
-pub const MAX_BATCH: usize = 16;
-
-/// How many live frames of `height x width x channels` f32 features to pass to one
-/// [`CostVolume::add_frames`]: as many as fit [`BATCH_BYTES`], from 1 to [`MAX_BATCH`]
-/// (SPEC.md §9.3). The sums of a row then stay in cache while every frame of the batch is added.
-pub fn batch_frames(height: usize, width: usize, channels: usize) -> usize {
-    let frame = height.saturating_mul(width).saturating_mul(channels).saturating_mul(4);
-    (BATCH_BYTES / frame.max(1)).clamp(1, MAX_BATCH)
-}
-
 /// The one rule for a per-frame truncation (SPEC.md §9.13): positive ([`NO_TRUNCATION`] included),
 /// not NaN.
 ///
@@ -280,50 +265,6 @@ impl CostVolume {
             }
         }
         self.frames += 1;
-        Ok(())
-    }
-
-    /// Add live frames in order: the same volume, bit for bit, as one [`CostVolume::add_frame`] per
-    /// frame, computed in one pass over the volume (each row gets every frame before the next row,
-    /// so its sums stay in cache).
-    ///
-    /// # Errors
-    /// As [`CostVolume::add_frame`], checked for every frame before any is added.
-    pub fn add_frames(&mut self, frames: &[(ArrayView3<f32>, &Pose)]) -> Result<()> {
-        for (live, _) in frames {
-            check_shape("live features", live.dim(), &self.camera, Some(self.reference.dim().2))?;
-        }
-        if self.frames + frames.len() > MAX_FRAMES {
-            return Err(Error::invalid_argument(
-                "cost volume",
-                format!("more than {MAX_FRAMES} frames: the per-cell count is a u16"),
-            ));
-        }
-        let Sums::F32(sums) = &mut self.sums else {
-            for (live, t_nr) in frames {
-                self.add_frame(live.view(), t_nr)?;
-            }
-            return Ok(());
-        };
-        let lives: Vec<_> = frames.iter().map(|(l, _)| l.as_standard_layout()).collect();
-        let warps: Vec<Warp> = frames.iter().map(|(_, t)| Warp::new(&self.camera, &self.camera, t)).collect();
-        let geos: Vec<fast::Geometry> = frames
-            .iter()
-            .zip(&warps)
-            .map(|((_, t), warp)| fast::Geometry { camera: &self.camera, warp, t: t.translation.vector })
-            .collect();
-        let slices: Vec<fast::Slices> = lives
-            .iter()
-            .map(|live| fast::Slices {
-                reference: self.reference.as_slice().expect("standard layout"),
-                live: live.as_slice().expect("standard layout"),
-                channels: self.reference.dim().2,
-                truncation: self.truncation,
-            })
-            .collect();
-        let pairs: Vec<_> = geos.iter().zip(&slices).collect();
-        fast::add_frames(&pairs, &self.rhos, sums, &mut self.counts, self.imp == CostVolumeImpl::Fast);
-        self.frames += frames.len();
         Ok(())
     }
 

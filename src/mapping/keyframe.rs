@@ -207,8 +207,8 @@ impl KeyframeConfig {
 
 /// Bytes [`reconstruct`] needs for a `height x width` grid with `bins` hypotheses and `channels`
 /// feature channels: `H·W·K·(4 + 4 + 2)` (f32 sums, the f32 costs copy DTAM reads, u16 counts),
-/// `H·W·⌈K/8⌉·4` (DTAM's block minima, SPEC.md §10.1) plus the keyframe's feature map and one group
-/// of live maps added in one pass (SPEC.md §9.3, §11.2): [`crate::memory::cost_volume_bytes`].
+/// `H·W·⌈K/8⌉·4` (DTAM's block minima, SPEC.md §10.1) plus two feature maps `2·H·W·C·4` (keyframe
+/// and the live frame being added): [`crate::memory::cost_volume_bytes`].
 pub fn memory_estimate(height: usize, width: usize, bins: usize, channels: usize) -> u64 {
     crate::memory::cost_volume_bytes(height, width, bins, channels)
 }
@@ -428,11 +428,8 @@ pub fn reconstruct(
     let truncation = cfg.truncation.of(&cfg.features);
     let mut cv = backend.cost_volume(&backend.upload_owned(key_features)?, camera, bins, truncation)?;
     // Frames are decoded a few at a time in parallel (decoding is exact, so this changes no bits)
-    // and added in window order, `group` per pass over the volume (the same bits as one at a
-    // time, SPEC.md §9.3).
+    // and added in window order.
     let batch = rayon::current_num_threads().clamp(1, 8);
-    let group = crate::costvolume::batch_frames(camera.height, camera.width, channels);
-    let mut pending = Vec::with_capacity(group);
     let mut loaded = std::collections::VecDeque::new();
     for (i, &n) in live.iter().enumerate() {
         if loaded.is_empty() {
@@ -450,22 +447,16 @@ pub fn reconstruct(
         let f = extractor.extract(&photo.correct_live(i, &frame.rgb))?.data;
         timings.features += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        pending.push((backend.upload_owned(f)?, relative_pose(&key.pose, &frame.pose)));
-        if pending.len() == group || i + 1 == live.len() {
-            cv.add_frames(&pending)?;
-            pending.clear();
-            progress(Stage::CostVolume, i + 1, live.len());
-        }
+        cv.add_frame(&backend.upload_owned(f)?, &relative_pose(&key.pose, &frame.pose))?;
         timings.cost_volume += t.elapsed().as_secs_f64();
+        progress(Stage::CostVolume, i + 1, live.len());
     }
-    let t = Instant::now();
-    let cv = cv.finish()?;
-    timings.cost_volume += t.elapsed().as_secs_f64();
 
     progress(Stage::Wta, 0, 1);
     let t = Instant::now();
-    let frames = cv.frames();
-    let (mut costs, counts) = cv.into_costs();
+    let volume = cv.finish()?;
+    let frames = volume.frames();
+    let (mut costs, counts) = volume.into_costs();
     filter_evidence(&mut costs, counts.view(), cfg.min_evidence);
     let (conf, scale) = confidence_and_scale(costs.view(), counts.view(), frames);
     drop(counts);

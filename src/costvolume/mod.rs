@@ -54,12 +54,12 @@ mod fast_avx512;
 mod reference;
 mod wta;
 
-use ndarray::{Array3, ArrayView3};
+use ndarray::{Array1, Array3, ArrayView3};
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
-use crate::nn::alloc::zeroed;
+use crate::nn::alloc::zeroed_aligned;
 
 pub use curve::{confidence, confidence_and_scale, cost_scale, filter_evidence, winner_take_all_costs};
 pub use fast::fast_kernel_name;
@@ -103,8 +103,8 @@ pub enum CostVolumeImpl {
 /// Running sums: `f64` for the reference, `f32` for the fast kernels.
 #[derive(Clone, Debug)]
 enum Sums {
-    F64(Vec<f64>),
-    F32(Vec<f32>),
+    F64(Array1<f64>),
+    F32(Array1<f32>),
 }
 
 /// A streaming cost volume `[H, W, K]` for one reference (key) frame.
@@ -117,7 +117,7 @@ pub struct CostVolume {
     rhos: Vec<f64>,
     imp: CostVolumeImpl,
     sums: Sums,
-    counts: Vec<u16>,
+    counts: Array1<u16>,
     frames: usize,
     /// Per-frame truncation `τ`: each frame adds `min(l1, τ)` (SPEC.md §9.13).
     truncation: f32,
@@ -149,10 +149,12 @@ impl CostVolume {
         let cells = camera.height * camera.width * bins.count;
         // Huge pages where the system allows (nn::alloc): the kernels' first touch of a cell is a
         // read, then a write, which on 4 KB zero pages costs a copy-on-write fault and a TLB
-        // flush of every thread per page.
+        // flush of every thread per page. Cache-line aligned: the block kernel's 64-byte sums and
+        // 32-byte counts, and the a-search's 32-byte cost blocks (SPEC.md §10.1), then never
+        // straddle two lines where `K` is a multiple of 16.
         let sums = match imp {
-            CostVolumeImpl::Reference => Sums::F64(zeroed(cells)),
-            CostVolumeImpl::Fast | CostVolumeImpl::FastPortable => Sums::F32(zeroed(cells)),
+            CostVolumeImpl::Reference => Sums::F64(zeroed_aligned(cells)),
+            CostVolumeImpl::Fast | CostVolumeImpl::FastPortable => Sums::F32(zeroed_aligned(cells)),
         };
         Ok(Self {
             rhos: bins.values(),
@@ -161,7 +163,7 @@ impl CostVolume {
             bins,
             imp,
             sums,
-            counts: zeroed(cells),
+            counts: zeroed_aligned(cells),
             frames: 0,
             truncation: NO_TRUNCATION,
         })
@@ -217,7 +219,7 @@ impl CostVolume {
                 ),
             ));
         }
-        (cv.sums, cv.counts, cv.frames) = (Sums::F32(sums), counts, frames);
+        (cv.sums, cv.counts, cv.frames) = (Sums::F32(sums.into()), counts.into(), frames);
         Ok(cv)
     }
 
@@ -244,8 +246,8 @@ impl CostVolume {
                 &warp,
                 &self.rhos,
                 f64::from(self.truncation),
-                sums,
-                &mut self.counts,
+                flat_mut(sums),
+                flat_mut(&mut self.counts),
             ),
             (Sums::F32(sums), imp) => {
                 let slices = fast::Slices {
@@ -258,8 +260,8 @@ impl CostVolume {
                     &geo,
                     &slices,
                     &self.rhos,
-                    sums,
-                    &mut self.counts,
+                    flat_mut(sums),
+                    flat_mut(&mut self.counts),
                     imp == CostVolumeImpl::Fast,
                 )
             }
@@ -351,27 +353,29 @@ impl CostVolume {
         let row = (self.camera.width * self.bins.count).max(1);
         let costs = match self.sums {
             Sums::F32(mut v) => {
-                v.par_chunks_mut(row).zip(self.counts.par_chunks(row)).for_each(|(s, n)| {
-                    for (s, &n) in s.iter_mut().zip(n) {
-                        // `mean`'s expression.
-                        *s = if n == 0 { UNSEEN_COST } else { *s / f32::from(n) };
-                    }
-                });
-                Array3::from_shape_vec(dim, v).expect("length is H·W·K")
+                flat_mut(&mut v).par_chunks_mut(row).zip(flat(&self.counts).par_chunks(row)).for_each(
+                    |(s, n)| {
+                        for (s, &n) in s.iter_mut().zip(n) {
+                            // `mean`'s expression.
+                            *s = if n == 0 { UNSEEN_COST } else { *s / f32::from(n) };
+                        }
+                    },
+                );
+                v.into_shape_with_order(dim).expect("length is H·W·K")
             }
             Sums::F64(_) => self.costs(),
         };
-        (costs, Array3::from_shape_vec(dim, self.counts).expect("length is H·W·K"))
+        (costs, self.counts.into_shape_with_order(dim).expect("length is H·W·K"))
     }
 
     /// Every count `[H, W, K]`, borrowed.
     pub fn counts_view(&self) -> ArrayView3<'_, u16> {
-        ArrayView3::from_shape(self.dim(), &self.counts).expect("length is H·W·K")
+        ArrayView3::from_shape(self.dim(), flat(&self.counts)).expect("length is H·W·K")
     }
 
     /// Every count `[H, W, K]`.
     pub fn counts(&self) -> Array3<u16> {
-        Array3::from_shape_vec(self.dim(), self.counts.clone()).expect("length is H·W·K")
+        self.counts.clone().into_shape_with_order(self.dim()).expect("length is H·W·K")
     }
 
     /// Winner-take-all depth with sub-bin parabola refinement (SPEC.md §9.5).
@@ -404,4 +408,14 @@ fn check_shape(
         }
     }
     Ok(())
+}
+
+/// The values of an owned one-dimensional array (always contiguous).
+fn flat<T>(a: &Array1<T>) -> &[T] {
+    a.as_slice().expect("owned one-dimensional arrays are contiguous")
+}
+
+/// [`flat`], mutable.
+fn flat_mut<T>(a: &mut Array1<T>) -> &mut [T] {
+    a.as_slice_mut().expect("owned one-dimensional arrays are contiguous")
 }

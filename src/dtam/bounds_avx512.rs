@@ -27,10 +27,20 @@ fn below(n: usize) -> __mmask8 {
     }
 }
 
-/// Eight `f32` in the lanes of `m` (0 elsewhere), by a 512-bit masked load (AVX-512F only, no VL).
+/// `s[at..at + 8]` in the lanes of `m`, 0 elsewhere (the lanes of `m` lie inside `s`). Where all
+/// eight lie inside `s`, one plain 256-bit load: the masked load that AVX-512F offers without VL is
+/// 512 bits wide, and it waits for both cache lines it spans even where the second is masked off
+/// (a block at the upper half of a line stalled the bounded search on the next line, never read;
+/// SPEC.md §10.1).
 #[inline(always)]
-unsafe fn load8(m: __mmask8, p: *const f32) -> __m256 {
-    _mm512_castps512_ps256(_mm512_maskz_loadu_ps(u16::from(m), p))
+unsafe fn load8(m: __mmask8, s: &[f32], at: usize) -> __m256 {
+    let p = s.as_ptr().add(at);
+    let wide = if at + 8 <= s.len() {
+        _mm512_maskz_mov_ps(u16::from(m), _mm512_castps256_ps512(_mm256_loadu_ps(p)))
+    } else {
+        _mm512_maskz_loadu_ps(u16::from(m), p)
+    };
+    _mm512_castps512_ps256(wide)
 }
 
 /// [`bounds::bounded_search`] on registers.
@@ -59,7 +69,7 @@ pub(super) unsafe fn bounded_search(
     let (mut seen, mut least) = (0u64, splat(f64::INFINITY));
     for c in (0..n).step_by(8) {
         let (m, j) = (below(n - c), first + c);
-        let mins = _mm512_cvtps_pd(load8(m, minima.as_ptr().add(j)));
+        let mins = _mm512_cvtps_pd(load8(m, minima, j));
         let rlo = _mm512_maskz_loadu_pd(m, p.rho_block_lo.as_ptr().add(j));
         let rhi = _mm512_maskz_loadu_pd(m, p.rho_block_hi.as_ptr().add(j));
         let s = _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(m, mins, splat(f64::from(UNSEEN)));
@@ -140,7 +150,7 @@ unsafe fn block(
     let base = j * BLOCK_BINS;
     let (from, to) = (base.max(lo), (base + BLOCK_BINS - 1).min(hi));
     let m = below(to - base + 1) & !below(from - base);
-    let c = _mm512_cvtps_pd(load8(m, curve.as_ptr().add(base)));
+    let c = _mm512_cvtps_pd(load8(m, curve, base));
     let rho = _mm512_maskz_loadu_pd(m, p.rho.as_ptr().add(base));
     let seen = _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(m, c, splat(f64::from(UNSEEN)));
     let e = energy(dv, rho, c, p);

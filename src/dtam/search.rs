@@ -29,13 +29,14 @@
 //! definition ([`exhaustive_search_full`]) and the original one-pixel-at-a-time implementation
 //! ([`exhaustive_search_reference`]).
 
-use ndarray::{Array2, ArrayView2, ArrayView3};
+use ndarray::{Array1, Array2, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
 use super::bounds;
 use super::Dispatch;
 use crate::costvolume::{parabola_offset, UNSEEN_COST};
 use crate::geometry::InverseDepthBins;
+use crate::nn::alloc::zeroed_aligned;
 
 /// Cells at or above this are unseen (`crate::costvolume::UNSEEN_COST`).
 pub const UNSEEN: f32 = UNSEEN_COST;
@@ -46,8 +47,9 @@ pub const UNSEEN: f32 = UNSEEN_COST;
 pub struct CostRange {
     /// `(C_min, C_max)` per pixel; `(∞, -∞)` where nothing was seen.
     range: Array2<(f32, f32)>,
-    /// `[H, W, ⌈K/8⌉]`: each block's least seen cost (SPEC.md §10.1).
-    minima: Vec<f32>,
+    /// `[H, W, ⌈K/8⌉]`: each block's least seen cost (SPEC.md §10.1), starting a cache line (one
+    /// line per pixel at K = 128).
+    minima: Array1<f32>,
 }
 
 impl CostRange {
@@ -62,15 +64,16 @@ impl CostRange {
         };
         if h * w * k == 0 {
             let empty = (f32::INFINITY, f32::NEG_INFINITY);
-            return Self { range: Array2::from_elem((h, w), empty), minima: Vec::new() };
+            return Self { range: Array2::from_elem((h, w), empty), minima: Array1::zeros(0) };
         }
         let costs = costs.as_standard_layout();
         let flat = costs.as_slice().expect("standard layout is contiguous");
         let g = bounds::block_count(k);
         let mut range = vec![(0.0f32, 0.0f32); h * w];
-        let mut minima = vec![0.0f32; h * w * g];
+        let mut minima = zeroed_aligned::<f32>(h * w * g);
+        let slice = minima.as_slice_mut().expect("owned one-dimensional arrays are contiguous");
         // One pass: each curve's extremes and block minima while it is in cache.
-        range.par_chunks_mut(w).zip(minima.par_chunks_mut(w * g)).zip(flat.par_chunks(w * k)).for_each(
+        range.par_chunks_mut(w).zip(slice.par_chunks_mut(w * g)).zip(flat.par_chunks(w * k)).for_each(
             |((range, minima), row)| {
                 for ((range, minima), curve) in range.iter_mut().zip(minima.chunks_mut(g)).zip(row.chunks(k))
                 {
@@ -89,7 +92,7 @@ impl CostRange {
 
     /// The block minima `[H, W, ⌈K/8⌉]`, row-major.
     pub(crate) fn minima(&self) -> &[f32] {
-        &self.minima
+        self.minima.as_slice().expect("owned one-dimensional arrays are contiguous")
     }
 }
 

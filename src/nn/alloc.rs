@@ -11,7 +11,7 @@
 //! changes how memory is backed, never its contents; where it is refused or unavailable nothing
 //! changes.
 
-use ndarray::Array3;
+use ndarray::{Array1, Array3};
 
 /// Allocations at least this large are advised (smaller ones rarely span a whole huge page).
 const MIN_ADVISED_BYTES: usize = 4 << 20;
@@ -33,22 +33,32 @@ pub fn zeroed_map(shape: [usize; 3]) -> Array3<f32> {
     a
 }
 
-/// Floats per cache line: [`zeroed_map_aligned`]'s alignment.
-const LINE_FLOATS: usize = 16;
+/// The cache line size the aligned allocations start on.
+const LINE_BYTES: usize = 64;
 
-/// A zeroed `shape` map like [`zeroed_map`] whose first value starts a 64-byte cache line: the
-/// storage is `LINE_FLOATS - 1` floats longer and the array starts at the first aligned one (an
-/// owned array with an offset; its values and layout are [`zeroed_map`]'s). Kernels that load
-/// whole 64-byte chunks (the cost volume's block kernel, SPEC.md §9.4) then read it without an
-/// aligned copy.
+/// A zeroed `shape` map like [`zeroed_map`] whose first value starts a 64-byte cache line (an
+/// owned array with an offset into its storage, [`zeroed_aligned`]; its values and layout are
+/// [`zeroed_map`]'s). Kernels that load whole 64-byte chunks (the cost volume's block kernel, SPEC.md
+/// §9.4) then read it without an aligned copy.
 pub fn zeroed_map_aligned(shape: [usize; 3]) -> Array3<f32> {
-    let n: usize = shape.iter().product();
-    let v = zeroed_vec(n + LINE_FLOATS - 1);
-    // `f32` storage is 4-byte aligned, so a line boundary is at most 15 floats in.
-    let skip = (v.as_ptr() as usize).next_multiple_of(64).wrapping_sub(v.as_ptr() as usize) / 4;
-    let line = ndarray::Array1::from_vec(v).slice_move(ndarray::s![skip..skip + n]);
+    let line = zeroed_aligned::<f32>(shape.iter().product());
     let Ok(a) = line.into_shape_with_order(shape) else { unreachable!("length is the shape's product") };
     a
+}
+
+/// `n` zeros of a plain number type (`f32`, `f64`, `u16`, ...) whose first value starts a 64-byte
+/// cache line, on huge pages when large (as [`zeroed`]): the storage is up to 63 bytes longer and the
+/// array starts at its first line boundary. A kernel whose 64-byte (or 32-byte) accesses lie at
+/// multiples of their size from the start then never splits one across two lines (a large `malloc`
+/// block starts 16 bytes past a page boundary, which split every other one).
+pub fn zeroed_aligned<T: Clone + Default>(n: usize) -> Array1<T> {
+    let size = std::mem::size_of::<T>();
+    assert!(size > 0 && LINE_BYTES.is_multiple_of(size), "a plain number type");
+    let v = zeroed::<T>(n + LINE_BYTES / size - 1);
+    // `T`'s storage is aligned to its size (plain number types), so a line boundary is a whole
+    // number of values in, fewer than `LINE_BYTES / size`.
+    let skip = (v.as_ptr() as usize).next_multiple_of(LINE_BYTES).wrapping_sub(v.as_ptr() as usize) / size;
+    Array1::from_vec(v).slice_move(ndarray::s![skip..skip + n])
 }
 
 /// `n` zeros of a plain number type (`f32`, `f64`, `u16`, ...), the allocation advised onto huge
@@ -98,6 +108,27 @@ mod tests {
             assert!(a.is_standard_layout() && a.as_slice().is_some());
             assert!((a.as_ptr() as usize).is_multiple_of(64), "{shape:?}");
             assert!(a.iter().all(|v| v.to_bits() == 0));
+        }
+    }
+
+    #[test]
+    fn aligned_zeros_start_a_cache_line() {
+        for n in [0, 1, 17, 3 << 20] {
+            let a = zeroed_aligned::<u16>(n);
+            assert_eq!(a.len(), n);
+            // (An empty array has nothing to align.)
+            assert!(
+                a.as_slice().is_some() && (n == 0 || (a.as_ptr() as usize).is_multiple_of(64)),
+                "u16 x {n}"
+            );
+            assert!(a.iter().all(|&v| v == 0));
+            let b = zeroed_aligned::<f64>(n);
+            assert_eq!(b.len(), n);
+            assert!(
+                b.as_slice().is_some() && (n == 0 || (b.as_ptr() as usize).is_multiple_of(64)),
+                "f64 x {n}"
+            );
+            assert!(b.iter().all(|v| v.to_bits() == 0));
         }
     }
 }

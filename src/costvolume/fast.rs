@@ -112,8 +112,11 @@ pub(super) fn add_frame(
     // Byte-valued RGB (every value an integer 0..=255, as decoded images are): one packed word per
     // pixel, so the block kernel gathers 4 words per hypothesis instead of 12 floats (same values).
     #[cfg(target_arch = "x86_64")]
-    let packed =
-        if use_blocks { super::fast_avx512::PackedRgb::new(feats.live, feats.channels) } else { None };
+    let packed = if use_blocks {
+        super::fast_avx512::PackedRgb::new(feats.live, feats.channels, geo.camera.width)
+    } else {
+        None
+    };
     sums.par_chunks_mut(row_cells).zip(counts.par_chunks_mut(row_cells)).enumerate().for_each_init(
         || Scratch::new(k_count),
         |scratch, (y, (sum_row, count_row))| {

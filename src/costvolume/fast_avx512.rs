@@ -8,7 +8,8 @@
 //! - three channels: the twelve corner values of the 16 hypotheses come from masked gathers (only
 //!   valid lanes load) and each lane computes `s = ((w0 a + w1 b) + w2 c) + w3 d` and
 //!   `(|r0 - s0| + |r2 - s2|) + |r1 - s1|`, the portable kernel's per-hypothesis order (from a
-//!   byte-valued map's packed words: one 8-byte gather per lane and corner row, [`corner_pairs`]);
+//!   byte-valued map's packed words: one 16-byte load of the four corners per lane, [`corner_quads`],
+//!   or for a map one pixel wide or high one 8-byte gather per lane and corner row, [`corner_pairs`]);
 //! - any other channel count: per valid hypothesis, the channel loop with 16-lane partial sums
 //!   (channel `c` in lane `c mod 16`) and the same pairwise fold as `l1_distance`.
 //!
@@ -68,14 +69,20 @@ impl AlignedCopy {
 /// A byte-valued RGB map packed one pixel per word, `r | g << 8 | b << 16`: the three values a
 /// pixel's channels hold, exactly (each is an integer in `0..=255`, so the conversion back to `f32`
 /// is exact and every sample gets the same bits as from the float map).
+///
+/// For a map at least 2x2 it also holds the **quads**: per pixel `i` with a row below, the words of
+/// the bilinear stencil `[i, i + 1, i + W, i + W + 1]` in 16 bytes, so that one plain load per
+/// hypothesis fetches its four corners ([`corner_quads`]; the entry of the last column, whose right
+/// neighbour does not exist, repeats its own words and is never read: corners stop at `x0 = W - 2`).
 pub(super) struct PackedRgb {
     words: Vec<u32>,
+    quads: Vec<[u32; 4]>,
 }
 
 impl PackedRgb {
-    /// The packed map, or `None` unless `channels == 3` and every value is an integer `0..=255`
-    /// (bit for bit: `-0.0` and NaN are not).
-    pub(super) fn new(data: &[f32], channels: usize) -> Option<Self> {
+    /// The packed map of a `width`-pixel-wide map, or `None` unless `channels == 3` and every value is
+    /// an integer `0..=255` (bit for bit: `-0.0` and NaN are not).
+    pub(super) fn new(data: &[f32], channels: usize, width: usize) -> Option<Self> {
         if channels != 3 {
             return None;
         }
@@ -87,7 +94,18 @@ impl PackedRgb {
             .chunks_exact(3)
             .map(|p| Some(byte(p[0])? | byte(p[1])? << 8 | byte(p[2])? << 16))
             .collect::<Option<Vec<u32>>>()?;
-        Some(Self { words })
+        let quads = if width > 1 && words.len() >= 2 * width {
+            let below = words.len() - words.len() % width - width;
+            (0..below)
+                .map(|i| {
+                    let right = if (i + 1) % width == 0 { i } else { i + 1 };
+                    [words[i], words[right], words[i + width], words[right + width]]
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        Some(Self { words, quads })
     }
 
     fn as_slice(&self) -> &[u32] {
@@ -234,7 +252,7 @@ pub(super) unsafe fn row(
             // SAFETY (all three): valid lanes' corners lie inside `live` (x0 <= W-2 or W = 1,
             // likewise y0).
             let l1 = if let Some(packed) = packed {
-                unsafe { l1_rgb16_packed(packed.as_slice(), &b, dx as i32, dy as i32, r) }
+                unsafe { l1_rgb16_packed(packed, &b, dx as i32, dy as i32, r) }
             } else if c == 3 {
                 unsafe { l1_rgb16(feats.live, &b, dx as i32, dy as i32, r) }
             } else if c == 32 {
@@ -323,16 +341,23 @@ fn channel_l1(w: &[__m512; 4], at: [__m512; 4], r: f32) -> __m512 {
     _mm512_abs_ps(_mm512_sub_ps(_mm512_set1_ps(r), s))
 }
 
-/// [`l1_rgb16`] from the packed map: the four corners' words (see [`corner_pairs`]), each word split
-/// into its three byte values, converted to `f32` exactly; then the same per-lane expressions.
+/// [`l1_rgb16`] from the packed map: the four corners' words (one 16-byte load of the quad table
+/// per lane, [`corner_quads`]; from the words themselves by gathers, [`corner_pairs`], for a map
+/// one pixel wide or high), each word split into its three byte values, converted to `f32` exactly;
+/// then the same per-lane expressions.
 ///
 /// # Safety
-/// Every valid lane's corners `o + {0, dx, dy, dy + dx}` must lie inside `packed`.
+/// Every valid lane's corners `o + {0, dx, dy, dy + dx}` must lie inside `packed`, with `dx = 1`
+/// and `dy = W` where the map has quads.
 #[inline]
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq")]
-unsafe fn l1_rgb16_packed(packed: &[u32], b: &Block, dx: i32, dy: i32, r: &[f32]) -> __m512 {
-    let p = packed.as_ptr().cast::<i32>();
-    let at: [__m512i; 4] = if dx == 1 {
+unsafe fn l1_rgb16_packed(packed: &PackedRgb, b: &Block, dx: i32, dy: i32, r: &[f32]) -> __m512 {
+    let p = packed.as_slice().as_ptr().cast::<i32>();
+    let at: [__m512i; 4] = if !packed.quads.is_empty() {
+        // SAFETY: a valid lane's top-left corner `o` has a row below and a right neighbour, so it
+        // indexes the quad table (the caller's contract).
+        unsafe { corner_quads(&packed.quads, b.ok, b.offset) }
+    } else if dx == 1 {
         // SAFETY: a valid lane's corner pairs `(o, o + 1)` and `(o + dy, o + dy + 1)` lie inside
         // `packed` (the caller's contract with `dx = 1`).
         unsafe {
@@ -368,6 +393,49 @@ unsafe fn l1_rgb16_packed(packed: &[u32], b: &Block, dx: i32, dy: i32, r: &[f32]
         *d = channel_l1(&b.w, at.map(|a| channel(a, ch as u32)), r[ch]);
     }
     _mm512_add_ps(_mm512_add_ps(d[0], d[2]), d[1])
+}
+
+/// The four corners' words `[top-left, top-right, bottom-left, bottom-right]` of 16 lanes from the
+/// quad table: one plain 16-byte load per lane (a lane outside `ok` loads entry 0 and its values
+/// are never used), four lanes to a register, then regrouped into one register per corner (four
+/// two-source permutes and four 128-bit shuffles). On Zen 5 sixteen loads cost about two thirds of
+/// the four 8-lane, 8-byte gathers of [`corner_pairs`] for the same words (SPEC.md §9.4).
+///
+/// # Safety
+/// `o` must index `quads` in every lane of `ok`.
+#[inline]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq")]
+unsafe fn corner_quads(quads: &[[u32; 4]], ok: __mmask16, o: __m512i) -> [__m512i; 4] {
+    let mut at = [0u32; BLOCK];
+    // SAFETY: `at` holds 16 `u32`, 64 bytes.
+    unsafe { _mm512_storeu_si512(at.as_mut_ptr().cast(), _mm512_maskz_mov_epi32(ok, o)) };
+    // SAFETY: every index is a valid lane's (inside `quads`, the caller's contract) or 0 (`quads` is
+    // not empty: the caller has a valid lane).
+    let load = |l: usize| unsafe { _mm_loadu_si128(quads.as_ptr().add(at[l] as usize).cast()) };
+    // `r[g]`: lanes `4g .. 4g + 4`, each `[TL, TR, BL, BR]`.
+    let r: [__m512i; 4] = std::array::from_fn(|g| {
+        let v = _mm512_castsi128_si512(load(4 * g));
+        let v = _mm512_inserti32x4::<1>(v, load(4 * g + 1));
+        let v = _mm512_inserti32x4::<2>(v, load(4 * g + 2));
+        _mm512_inserti32x4::<3>(v, load(4 * g + 3))
+    });
+    // Lanes 0-7's top corners `[TL 0..8, TR 0..8]` from `r[0], r[1]`, likewise the bottom ones and
+    // lanes 8-15's from `r[2], r[3]`.
+    let top = _mm512_setr_epi32(0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29);
+    let bottom = _mm512_setr_epi32(2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31);
+    let (t0, b0) =
+        (_mm512_permutex2var_epi32(r[0], top, r[1]), _mm512_permutex2var_epi32(r[0], bottom, r[1]));
+    let (t1, b1) =
+        (_mm512_permutex2var_epi32(r[2], top, r[3]), _mm512_permutex2var_epi32(r[2], bottom, r[3]));
+    // Low halves (128-bit lanes 0, 1) of both: the left corner; high halves: the right one.
+    const LOW: i32 = 0b01_00_01_00;
+    const HIGH: i32 = 0b11_10_11_10;
+    [
+        _mm512_shuffle_i64x2::<LOW>(t0, t1),
+        _mm512_shuffle_i64x2::<HIGH>(t0, t1),
+        _mm512_shuffle_i64x2::<LOW>(b0, b1),
+        _mm512_shuffle_i64x2::<HIGH>(b0, b1),
+    ]
 }
 
 /// The words `p[o]` and `p[o + 1]` of 16 lanes (0 outside `ok`): two horizontally adjacent
@@ -668,11 +736,14 @@ mod tests {
             }
             let (w, c) = (4, 3);
             let mut live: Vec<f32> = live.into_iter().map(f32::from).collect();
-            let packed = PackedRgb::new(&live, c).expect("byte values pack");
-            prop_assert!(PackedRgb::new(&live, 4).is_none(), "only three channels pack");
+            let packed = PackedRgb::new(&live, c, w).expect("byte values pack");
+            prop_assert!(!packed.quads.is_empty(), "a 4x4 map has quads");
+            prop_assert!(PackedRgb::new(&live, 4, w).is_none(), "only three channels pack");
+            // The same words without quads: the gathers of `corner_pairs`.
+            let pairs = PackedRgb { words: packed.words.clone(), quads: Vec::new() };
             let lanes: Vec<(usize, [f32; 4])> =
                 lanes.iter().enumerate().map(|(j, &(x, wt))| ((j % 3) * w + x.min(2), wt)).collect();
-            let mut got = [0.0f32; BLOCK];
+            let (mut got, mut got_pairs) = ([0.0f32; BLOCK], [0.0f32; BLOCK]);
             // SAFETY: `available()` holds; every corner lies in the 4x4 map.
             unsafe {
                 let offsets: [i32; BLOCK] = std::array::from_fn(|j| lanes[j].0 as i32);
@@ -684,7 +755,8 @@ mod tests {
                         _mm512_loadu_ps(v.as_ptr())
                     }),
                 };
-                _mm512_storeu_ps(got.as_mut_ptr(), l1_rgb16_packed(packed.as_slice(), &b, 1, w as i32, &r));
+                _mm512_storeu_ps(got.as_mut_ptr(), l1_rgb16_packed(&packed, &b, 1, w as i32, &r));
+                _mm512_storeu_ps(got_pairs.as_mut_ptr(), l1_rgb16_packed(&pairs, &b, 1, w as i32, &r));
             }
             for (j, &(o, wj)) in lanes.iter().enumerate() {
                 if ok >> j & 1 == 0 {
@@ -693,10 +765,11 @@ mod tests {
                 let at = |p: usize| &live[p * c..p * c + c];
                 let want = l1_distance(&r, at(o), at(o + 1), at(o + w), at(o + w + 1), wj);
                 prop_assert!(same(got[j], want), "lane {}: {} vs {}", j, got[j], want);
+                prop_assert!(same(got_pairs[j], want), "lane {} (pairs): {} vs {}", j, got_pairs[j], want);
             }
             if let Some(v) = spoil {
                 live[7] = v;
-                prop_assert!(PackedRgb::new(&live, c).is_none(), "{} must not pack", v);
+                prop_assert!(PackedRgb::new(&live, c, w).is_none(), "{} must not pack", v);
             }
         }
     }

@@ -399,21 +399,36 @@ fn plan_block<const AVX512: bool>(plans: &mut Plans, rows: &SearchRow, p: &Searc
     #[cfg(target_arch = "x86_64")]
     for (i, x) in (start..end).enumerate() {
         use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        // The cache line where the search will most likely read: for a narrow range the line of the
-        // hypothesis nearest `d` (where the minimum lies once θ has shrunk), for a wide one the line
-        // of the block with the least seen cost (where the bounded search starts, unless the
-        // coupling term moves it). The block minima are read in order, pixel after pixel: the
-        // hardware prefetcher follows them.
+        // The cache lines the search will most likely read: for a narrow range the lines of `lo..=hi`
+        // (at most four: the lane scan reads all of them), for a wide one the line of the block with
+        // the least seen cost (where the bounded search starts, unless the coupling term moves it).
+        // And the block minima of the pixel a block ahead, which this plan reads next time: read
+        // pixel after pixel between the curves' scattered lines, the hardware prefetcher did not
+        // keep up with them (SPEC.md §10.1).
         let curve = &rows.costs[x * p.k..][..p.k];
-        let at = if (plans.hi[i] - plans.lo[i]) as usize >= NARROW {
-            least_block::<AVX512>(&rows.minima[x * p.blocks..][..p.blocks]) * bounds::BLOCK_BINS
+        let (lo, hi) = (plans.lo[i] as usize, plans.hi[i] as usize);
+        if hi - lo >= NARROW {
+            let at = least_block::<AVX512>(&rows.minima[x * p.blocks..][..p.blocks]) * bounds::BLOCK_BINS;
+            // SAFETY: a prefetch is a hint; it never faults, and `at < K` is inside the curve.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(curve[at..].as_ptr().cast()) };
         } else {
-            plans.nearest[i] as usize
-        };
-        // SAFETY: a prefetch is a hint; it never faults, and `at < K` is inside the curve.
-        unsafe { _mm_prefetch::<_MM_HINT_T0>(curve[at..].as_ptr().cast()) };
+            for at in (lo..=hi).step_by(LINE_FLOATS).chain(std::iter::once(hi)).take(4) {
+                // SAFETY: as above; `lo <= at <= hi < K`.
+                unsafe { _mm_prefetch::<_MM_HINT_T0>(curve[at..].as_ptr().cast()) };
+            }
+        }
+        if x + BLOCK < rows.d.len() {
+            let ahead = &rows.minima[(x + BLOCK) * p.blocks..][..p.blocks];
+            for at in (0..p.blocks).step_by(LINE_FLOATS) {
+                // SAFETY: as above; `at` is inside the pixel's minima.
+                unsafe { _mm_prefetch::<_MM_HINT_T0>(ahead[at..].as_ptr().cast()) };
+            }
+        }
     }
 }
+
+/// `f32` values per 64-byte cache line.
+const LINE_FLOATS: usize = 16;
 
 /// The index of a least block minimum (a prefetch hint only: any index below the length is safe).
 #[inline(always)]

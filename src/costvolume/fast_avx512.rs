@@ -9,7 +9,7 @@
 //!   valid lanes load) and each lane computes `s = ((w0 a + w1 b) + w2 c) + w3 d` and
 //!   `(|r0 - s0| + |r2 - s2|) + |r1 - s1|`, the portable kernel's per-hypothesis order (from a
 //!   byte-valued map's packed words: one 16-byte load of the four corners per lane, [`corner_quads`],
-//!   or for a map one pixel wide or high one 8-byte gather per lane and corner row, [`corner_pairs`]);
+//!   or for a map one pixel wide or high one 4-byte gather per corner);
 //! - any other channel count: per valid hypothesis, the channel loop with 16-lane partial sums
 //!   (channel `c` in lane `c mod 16`) and the same pairwise fold as `l1_distance`.
 //!
@@ -94,17 +94,17 @@ impl PackedRgb {
             .chunks_exact(3)
             .map(|p| Some(byte(p[0])? | byte(p[1])? << 8 | byte(p[2])? << 16))
             .collect::<Option<Vec<u32>>>()?;
-        let quads = if width > 1 && words.len() >= 2 * width {
-            let below = words.len() - words.len() % width - width;
-            (0..below)
-                .map(|i| {
-                    let right = if (i + 1) % width == 0 { i } else { i + 1 };
-                    [words[i], words[right], words[i + width], words[right + width]]
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
+        let mut quads = Vec::new();
+        if width > 1 && words.len() >= 2 * width {
+            quads.reserve_exact(words.len() - width);
+            // Row `y` and row `y + 1`, for every row with one below.
+            for (top, bottom) in words.chunks_exact(width).zip(words[width..].chunks_exact(width)) {
+                quads.extend((0..width).map(|x| {
+                    let right = (x + 1).min(width - 1);
+                    [top[x], top[right], bottom[x], bottom[right]]
+                }));
+            }
+        }
         Some(Self { words, quads })
     }
 
@@ -342,7 +342,7 @@ fn channel_l1(w: &[__m512; 4], at: [__m512; 4], r: f32) -> __m512 {
 }
 
 /// [`l1_rgb16`] from the packed map: the four corners' words (one 16-byte load of the quad table
-/// per lane, [`corner_quads`]; from the words themselves by gathers, [`corner_pairs`], for a map
+/// per lane, [`corner_quads`]; from the words themselves by one 4-byte gather per corner for a map
 /// one pixel wide or high), each word split into its three byte values, converted to `f32` exactly;
 /// then the same per-lane expressions.
 ///
@@ -357,16 +357,8 @@ unsafe fn l1_rgb16_packed(packed: &PackedRgb, b: &Block, dx: i32, dy: i32, r: &[
         // SAFETY: a valid lane's top-left corner `o` has a row below and a right neighbour, so it
         // indexes the quad table (the caller's contract).
         unsafe { corner_quads(&packed.quads, b.ok, b.offset) }
-    } else if dx == 1 {
-        // SAFETY: a valid lane's corner pairs `(o, o + 1)` and `(o + dy, o + dy + 1)` lie inside
-        // `packed` (the caller's contract with `dx = 1`).
-        unsafe {
-            let (a, b1) = corner_pairs(p, b.ok, b.offset);
-            let (c, d) = corner_pairs(p, b.ok, _mm512_add_epi32(b.offset, _mm512_set1_epi32(dy)));
-            [a, b1, c, d]
-        }
     } else {
-        // A one-pixel-wide map (`dx = 0`): one 4-byte gather per corner.
+        // A map one pixel wide or high: one 4-byte gather per corner.
         [0, dx, dy, dy + dx].map(|o| {
             // SAFETY: only valid lanes load, inside `packed` (the caller's contract).
             unsafe {
@@ -399,7 +391,7 @@ unsafe fn l1_rgb16_packed(packed: &PackedRgb, b: &Block, dx: i32, dy: i32, r: &[
 /// quad table: one plain 16-byte load per lane (a lane outside `ok` loads entry 0 and its values
 /// are never used), four lanes to a register, then regrouped into one register per corner (four
 /// two-source permutes and four 128-bit shuffles). On Zen 5 sixteen loads cost about two thirds of
-/// the four 8-lane, 8-byte gathers of [`corner_pairs`] for the same words (SPEC.md §9.4).
+/// the four 8-lane, 8-byte gathers that fetched the same words before (SPEC.md §9.4).
 ///
 /// # Safety
 /// `o` must index `quads` in every lane of `ok`.
@@ -436,34 +428,6 @@ unsafe fn corner_quads(quads: &[[u32; 4]], ok: __mmask16, o: __m512i) -> [__m512
         _mm512_shuffle_i64x2::<LOW>(b0, b1),
         _mm512_shuffle_i64x2::<HIGH>(b0, b1),
     ]
-}
-
-/// The words `p[o]` and `p[o + 1]` of 16 lanes (0 outside `ok`): two horizontally adjacent
-/// corners of the packed map, each lane's pair loaded by one 8-byte gather (two gathers of 8 lanes,
-/// half the elements of two 16-lane 4-byte gathers; the same values), then split into the even
-/// (left) and odd (right) words.
-///
-/// # Safety
-/// `p + o` and `p + o + 1` must be readable in every lane of `ok`.
-#[inline]
-#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq")]
-unsafe fn corner_pairs(p: *const i32, ok: __mmask16, o: __m512i) -> (__m512i, __m512i) {
-    let zero = _mm512_setzero_si512();
-    // SAFETY: only lanes of `ok` load, 8 bytes at `p + o` (the caller's contract).
-    let (lo, hi) = unsafe {
-        (
-            _mm512_mask_i32gather_epi64::<4>(zero, ok as u8, _mm512_castsi512_si256(o), p.cast()),
-            _mm512_mask_i32gather_epi64::<4>(
-                zero,
-                (ok >> 8) as u8,
-                _mm512_extracti64x4_epi64::<1>(o),
-                p.cast(),
-            ),
-        )
-    };
-    let even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
-    let odd = _mm512_setr_epi32(1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
-    (_mm512_permutex2var_epi32(lo, even, hi), _mm512_permutex2var_epi32(lo, odd, hi))
 }
 
 /// `p[o]` in the lanes of `ok`, 0 elsewhere.
@@ -739,7 +703,7 @@ mod tests {
             let packed = PackedRgb::new(&live, c, w).expect("byte values pack");
             prop_assert!(!packed.quads.is_empty(), "a 4x4 map has quads");
             prop_assert!(PackedRgb::new(&live, 4, w).is_none(), "only three channels pack");
-            // The same words without quads: the gathers of `corner_pairs`.
+            // The same words without quads: the 4-byte gathers of a map one pixel wide or high.
             let pairs = PackedRgb { words: packed.words.clone(), quads: Vec::new() };
             let lanes: Vec<(usize, [f32; 4])> =
                 lanes.iter().enumerate().map(|(j, &(x, wt))| ((j % 3) * w + x.min(2), wt)).collect();

@@ -21,9 +21,7 @@ const HUGE_PAGE_BYTES: usize = 2 << 20;
 
 /// `n` zeros, the allocation advised onto huge pages when it is large.
 pub fn zeroed_vec(n: usize) -> Vec<f32> {
-    let v = vec![0.0f32; n];
-    advise_huge_pages(&v);
-    v
+    zeroed(n)
 }
 
 /// A zeroed `shape` map on [`zeroed_vec`] storage (standard layout).
@@ -113,22 +111,16 @@ mod tests {
 
     #[test]
     fn aligned_zeros_start_a_cache_line() {
-        for n in [0, 1, 17, 3 << 20] {
-            let a = zeroed_aligned::<u16>(n);
+        fn check<T: Clone + Default>(n: usize, is_zero: fn(&T) -> bool) {
+            let a = zeroed_aligned::<T>(n);
             assert_eq!(a.len(), n);
             // (An empty array has nothing to align.)
-            assert!(
-                a.as_slice().is_some() && (n == 0 || (a.as_ptr() as usize).is_multiple_of(64)),
-                "u16 x {n}"
-            );
-            assert!(a.iter().all(|&v| v == 0));
-            let b = zeroed_aligned::<f64>(n);
-            assert_eq!(b.len(), n);
-            assert!(
-                b.as_slice().is_some() && (n == 0 || (b.as_ptr() as usize).is_multiple_of(64)),
-                "f64 x {n}"
-            );
-            assert!(b.iter().all(|v| v.to_bits() == 0));
+            assert!(a.as_slice().is_some() && (n == 0 || (a.as_ptr() as usize).is_multiple_of(64)), "{n}");
+            assert!(a.iter().all(is_zero));
+        }
+        for n in [0, 1, 17, 3 << 20] {
+            check::<u16>(n, |&v| v == 0);
+            check::<f64>(n, |v| v.to_bits() == 0);
         }
     }
 }

@@ -36,6 +36,16 @@ pub fn has_avx2_fma() -> bool {
     }
 }
 
+/// `threads`, or every core the process may use when it is 0 (for flags whose help says
+/// "0: all cores").
+pub fn all_cores_if_zero(threads: usize) -> usize {
+    if threads > 0 {
+        threads
+    } else {
+        std::thread::available_parallelism().map_or(1, std::num::NonZero::get)
+    }
+}
+
 /// A rayon pool of `threads` threads for a command's `--threads` flag.
 ///
 /// # Errors

@@ -4,7 +4,8 @@
 
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
 use densefeat::train::loss::{
-    pixel_terms, scale_loss, scale_loss_reference, scale_loss_with, uses_avx512, LossConfig, LossKernel,
+    pixel_sampled, pixel_terms, scale_loss, scale_loss_reference, scale_loss_with, uses_avx512, LossConfig,
+    LossKernel,
 };
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{Array2, Array3};
@@ -95,8 +96,11 @@ proptest! {
     /// Fast f32 against the f64 reference: the loss within 1e-5 relative, each gradient entry
     /// within 1e-4 of the largest entry of its map (SPEC.md §13.3).
     #[test]
-    fn fast_matches_reference_within_budget(seed in 0u64..1000) {
-        let c = case(seed, 12, 16, 8, 32);
+    fn fast_matches_reference_within_budget(seed in 0u64..1000, stride in 1usize..4) {
+        let mut c = case(seed, 12, 16, 8, 32);
+        // Pixel sampling (SPEC.md §13.1a): both implementations evaluate the same pixels.
+        c.cfg.sample_stride = stride;
+        c.cfg.sample_seed = seed ^ 0x5eed;
         let want = scale_loss_reference(&c.cfg, c.f_ref.view(), c.f_live.view(), c.depth.view(), &c.warp).unwrap();
         let fr = c.f_ref.mapv(|v| v as f32);
         let fl = c.f_live.mapv(|v| v as f32);
@@ -121,7 +125,15 @@ proptest! {
 
 #[test]
 fn fast_loss_is_bit_identical_for_any_thread_count() {
-    let c = case(7, 24, 20, 8, 48);
+    for stride in [1, 3] {
+        let mut c = case(7, 24, 20, 8, 48);
+        c.cfg.sample_stride = stride;
+        c.cfg.sample_seed = 11;
+        loss_bits_independent_of_threads(&c);
+    }
+}
+
+fn loss_bits_independent_of_threads(c: &Case) {
     let fr = c.f_ref.mapv(|v| v as f32);
     let fl = c.f_live.mapv(|v| v as f32);
     let run = |n: usize| {
@@ -247,5 +259,75 @@ fn pixel_terms_cross_entropy_is_the_sum_of_logs_for_any_floor() {
         let want =
             -p(17).ln() - (0..k).filter(|&l| l != 17).map(|l| (1.0 - p(l)).max(floor).ln()).sum::<f64>();
         assert!((t.ce - want).abs() <= 1e-12 * want.abs(), "floor {floor}: {} vs {want}", t.ce);
+    }
+}
+
+/// SPEC.md §13.1a: over the seed every pixel (partial edge blocks included) is evaluated with
+/// probability 1/s², and exactly one pixel of each full block is evaluated for any seed.
+#[test]
+fn sampling_evaluates_each_pixel_with_probability_one_over_s_squared() {
+    let (w, h, s) = (7usize, 5usize, 3usize);
+    let seeds = 9000u64;
+    let mut hits = vec![0u64; w * h];
+    for seed in 0..seeds {
+        let cfg = LossConfig { sample_stride: s, sample_seed: seed, ..LossConfig::default() };
+        for y in 0..h {
+            for x in 0..w {
+                hits[y * w + x] += u64::from(pixel_sampled(&cfg, x, y));
+            }
+        }
+        // The two full 3x3 blocks hold exactly one evaluated pixel each.
+        for bx in 0..2 {
+            let n = (0..3)
+                .flat_map(|y| (0..3).map(move |x| (x + 3 * bx, y)))
+                .filter(|&(x, y)| pixel_sampled(&cfg, x, y))
+                .count();
+            assert_eq!(n, 1, "seed {seed} block {bx}");
+        }
+    }
+    let p = 1.0 / (s * s) as f64;
+    let se = (p * (1.0 - p) / seeds as f64).sqrt();
+    for (i, &k) in hits.iter().enumerate() {
+        let f = k as f64 / seeds as f64;
+        assert!((f - p).abs() < 5.0 * se, "pixel {i}: {f} vs {p}");
+    }
+    let all = LossConfig::default();
+    assert!((0..h).all(|y| (0..w).all(|x| pixel_sampled(&all, x, y))));
+}
+
+/// SPEC.md §13.1a: the sampled loss and its gradient are unbiased estimates of the full ones
+/// (mean over seeds within 5 standard errors; the gradient through its projection on the full
+/// gradient).
+#[test]
+fn sampled_loss_and_gradient_are_unbiased() {
+    let c = case(3, 12, 16, 8, 32);
+    let fr = c.f_ref.mapv(|v| v as f32);
+    let fl = c.f_live.mapv(|v| v as f32);
+    let full = scale_loss(&c.cfg, fr.view(), fl.view(), c.depth.view(), &c.warp).unwrap();
+    assert!(full.sums.pixels > 50);
+    let dot = |a: &Array3<f32>, b: &Array3<f32>| {
+        a.iter().zip(b).map(|(x, y)| f64::from(*x) * f64::from(*y)).sum::<f64>()
+    };
+    let g2 = dot(&full.d_ref, &full.d_ref) + dot(&full.d_live, &full.d_live);
+    for stride in [2, 3] {
+        let (mut losses, mut projections) = (Vec::new(), Vec::new());
+        for seed in 0..400 {
+            let cfg = LossConfig { sample_stride: stride, sample_seed: seed, ..c.cfg };
+            let o = scale_loss(&cfg, fr.view(), fl.view(), c.depth.view(), &c.warp).unwrap();
+            assert_eq!(o.sums.pixels, full.sums.pixels, "N counts every unmasked pixel");
+            losses.push(o.sums.mean());
+            projections.push((dot(&o.d_ref, &full.d_ref) + dot(&o.d_live, &full.d_live)) / g2);
+        }
+        for (name, v, want) in [("loss", &losses, full.sums.mean()), ("gradient", &projections, 1.0)] {
+            let n = v.len() as f64;
+            let mean = v.iter().sum::<f64>() / n;
+            let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1.0);
+            let se = (var / n).sqrt();
+            assert!(se > 0.0, "{name}: the samples differ");
+            assert!(
+                (mean - want).abs() < 5.0 * se,
+                "stride {stride} {name}: mean {mean} vs {want} (se {se})"
+            );
+        }
     }
 }

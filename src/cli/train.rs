@@ -112,6 +112,11 @@ pub struct TrainArgs {
     /// Stop after this many steps in total (the schedule still spans --steps).
     #[arg(long)]
     pub stop_after: Option<usize>,
+    /// Loss pixel sampling (SPEC.md §13.1a): evaluate one pixel per SxS block at the finest
+    /// supervised level (S/2 one level coarser, ...), weighted S²: unbiased; 1 evaluates every
+    /// pixel (the paper).
+    #[arg(long, default_value_t = 1)]
+    pub loss_sample_stride: usize,
     /// Rayon threads (0: all cores).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
@@ -155,6 +160,7 @@ impl TrainArgs {
             },
             loss: LossConfig {
                 bins: InverseDepthBins::new(0.0, self.rho_max, self.bins)?,
+                sample_stride: self.loss_sample_stride,
                 ..LossConfig::default()
             },
             supervision: Supervision::default(),
@@ -184,11 +190,21 @@ impl TrainArgs {
 
 use crate::runtime::thread_pool as pool;
 
+/// `--loss-sample-stride` must be 1..=64.
+fn check_sample_stride(s: usize) -> Result<()> {
+    if (1..=64).contains(&s) {
+        Ok(())
+    } else {
+        Err(validate::flag("loss-sample-stride", format!("{s}: must be between 1 and 64")))
+    }
+}
+
 /// Runs `densefeat train`.
 ///
 /// # Errors
 /// Whatever training returns.
 pub fn run(args: TrainArgs) -> Result<()> {
+    check_sample_stride(args.loss_sample_stride)?;
     let cfg = args.config()?;
     let (w, h) = cfg.data.crop;
     let bytes = crate::memory::train_step_bytes(w, h, cfg.network.channels);
@@ -197,7 +213,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
         validate::positive(name, v)?;
     }
     let t = Instant::now();
-    pool(args.threads)?
+    pool(crate::runtime::all_cores_if_zero(args.threads))?
         .install(|| train(&cfg, &args.out, args.resume.as_deref(), args.stop_after, !args.quiet))?;
     eprintln!("trained in {:.1} s; outputs in {}", t.elapsed().as_secs_f64(), args.out.display());
     Ok(())
@@ -221,6 +237,9 @@ pub struct BenchTrainArgs {
     /// Stride of block 1.
     #[arg(long, default_value_t = 2)]
     pub b1_stride: usize,
+    /// Loss pixel sampling stride at the finest supervised level (as `densefeat train`).
+    #[arg(long, default_value_t = 1)]
+    pub loss_sample_stride: usize,
     /// Also time the stages (forward with tape, each scale's loss, backward) in separate steps and
     /// print their medians.
     #[arg(long)]
@@ -298,7 +317,12 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
     let config =
         NetworkConfig { b1_stride: args.b1_stride, input_mean: [110.0; 3], ..NetworkConfig::default() };
     let weights = training_init(&config, 0)?;
-    let loss = LossConfig { bins: InverseDepthBins::new(0.0, 4.0, args.bins)?, ..LossConfig::default() };
+    let loss = LossConfig {
+        bins: InverseDepthBins::new(0.0, 4.0, args.bins)?,
+        sample_stride: args.loss_sample_stride,
+        ..LossConfig::default()
+    };
+    check_sample_stride(args.loss_sample_stride)?;
     let sup = Supervision::default();
     let cpu = CpuBackend::default();
     let pool = pool(args.threads)?;
@@ -332,6 +356,8 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
         }
         Ok((steps, fwds, stages))
     })?;
+    // The machine's SGEMM yardstick, measured right after (a loaded machine shows here).
+    let sgemm = pool.install(|| crate::perf::gemm_gflops(256, 5));
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
@@ -341,9 +367,10 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
     // Forward of two images, backward ≈ 2x forward (input and weight gradients).
     let net_flops = 3.0 * 2.0 * net.flops(crop.1, crop.0);
     println!(
-        "bench train: crop {}x{}, {} bins, b1 stride {}, {} threads, deep supervision L1..L5 + L",
-        crop.0, crop.1, args.bins, args.b1_stride, args.threads
+        "bench train: crop {}x{}, {} bins, b1 stride {}, {} threads, deep supervision L1..L5 + L, loss sample stride {}",
+        crop.0, crop.1, args.bins, args.b1_stride, args.threads, args.loss_sample_stride
     );
+    println!("  SGEMM indicator (256x256x256, {} threads): {sgemm:.1} GFLOP/s", args.threads);
     println!("  one pair (forward 2 images + loss at 6 scales + backward): {step:.1} ms median of {} -> {:.3} pairs/s", args.runs, 1e3 / step);
     println!("  of which network forward of both images: {fwd:.1} ms");
     println!(

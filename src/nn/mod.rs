@@ -17,6 +17,7 @@ pub mod config;
 pub mod conv2d;
 pub mod deconv2d;
 pub mod downsample;
+pub(crate) mod gemm;
 pub mod geometry;
 pub mod network;
 pub mod pack_cache;
@@ -81,26 +82,6 @@ pub(crate) fn expect_len(name: &str, actual: usize, expected: usize) -> Result<(
         Ok(())
     } else {
         Err(Error::invalid_argument(name, format!("length {actual}, expected {expected}")))
-    }
-}
-
-/// `acc[c] += alpha · x[c]` for every channel (the same operation order everywhere it is used, so
-/// backward passes built on it stay bit-identical).
-#[inline]
-pub(crate) fn axpy(acc: &mut [f32], alpha: f32, x: &[f32]) {
-    for (a, &v) in acc.iter_mut().zip(x) {
-        *a += alpha * v;
-    }
-}
-
-/// `acc[c] += Σ_o g[o] · w_tap[o, c]` with `w_tap` row-major `[o][c]`, summed over `o` in order:
-/// one tap of a transposed (gathered) convolution.
-#[inline]
-pub(crate) fn add_transposed_tap(acc: &mut [f32], g: &[f32], w_tap: &[f32]) {
-    for (&gv, w_row) in g.iter().zip(w_tap.chunks_exact(acc.len())) {
-        for (a, &wv) in acc.iter_mut().zip(w_row) {
-            *a += wv * gv;
-        }
     }
 }
 

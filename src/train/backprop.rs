@@ -15,7 +15,7 @@ use ndarray::{s, Array3, ArrayView3};
 
 use crate::backend::{CpuBackend, Tensor};
 use crate::error::{Error, Result};
-use crate::nn::conv2d::{conv2d_backward_input, conv2d_backward_weight, relu_backward};
+use crate::nn::conv2d::{conv2d_backward_input_with, conv2d_backward_weight, relu_backward, Conv2dImpl};
 use crate::nn::deconv2d::{deconv2d_backward_input, deconv2d_backward_weight};
 use crate::nn::network::{conv_geometry, deconv_geometry, run_network, BackendExecutor, Executor};
 use crate::nn::weights::LayerParams;
@@ -185,18 +185,33 @@ pub fn backward(
         let g3 = conv_geometry(t.x2.dim(), &block.conv3, 1)?;
         let (d_w, d_b) = conv2d_backward_weight(&g3, t.x2.view(), d_out[k].view())?;
         accumulate(&mut gb.conv3, &d_w, &d_b);
-        let d_x2 = conv2d_backward_input(&g3, d_out[k].view(), block.conv3.weight.view())?;
+        let d_x2 = conv2d_backward_input_with(
+            Conv2dImpl::fastest_for(&g3),
+            &g3,
+            d_out[k].view(),
+            block.conv3.weight.view(),
+        )?;
         let d_x2 = relu_backward(t.x2.view(), d_x2.view())?;
         let g2 = conv_geometry(t.x1.dim(), &block.conv2, 1)?;
         let (d_w, d_b) = conv2d_backward_weight(&g2, t.x1.view(), d_x2.view())?;
         accumulate(&mut gb.conv2, &d_w, &d_b);
-        let d_x1 = conv2d_backward_input(&g2, d_x2.view(), block.conv2.weight.view())?;
+        let d_x1 = conv2d_backward_input_with(
+            Conv2dImpl::fastest_for(&g2),
+            &g2,
+            d_x2.view(),
+            block.conv2.weight.view(),
+        )?;
         let d_x1 = relu_backward(t.x1.view(), d_x1.view())?;
         let g1 = conv_geometry(t.input.dim(), &block.conv1, config.block_stride(k))?;
         let (d_w, d_b) = conv2d_backward_weight(&g1, t.input.view(), d_x1.view())?;
         accumulate(&mut gb.conv1, &d_w, &d_b);
         if k > 0 {
-            let d_in = conv2d_backward_input(&g1, d_x1.view(), block.conv1.weight.view())?;
+            let d_in = conv2d_backward_input_with(
+                Conv2dImpl::fastest_for(&g1),
+                &g1,
+                d_x1.view(),
+                block.conv1.weight.view(),
+            )?;
             // The concat's backward: the first C channels belong to the previous block's output.
             let prev = d_in.slice(s![.., .., ..config.channels]);
             d_out[k - 1] += &prev;

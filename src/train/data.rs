@@ -405,6 +405,7 @@ impl DataSet {
             ref_camera: crop_cam(x0, y0)?,
             live_camera: crop_cam(lx, ly)?,
             t_lr,
+            sample_seed: 0,
         })
     }
 
@@ -431,7 +432,9 @@ impl DataSet {
             };
             augment(&mut r.rgb, &self.cfg.augment, &mut rng);
             augment(&mut l.rgb, &self.cfg.augment, &mut rng);
-            return self.crop(r, l, &cam, Some(&mut rng));
+            let mut pair = self.crop(r, l, &cam, Some(&mut rng))?;
+            pair.sample_seed = rng.next_u64();
+            return Ok(pair);
         }
         Err(Error::invalid_argument("data", format!("no pair passed the pair rule in {ATTEMPTS} draws")))
     }

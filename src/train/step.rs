@@ -10,6 +10,7 @@ use crate::backend::CpuBackend;
 use crate::error::{Error, Result};
 use crate::geometry::{PinholeCamera, Pose, Warp};
 use crate::nn::{ForwardOutput, NetworkWeights};
+use crate::synth::rng::hash64;
 use crate::train::backprop::{backward, forward_with_tape};
 use crate::train::loss::{scale_loss, LossConfig, LossSums};
 
@@ -28,6 +29,8 @@ pub struct TrainingPair {
     pub live_camera: PinholeCamera,
     /// `T_lr`: reference camera to live camera.
     pub t_lr: Pose,
+    /// Seed of the loss's pixel sampling for this pair (SPEC.md §13.1a; drawn with the pair).
+    pub sample_seed: u64,
 }
 
 impl TrainingPair {
@@ -181,13 +184,15 @@ pub fn pair_step_timed(
     let mut d_ref: Vec<Option<Array3<f32>>> = vec![None; n];
     let mut d_live: Vec<Option<Array3<f32>>> = vec![None; n];
     let (mut d_ref_feat, mut d_live_feat) = (None, None);
-    for (block, level, fr, fl) in scales(weights, sup, &out_r, &out_l) {
+    let finest = weights.config.block_level(0);
+    for (index, (block, level, fr, fl)) in scales(weights, sup, &out_r, &out_l).into_iter().enumerate() {
         let t = Instant::now();
+        let scale_cfg = scale_sampling(loss, finest, level, pair.sample_seed, index);
         let rc = pair.ref_camera.at_level(level as u32);
         let lc = pair.live_camera.at_level(level as u32);
         let warp = Warp::new(&rc, &lc, &pair.t_lr);
         let depth = depth_at_level(pair.ref_depth.view(), level);
-        let s = scale_loss(loss, fr.view(), fl.view(), depth.view(), &warp)?;
+        let s = scale_loss(&scale_cfg, fr.view(), fl.view(), depth.view(), &warp)?;
         let name = block.map_or_else(|| "L".to_string(), |k| format!("L{}", k + 1));
         times.losses.push((name, level, ms(t)));
         match block {
@@ -215,6 +220,24 @@ pub fn pair_step_timed(
     }
     times.backward = ms(t);
     Ok(result)
+}
+
+/// The loss configuration of one scale (SPEC.md §13.1a): `loss.sample_stride` at the finest
+/// supervised level, halved per coarser level (at least 1), so every scale evaluates about the
+/// same number of pixels; the offsets' seed mixes the pair's seed and the scale's index.
+pub fn scale_sampling(
+    loss: &LossConfig,
+    finest: usize,
+    level: usize,
+    pair_seed: u64,
+    index: usize,
+) -> LossConfig {
+    let stride = (loss.sample_stride >> level.saturating_sub(finest)).max(1);
+    LossConfig {
+        sample_stride: stride,
+        sample_seed: hash64(pair_seed, index as u64, 0x7361_6d70, 0),
+        ..*loss
+    }
 }
 
 /// Views of optional gradients.

@@ -77,8 +77,10 @@ pub fn validate(
 ) -> Result<(f64, f64, f64)> {
     let mut total = 0.0;
     let mut agg = LossSums::default();
+    // Validation evaluates every pixel (no sampling).
+    let loss = LossConfig { sample_stride: 1, ..cfg.loss };
     for (_, p) in pairs {
-        let l = pair_step(weights, p, &cfg.loss, &cfg.supervision, cpu, None)?;
+        let l = pair_step(weights, p, &loss, &cfg.supervision, cpu, None)?;
         total += l.total(&cfg.supervision);
         agg.accumulate(&l.aggregated);
     }

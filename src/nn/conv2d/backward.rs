@@ -11,27 +11,24 @@
 //! ```
 //!
 //! The `*_reference` functions are plain loops in f64 (the oracles, checked against central finite
-//! differences of [`conv2d_reference`](super::conv2d_reference)); [`conv2d_backward_input`] and
-//! [`conv2d_backward_weight`] are the fast f32 versions. Both fast versions sum every output value
-//! in an order fixed by the geometry alone, so their results are bit-identical for any rayon thread
-//! count.
+//! differences of [`conv2d_reference`](super::conv2d_reference)); the fast f32 versions are in
+//! [`super::backward_fast`].
 
 use ndarray::{Array1, Array3, Array4, ArrayView, ArrayView3, ArrayView4, Dimension};
-use rayon::prelude::*;
 
 use crate::error::Result;
+use crate::nn::expect_shape;
 use crate::nn::geometry::{Conv2dGeometry, CONV_KERNEL, CONV_PADDING};
-use crate::nn::{add_transposed_tap, axpy, expect_shape};
 
 /// Input pixel read by output pixel `j` through tap `k` along one axis: `s j + k - 1`, or `None`
 /// in the zero padding.
-fn tap_source(j: usize, k: usize, s: usize, n: usize) -> Option<usize> {
+pub(super) fn tap_source(j: usize, k: usize, s: usize, n: usize) -> Option<usize> {
     (s * j + k).checked_sub(CONV_PADDING).filter(|&i| i < n)
 }
 
 /// Output pixel that reads input pixel `i` through tap `k` along one axis: the `j` with
 /// `s j + k - 1 = i`, if it exists in `0..n_out`.
-fn tap_target(i: usize, k: usize, s: usize, n_out: usize) -> Option<usize> {
+pub(super) fn tap_target(i: usize, k: usize, s: usize, n_out: usize) -> Option<usize> {
     let t = (i + CONV_PADDING).checked_sub(k)?;
     (t % s == 0 && t / s < n_out).then_some(t / s)
 }
@@ -113,107 +110,6 @@ pub fn conv2d_backward_weight_reference(
             }
         }
     }
-    Ok((d_w, d_b))
-}
-
-/// Gradient with respect to the input, f32, as a gather: input pixel `(iy, ix)` sums, into its
-/// `c_in` channels, `w[o, c, ky, kx] · g[y, x, o]` over `ky`, `kx` (row-major) and then `o`, for
-/// the output pixels `(y, x)` that read it through tap `(ky, kx)`, always in that order. Parallel
-/// over input rows; each row is written by one task, so the result does not depend on the thread
-/// count. At most `9 c_out` products per value.
-///
-/// # Shapes
-/// `d_out [h_out, w_out, c_out]`, `weight [c_out, c_in, 3, 3]`, result `[h, w, c_in]`.
-///
-/// # Errors
-/// [`crate::Error::InvalidArgument`] if an array's shape disagrees with `geom`.
-pub fn conv2d_backward_input(
-    geom: &Conv2dGeometry,
-    d_out: ArrayView3<f32>,
-    weight: ArrayView4<f32>,
-) -> Result<Array3<f32>> {
-    expect_shape("conv2d_backward d_out", d_out.shape(), &geom.output_shape())?;
-    expect_shape("conv2d_backward weight", weight.shape(), &geom.weight_shape())?;
-    let [h_out, w_out, c_out] = geom.output_shape();
-    let (w, c_in, s) = (geom.w(), geom.c_in(), geom.stride());
-    // Weights repacked to [ky][kx][o][c], so the inner loop over c is contiguous.
-    let mut packed = vec![0.0f32; CONV_KERNEL * CONV_KERNEL * c_out * c_in];
-    for ((o, c, ky, kx), &v) in weight.indexed_iter() {
-        packed[((ky * CONV_KERNEL + kx) * c_out + o) * c_in + c] = v;
-    }
-    let d_out = d_out.as_standard_layout();
-    let Some(g) = d_out.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
-    let mut d_in = Array3::zeros(geom.input_shape());
-    let Some(d_in_slice) = d_in.as_slice_mut() else { unreachable!("new arrays are contiguous") };
-    d_in_slice.par_chunks_mut(w * c_in).enumerate().for_each(|(iy, row)| {
-        for (ix, px) in row.chunks_exact_mut(c_in).enumerate() {
-            for ky in 0..CONV_KERNEL {
-                let Some(y) = tap_target(iy, ky, s, h_out) else { continue };
-                for kx in 0..CONV_KERNEL {
-                    let Some(x) = tap_target(ix, kx, s, w_out) else { continue };
-                    let g_px = &g[(y * w_out + x) * c_out..][..c_out];
-                    let w_tap = &packed[(ky * CONV_KERNEL + kx) * c_out * c_in..][..c_out * c_in];
-                    add_transposed_tap(px, g_px, w_tap);
-                }
-            }
-        }
-    });
-    Ok(d_in)
-}
-
-/// Gradients with respect to the weight and the bias, f32. Parallel over output channels `o`: one
-/// task owns `d_w[o, ..]` and `d_b[o]` and sums the output pixels in row-major order, so every
-/// value's summation order depends only on the geometry and the result not on the thread count.
-/// `h_out w_out` products per value.
-///
-/// # Shapes
-/// `input [h, w, c_in]`, `d_out [h_out, w_out, c_out]`, results `[c_out, c_in, 3, 3]` and `[c_out]`.
-///
-/// # Errors
-/// [`crate::Error::InvalidArgument`] if an array's shape disagrees with `geom`.
-pub fn conv2d_backward_weight(
-    geom: &Conv2dGeometry,
-    input: ArrayView3<f32>,
-    d_out: ArrayView3<f32>,
-) -> Result<(Array4<f32>, Array1<f32>)> {
-    expect_shape("conv2d_backward input", input.shape(), &geom.input_shape())?;
-    expect_shape("conv2d_backward d_out", d_out.shape(), &geom.output_shape())?;
-    let [h_out, w_out, c_out] = geom.output_shape();
-    let (h, w, c_in, s) = (geom.h(), geom.w(), geom.c_in(), geom.stride());
-    let input = input.as_standard_layout();
-    let d_out = d_out.as_standard_layout();
-    let (Some(x_in), Some(g)) = (input.as_slice(), d_out.as_slice()) else {
-        unreachable!("standard-layout arrays are contiguous")
-    };
-    let taps = CONV_KERNEL * CONV_KERNEL;
-    // Per channel o: accumulators [ky][kx][c] (c contiguous, like the input pixels) and the bias.
-    let per_o: Vec<(Vec<f32>, f32)> = (0..c_out)
-        .into_par_iter()
-        .map(|o| {
-            let mut acc = vec![0.0f32; taps * c_in];
-            let mut acc_b = 0.0f32;
-            for y in 0..h_out {
-                for x in 0..w_out {
-                    let gv = g[(y * w_out + x) * c_out + o];
-                    acc_b += gv;
-                    for ky in 0..CONV_KERNEL {
-                        let Some(iy) = tap_source(y, ky, s, h) else { continue };
-                        for kx in 0..CONV_KERNEL {
-                            let Some(ix) = tap_source(x, kx, s, w) else { continue };
-                            let px = &x_in[(iy * w + ix) * c_in..][..c_in];
-                            let a = &mut acc[(ky * CONV_KERNEL + kx) * c_in..][..c_in];
-                            axpy(a, gv, px);
-                        }
-                    }
-                }
-            }
-            (acc, acc_b)
-        })
-        .collect();
-    let d_w = Array4::from_shape_fn(geom.weight_shape(), |(o, c, ky, kx)| {
-        per_o[o].0[(ky * CONV_KERNEL + kx) * c_in + c]
-    });
-    let d_b = Array1::from_shape_fn(c_out, |o| per_o[o].1);
     Ok((d_w, d_b))
 }
 

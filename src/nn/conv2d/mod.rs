@@ -31,6 +31,7 @@
 //! ```
 
 pub mod backward;
+pub mod backward_fast;
 pub mod direct;
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod direct_avx2;
@@ -43,10 +44,8 @@ pub mod winograd;
 
 use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};
 
-pub use backward::{
-    conv2d_backward_input, conv2d_backward_input_reference, conv2d_backward_weight,
-    conv2d_backward_weight_reference, relu_backward,
-};
+pub use backward::{conv2d_backward_input_reference, conv2d_backward_weight_reference, relu_backward};
+pub use backward_fast::{conv2d_backward_input, conv2d_backward_input_with, conv2d_backward_weight};
 pub use direct::{conv2d_direct, conv2d_direct_with, DirectKernel};
 pub use direct_concat::conv2d_direct_concat_with;
 pub use im2col::{conv2d_im2col, scratch_len, PackedConv2d};

@@ -24,6 +24,7 @@
 //! `[2h, 2w, c_out]` ([`Deconv2dGeometry`]).
 
 pub mod backward;
+pub mod backward_fast;
 pub mod direct;
 pub mod fast;
 pub mod reference;
@@ -31,10 +32,8 @@ pub mod winograd;
 
 use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};
 
-pub use backward::{
-    deconv2d_backward_input, deconv2d_backward_input_reference, deconv2d_backward_weight,
-    deconv2d_backward_weight_reference,
-};
+pub use backward::{deconv2d_backward_input_reference, deconv2d_backward_weight_reference};
+pub use backward_fast::{deconv2d_backward_input, deconv2d_backward_weight};
 pub use direct::{deconv2d_direct, deconv2d_direct_with};
 pub use fast::{deconv2d_fast, scratch_len, PackedDeconv2d};
 pub use reference::deconv2d_reference;

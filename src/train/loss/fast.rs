@@ -10,7 +10,7 @@ use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
 use super::kernel::{self, LiveRows, LossKernel, Tap};
-use super::{check_inputs, hypothesis_position, pixel_target, pixel_terms, ray_point};
+use super::{check_inputs, hypothesis_position, pixel_sampled, pixel_target, pixel_terms, ray_point};
 use super::{LossConfig, LossSums, ScaleLoss};
 use crate::error::Result;
 use crate::geometry::Warp;
@@ -79,7 +79,9 @@ pub fn scale_loss_with(
         .map(|i| pixel_target(cfg, warp, i % w, i / w, depth[[i / w, i % w]]))
         .collect();
     let n = targets.iter().filter(|t| t.is_some()).count();
-    let scale = if n > 0 { 1.0 / n as f64 } else { 0.0 };
+    // Under sampling (SPEC.md §13.1a) each evaluated pixel stands for m = s² pixels.
+    let m = cfg.sample_stride * cfg.sample_stride;
+    let scale = if n > 0 { m as f64 / n as f64 } else { 0.0 };
     let mut d_ref = Array3::<f32>::zeros((h, w, c));
     let Some(d_ref_slice) = d_ref.as_slice_mut() else { unreachable!("new arrays are contiguous") };
     let chunks = CHUNKS.min(h);
@@ -112,6 +114,9 @@ pub fn scale_loss_with(
             for y in rows.clone() {
                 for x in 0..w {
                     let Some((rho_star, target)) = targets[y * w + x] else { continue };
+                    if !pixel_sampled(cfg, x, y) {
+                        continue;
+                    }
                     let p0 = ray_point(warp, x, y);
                     s.taps.clear();
                     for (l, &rho) in rhos.iter().enumerate() {
@@ -135,7 +140,7 @@ pub fn scale_loss_with(
                         s.energies[tap.bin as usize] = f64::from(e);
                     }
                     let terms = pixel_terms(cfg, &s.energies, target, rho_star, &mut s.grad);
-                    sums.add_pixel(cfg, &terms, rho_star);
+                    sums.add_pixel(cfg, &terms, rho_star, m);
                     for (coef, tap) in s.coefs.iter_mut().zip(&s.taps) {
                         *coef = (2.0 * s.grad[tap.bin as usize] * scale) as f32;
                     }
@@ -150,6 +155,7 @@ pub fn scale_loss_with(
     for o in &outs {
         sums.accumulate(&o.sums);
     }
+    sums.pixels = n;
     let mut d_live = Array3::<f32>::zeros((hl, wl, c));
     let Some(dl) = d_live.as_slice_mut() else { unreachable!("new arrays are contiguous") };
     // Each live row: the chunks that touched it, summed in chunk order.

@@ -48,6 +48,12 @@ pub struct LossConfig {
     pub rho_floor: f64,
     /// `ln(1 − P_l)` is taken of `max(1 − P_l, prob_floor)` (1e-6); no gradient where it clamps.
     pub prob_floor: f64,
+    /// Pixel sampling (SPEC.md §13.1a): `1` evaluates every pixel (the paper); `s > 1` evaluates
+    /// one pixel per `s x s` block, at an offset drawn from `sample_seed`, and weights it `s²`,
+    /// an unbiased estimate of the scale's loss and gradients.
+    pub sample_stride: usize,
+    /// Seed of the sampled offsets (unused when `sample_stride = 1`).
+    pub sample_seed: u64,
 }
 
 impl Default for LossConfig {
@@ -59,6 +65,8 @@ impl Default for LossConfig {
             lambda_d: 1.0,
             rho_floor: 0.1,
             prob_floor: 1e-6,
+            sample_stride: 1,
+            sample_seed: 0,
         }
     }
 }
@@ -84,6 +92,9 @@ impl LossConfig {
         }
         if !(self.prob_floor > 0.0 && self.prob_floor < 1.0) {
             return Err(bad("prob_floor", self.prob_floor));
+        }
+        if !(1..=64).contains(&self.sample_stride) {
+            return Err(bad("sample_stride", self.sample_stride as f64));
         }
         Ok(())
     }
@@ -116,15 +127,18 @@ impl LossSums {
         }
     }
 
-    /// Adds one unmasked pixel's terms (`ρ*` its ground truth).
-    pub(crate) fn add_pixel(&mut self, cfg: &LossConfig, terms: &PixelTerms, rho_star: f64) {
+    /// Adds one evaluated pixel's terms (`ρ*` its ground truth) with weight `m` (`s²` under
+    /// sampling, else 1): sums and δ counts grow by `m` times the pixel's, `pixels` by `m` (the
+    /// caller sets `pixels` to the exact unmasked count afterwards).
+    pub(crate) fn add_pixel(&mut self, cfg: &LossConfig, terms: &PixelTerms, rho_star: f64, m: usize) {
         let z_star = 1.0 / rho_star;
-        self.pixels += 1;
-        self.ce += terms.ce;
-        self.rho += terms.rho;
-        self.depth += terms.depth;
-        self.delta125_expected += usize::from(within_125(1.0 / terms.rho_hat.max(cfg.rho_floor), z_star));
-        self.delta125_wta += usize::from(within_125(1.0 / cfg.bins.rho(terms.wta), z_star));
+        let mf = m as f64;
+        self.pixels += m;
+        self.ce += mf * terms.ce;
+        self.rho += mf * terms.rho;
+        self.depth += mf * terms.depth;
+        self.delta125_expected += m * usize::from(within_125(1.0 / terms.rho_hat.max(cfg.rho_floor), z_star));
+        self.delta125_wta += m * usize::from(within_125(1.0 / cfg.bins.rho(terms.wta), z_star));
     }
 
     /// Adds another scale's or pair's sums.
@@ -256,6 +270,21 @@ pub fn pixel_terms(
         grad[l] = -(ds_ce + ds_rho);
     }
     PixelTerms { ce, rho: rho_term, depth: depth_term, rho_hat, wta }
+}
+
+/// Whether pixel `(x, y)` is evaluated under `cfg`'s sampling (SPEC.md §13.1a): always for
+/// `sample_stride = 1`; else exactly one pixel of each `s x s` block (blocks at multiples of `s`),
+/// at offset `hash64(sample_seed, bx, by, 0) mod s²` (row-major inside the block). Every pixel
+/// is evaluated with probability exactly `1/s²` over the seed, including those of partial blocks
+/// at the right and bottom edges (their missing offsets evaluate nothing).
+pub fn pixel_sampled(cfg: &LossConfig, x: usize, y: usize) -> bool {
+    let s = cfg.sample_stride;
+    if s <= 1 {
+        return true;
+    }
+    let offset =
+        crate::synth::rng::hash64(cfg.sample_seed, (x / s) as u64, (y / s) as u64, 0) % (s * s) as u64;
+    offset == ((y % s) * s + x % s) as u64
 }
 
 /// The target of reference pixel `(x, y)` at ground-truth depth `z`: `(ρ*, l*)`, or `None` when

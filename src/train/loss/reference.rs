@@ -2,7 +2,9 @@
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 
-use super::{bilinear_taps, check_inputs, hypothesis_position, pixel_target, pixel_terms, ray_point};
+use super::{
+    bilinear_taps, check_inputs, hypothesis_position, pixel_sampled, pixel_target, pixel_terms, ray_point,
+};
 use super::{LossConfig, LossSums, ScaleLoss};
 use crate::error::Result;
 use crate::geometry::Warp;
@@ -30,10 +32,17 @@ pub fn scale_loss_reference(
     let mut energies = vec![0.0; k];
     let mut grad = vec![0.0; k];
     let mut taps: Vec<Option<([usize; 4], [f64; 4])>> = vec![None; k];
-    // Gradients are summed first and divided by the pixel count at the end.
+    // Gradients are summed first (weighted s² under sampling) and divided by the unmasked pixel
+    // count at the end.
+    let m = cfg.sample_stride * cfg.sample_stride;
+    let mut unmasked = 0;
     for y in 0..h {
         for x in 0..w {
             let Some((rho_star, target)) = pixel_target(cfg, warp, x, y, depth[[y, x]]) else { continue };
+            unmasked += 1;
+            if !pixel_sampled(cfg, x, y) {
+                continue;
+            }
             let p0 = ray_point(warp, x, y);
             for l in 0..k {
                 taps[l] = hypothesis_position(warp, &p0, cfg.bins.rho(l))
@@ -49,12 +58,12 @@ pub fn scale_loss_reference(
                 };
             }
             let terms = pixel_terms(cfg, &energies, target, rho_star, &mut grad);
-            sums.add_pixel(cfg, &terms, rho_star);
+            sums.add_pixel(cfg, &terms, rho_star, m);
             for l in 0..k {
                 let Some((idx, wt)) = &taps[l] else { continue };
                 for ch in 0..c {
                     let s: f64 = (0..4).map(|t| wt[t] * f_live[[idx[t] / wl, idx[t] % wl, ch]]).sum();
-                    let r = 2.0 * grad[l] * (f_ref[[y, x, ch]] - s);
+                    let r = 2.0 * m as f64 * grad[l] * (f_ref[[y, x, ch]] - s);
                     d_ref[[y, x, ch]] += r;
                     for t in 0..4 {
                         d_live[[idx[t] / wl, idx[t] % wl, ch]] -= r * wt[t];
@@ -63,6 +72,7 @@ pub fn scale_loss_reference(
             }
         }
     }
+    sums.pixels = unmasked;
     if sums.pixels > 0 {
         let n = sums.pixels as f64;
         d_ref.mapv_inplace(|v| v / n);

@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# The long CPU training chain of issue 30 (SPEC.md §13.10): one fixed configuration per chain,
+# run as resumable chunks across sessions.
+#
+#   tools/train_chain/chain.sh start NAME   # resume NAME from its committed checkpoint (or begin),
+#                                          # in the background, under nice; log in runs/NAME.out
+#   tools/train_chain/chain.sh save NAME    # copy the run's latest checkpoint, log and curves to
+#                                          # docs/training/chain_NAME/ (then commit that folder)
+#   tools/train_chain/chain.sh status NAME  # last log line and steps done
+#
+# The configuration of each chain is below; changing it starts a new chain (the checkpoint's
+# fingerprint would no longer match, and `densefeat train --resume` refuses it).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+
+name=${2:-b1s2}
+run=runs/chain_$name
+kept=docs/training/chain_$name
+D=../shared/data
+
+args_b1s2=(
+  --data $D/hololens_000 --data $D/tartanair_hospital --data $D/tsdffusion_desk_box
+  --val-data $D/sun3d_studyroom_f0935 --val-fraction 0
+  --synthetic-scenes 64 --synthetic-style real --synthetic-fraction 0.5 --synthetic-val-scenes 4
+  --b1-stride 2 --crop 256x192 --bins 256
+  --steps 37500 --batch 4 --lr 1e-3 --warmup 500 --weight-decay 1e-4
+  --loss-sample-stride 2 --seed 0 --init-seed 0
+  --val-every 250 --val-per-source 4 --ckpt-every 100
+)
+
+case "${1:-}" in
+  start)
+    var="args_${name}[@]"
+    args=("${!var}")
+    mkdir -p "$run"
+    resume=()
+    if [ -f "$run/checkpoint.safetensors" ]; then
+      resume=(--resume "$run/checkpoint.safetensors")
+    elif [ -f "$kept/checkpoint.safetensors" ]; then
+      cp "$kept/checkpoint.safetensors" "$kept/log.csv" "$run/"
+      resume=(--resume "$run/checkpoint.safetensors")
+    fi
+    bin=target/release/densefeat
+    [ -x "$bin" ] || cargo build --release
+    # A copy of the binary, so rebuilding the project does not touch the running trainer.
+    cp "$bin" "$run/densefeat"
+    echo "$(date -u +%FT%TZ) start: $run/densefeat train --out $run ${args[*]} ${resume[*]} --threads 2 --quiet" >> "$run/chunks.txt"
+    nohup nice -n 19 "$run/densefeat" train --out "$run" "${args[@]}" "${resume[@]}" --threads 2 --quiet \
+      > "$run/train.out" 2>&1 &
+    echo "started pid $! (log $run/train.out)"
+    ;;
+  save)
+    mkdir -p "$kept"
+    cp "$run/checkpoint.safetensors" "$run/log.csv" "$run/curves.png" "$kept/"
+    cp "$run/chunks.txt" "$kept/chunks.txt"
+    tail -1 "$kept/log.csv" | cut -d, -f1,3,15,16
+    ;;
+  status)
+    tail -1 "$run/log.csv" 2>/dev/null || echo "no log yet"
+    tail -3 "$run/train.out" 2>/dev/null || true
+    ;;
+  *)
+    echo "usage: $0 start|save|status NAME" >&2
+    exit 2
+    ;;
+esac

@@ -33,6 +33,7 @@ fn tiny() -> TrainConfig {
         val_every: 2,
         val_per_source: 1,
         ckpt_every: 2,
+        frame_cache_mb: 64,
     }
 }
 

@@ -70,6 +70,10 @@ pub struct TrainArgs {
     /// Warm-up steps.
     #[arg(long, default_value_t = 100)]
     pub warmup: usize,
+    /// Clip the global gradient norm to this (0: never); a safety net when well above the
+    /// norms the log shows.
+    #[arg(long, default_value_t = 10.0)]
+    pub clip_norm: f64,
     /// Decoupled weight decay.
     #[arg(long, default_value_t = 1e-4)]
     pub weight_decay: f64,
@@ -117,6 +121,10 @@ pub struct TrainArgs {
     /// pixel (the paper).
     #[arg(long, default_value_t = 1)]
     pub loss_sample_stride: usize,
+    /// Memory for decoded and rendered training frames, MiB (frames past it are made again on
+    /// every use; never changes a result).
+    #[arg(long, default_value_t = crate::train::data::DEFAULT_CACHE_MB)]
+    pub frame_cache_mb: usize,
     /// Rayon threads (0: all cores).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
@@ -156,6 +164,7 @@ impl TrainArgs {
                 lr: self.lr,
                 warmup: self.warmup,
                 weight_decay: self.weight_decay,
+                clip_norm: self.clip_norm,
                 ..OptimConfig::default()
             },
             loss: LossConfig {
@@ -184,6 +193,7 @@ impl TrainArgs {
             val_every: self.val_every,
             val_per_source: self.val_per_source,
             ckpt_every: self.ckpt_every,
+            frame_cache_mb: self.frame_cache_mb,
         })
     }
 }

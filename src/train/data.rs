@@ -8,6 +8,7 @@
 //! came before: resuming at step `t` sees exactly what an uninterrupted run would.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use ndarray::{s, Array2, Array3};
 
@@ -17,6 +18,7 @@ use crate::image::is_valid_depth;
 use crate::sequence::{open, Sequence};
 use crate::synth::rng::{hash64, SplitMix64};
 use crate::synth::{Scene, SceneConfig, Style};
+use crate::train::frame_cache::{Frame, FrameCache, FrameKey};
 use crate::train::step::TrainingPair;
 
 /// Which frame pairs are used.
@@ -111,13 +113,6 @@ impl Default for DataConfig {
     }
 }
 
-/// One frame: image, depth, camera-to-world pose.
-struct FrameData {
-    rgb: Array3<f32>,
-    depth: Array2<f32>,
-    pose: Pose,
-}
-
 /// A sequence with its train and validation pairs.
 struct SequenceSource {
     name: String,
@@ -128,12 +123,19 @@ struct SequenceSource {
     val: Vec<(usize, usize)>,
 }
 
+/// A reference frame, a live frame and their camera.
+type FramePair = (Arc<Frame>, Arc<Frame>, PinholeCamera);
+
 /// The training and validation data.
 pub struct DataSet {
     cfg: DataConfig,
     synth: SceneConfig,
     sequences: Vec<SequenceSource>,
+    cache: FrameCache,
 }
+
+/// Default byte budget of the frame cache ([`DataSet::with_cache_mb`]).
+pub const DEFAULT_CACHE_MB: usize = 4096;
 
 /// Relative rotation angle of two poses, degrees, and their camera-centre distance.
 fn motion(a: &Pose, b: &Pose) -> (f64, f64) {
@@ -180,9 +182,9 @@ fn overlap_and_flow(
 }
 
 /// Frame `i` of a synthetic scene.
-fn render(scene: &Scene, i: usize) -> Result<FrameData> {
+fn render(scene: &Scene, i: usize) -> Result<Frame> {
     let f = scene.render(i)?;
-    Ok(FrameData { rgb: f.rgb, depth: f.depth, pose: f.pose })
+    Ok(Frame::new(f.rgb, f.depth, f.pose))
 }
 
 /// `clamp(g I + b + n, 0, 255)` with `g`, `b` drawn once and `n` per value.
@@ -242,7 +244,14 @@ impl DataSet {
                 "no training pairs: give sequences with pairs, or synthetic scenes",
             ));
         }
-        Ok(DataSet { cfg, synth, sequences })
+        Ok(DataSet { cfg, synth, sequences, cache: FrameCache::new(DEFAULT_CACHE_MB << 20) })
+    }
+
+    /// The same data with a frame cache of `mb` MiB (0: none). The cache never changes a
+    /// result, only how often a frame is decoded or rendered.
+    pub fn with_cache_mb(mut self, mb: usize) -> Self {
+        self.cache = FrameCache::new(mb.saturating_mul(1 << 20));
+        self
     }
 
     /// Reads `path` and its pairs; the last `val_fraction` of its frames (all of them at 1.0) give
@@ -334,12 +343,15 @@ impl DataSet {
         v
     }
 
-    fn load(&self, s: &SequenceSource, i: usize) -> Result<FrameData> {
-        let f = s.seq.load_frame(i)?;
-        let depth = f
-            .depth
-            .ok_or_else(|| Error::bad_sequence(s.seq.root.clone(), format!("frame {i} has no depth")))?;
-        Ok(FrameData { rgb: f.rgb, depth, pose: f.pose })
+    fn load(&self, source: usize, i: usize) -> Result<Arc<Frame>> {
+        let s = &self.sequences[source];
+        self.cache.get(FrameKey::Sequence(source, i), || {
+            let f = s.seq.load_frame(i)?;
+            let depth = f
+                .depth
+                .ok_or_else(|| Error::bad_sequence(s.seq.root.clone(), format!("frame {i} has no depth")))?;
+            Ok(Frame::new(f.rgb, depth, f.pose))
+        })
     }
 
     /// A synthetic pair from scene `seed`: a random reference frame and a live frame passing the
@@ -348,7 +360,7 @@ impl DataSet {
         &self,
         seed: u64,
         rng: &mut SplitMix64,
-    ) -> Result<Option<(FrameData, FrameData, PinholeCamera)>> {
+    ) -> Result<Option<FramePair>> {
         let scene = Scene::generate(&SceneConfig { seed, ..self.synth })?;
         let poses: Vec<Pose> = (0..scene.frames()).map(|i| scene.pose(i)).collect::<Result<_>>()?;
         let cam = scene.camera();
@@ -361,7 +373,7 @@ impl DataSet {
                 continue;
             }
             let j = js[rng.below(js.len())];
-            let r = render(&scene, i)?;
+            let r = self.cache.get(FrameKey::Synthetic(seed, i), || render(&scene, i))?;
             let (ov, _, _) = overlap_and_flow(
                 &r.depth,
                 &cam,
@@ -369,7 +381,7 @@ impl DataSet {
                 (0, 0, cam.width, cam.height),
             );
             if ov >= self.cfg.rule.min_overlap {
-                let l = render(&scene, j)?;
+                let l = self.cache.get(FrameKey::Synthetic(seed, j), || render(&scene, j))?;
                 return Ok(Some((r, l, cam)));
             }
         }
@@ -380,8 +392,8 @@ impl DataSet {
     /// centred), the live window shifted by the mean flow.
     fn crop(
         &self,
-        r: FrameData,
-        l: FrameData,
+        r: &Frame,
+        l: &Frame,
         cam: &PinholeCamera,
         rng: Option<&mut SplitMix64>,
     ) -> Result<TrainingPair> {
@@ -399,8 +411,8 @@ impl DataSet {
             PinholeCamera::new(cam.fx, cam.fy, cam.cx - x as f64, cam.cy - y as f64, cw, ch)
         };
         Ok(TrainingPair {
-            ref_rgb: r.rgb.slice(s![y0..y0 + ch, x0..x0 + cw, ..]).to_owned(),
-            live_rgb: l.rgb.slice(s![ly..ly + ch, lx..lx + cw, ..]).to_owned(),
+            ref_rgb: r.rgb_window(x0, y0, cw, ch),
+            live_rgb: l.rgb_window(lx, ly, cw, ch),
             ref_depth: r.depth.slice(s![y0..y0 + ch, x0..x0 + cw]).to_owned(),
             ref_camera: crop_cam(x0, y0)?,
             live_camera: crop_cam(lx, ly)?,
@@ -415,11 +427,12 @@ impl DataSet {
     /// A frame that cannot be read, or no pair found after repeated draws.
     pub fn train_pair(&self, seed: u64, step: usize, index: usize) -> Result<TrainingPair> {
         let mut rng = SplitMix64::new(hash64(seed, step as u64, index as u64, 0x0074_7261_696e));
-        let real: Vec<&SequenceSource> = self.sequences.iter().filter(|s| !s.train.is_empty()).collect();
+        let real: Vec<usize> =
+            (0..self.sequences.len()).filter(|&s| !self.sequences[s].train.is_empty()).collect();
         for _ in 0..ATTEMPTS {
             let synthetic = self.cfg.synthetic_scenes > 0
                 && (real.is_empty() || rng.unit() < self.cfg.synthetic_fraction);
-            let (mut r, mut l, cam) = if synthetic {
+            let (r, l, cam) = if synthetic {
                 let seed = SYNTH_TRAIN_SEED0 + rng.below(self.cfg.synthetic_scenes) as u64;
                 match self.synthetic_pair(seed, &mut rng)? {
                     Some(x) => x,
@@ -427,12 +440,14 @@ impl DataSet {
                 }
             } else {
                 let s = real[rng.below(real.len())];
-                let (i, j) = s.train[rng.below(s.train.len())];
-                (self.load(s, i)?, self.load(s, j)?, s.seq.camera)
+                let src = &self.sequences[s];
+                let (i, j) = src.train[rng.below(src.train.len())];
+                (self.load(s, i)?, self.load(s, j)?, src.seq.camera)
             };
-            augment(&mut r.rgb, &self.cfg.augment, &mut rng);
-            augment(&mut l.rgb, &self.cfg.augment, &mut rng);
-            let mut pair = self.crop(r, l, &cam, Some(&mut rng))?;
+            // Crop first, then augment the two crops (SPEC.md §13.5).
+            let mut pair = self.crop(&r, &l, &cam, Some(&mut rng))?;
+            augment(&mut pair.ref_rgb, &self.cfg.augment, &mut rng);
+            augment(&mut pair.live_rgb, &self.cfg.augment, &mut rng);
             pair.sample_seed = rng.next_u64();
             return Ok(pair);
         }
@@ -447,11 +462,14 @@ impl DataSet {
     /// A frame that cannot be read.
     pub fn val_pairs(&self, per_source: usize) -> Result<Vec<(String, TrainingPair)>> {
         let mut v = Vec::new();
-        for s in &self.sequences {
+        for (k, s) in self.sequences.iter().enumerate() {
             let n = s.val.len();
             for q in 0..per_source.min(n) {
                 let (i, j) = s.val[q * n / per_source.min(n)];
-                v.push((s.name.clone(), self.crop(self.load(s, i)?, self.load(s, j)?, &s.seq.camera, None)?));
+                v.push((
+                    s.name.clone(),
+                    self.crop(&*self.load(k, i)?, &*self.load(k, j)?, &s.seq.camera, None)?,
+                ));
             }
         }
         for k in 0..self.cfg.synthetic_val_scenes {
@@ -459,7 +477,7 @@ impl DataSet {
             let mut rng = SplitMix64::new(seed);
             for _ in 0..per_source {
                 if let Some((r, l, cam)) = self.synthetic_pair(seed, &mut rng)? {
-                    v.push((format!("synthetic-{seed}"), self.crop(r, l, &cam, None)?));
+                    v.push((format!("synthetic-{seed}"), self.crop(&r, &l, &cam, None)?));
                 }
             }
         }

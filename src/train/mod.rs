@@ -5,6 +5,7 @@
 pub mod backprop;
 pub mod checkpoint;
 pub mod data;
+pub(crate) mod frame_cache;
 pub mod loss;
 pub mod optim;
 pub mod step;

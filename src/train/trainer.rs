@@ -42,6 +42,8 @@ pub struct TrainConfig {
     pub val_per_source: usize,
     /// Write a checkpoint every this many steps (and at the last).
     pub ckpt_every: usize,
+    /// Byte budget of the frame cache, MiB (not in the fingerprint: it never changes a result).
+    pub frame_cache_mb: usize,
 }
 
 impl TrainConfig {
@@ -258,7 +260,7 @@ pub fn train(
             (0, w, a)
         }
     };
-    let data = DataSet::open(cfg.data.clone())?;
+    let data = DataSet::open(cfg.data.clone())?.with_cache_mb(cfg.frame_cache_mb);
     for line in data.describe() {
         eprintln!("data: {line}");
     }

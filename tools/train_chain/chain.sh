@@ -23,7 +23,7 @@ args_b1s2=(
   --val-data $D/sun3d_studyroom_f0935 --val-fraction 0
   --synthetic-scenes 64 --synthetic-style real --synthetic-fraction 0.5 --synthetic-val-scenes 4
   --b1-stride 2 --crop 256x192 --bins 256
-  --steps 37500 --batch 4 --lr 1e-3 --warmup 500 --weight-decay 1e-4
+  --steps 37500 --batch 4 --lr 1e-3 --warmup 500 --weight-decay 1e-4 --clip-norm 5000
   --loss-sample-stride 2 --seed 0 --init-seed 0
   --val-every 250 --val-per-source 4 --ckpt-every 100
 )

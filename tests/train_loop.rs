@@ -34,6 +34,7 @@ fn tiny() -> TrainConfig {
         val_per_source: 1,
         ckpt_every: 2,
         frame_cache_mb: 64,
+        init_weights: None,
     }
 }
 
@@ -153,4 +154,35 @@ fn validation_scenes_give_only_validation_pairs_and_never_train() {
     let both = DataConfig { sequences: vec![fixture.clone()], ..cfg };
     let err = DataSet::open(both).err().expect("refused").to_string();
     assert!(err.contains("--val-data") && err.contains("room_s1"), "{err}");
+}
+
+/// The multi-frame loss in the loop (SPEC.md §13.1b): every training reference gets its further
+/// live frames (consistent shapes and cameras), and the run is bit-identical for 1 and 2 threads
+/// and differs from the pair run.
+#[test]
+fn three_live_frames_train_bit_identically_for_any_thread_count() {
+    let cfg = TrainConfig { data: DataConfig { live_frames: 3, ..tiny().data }, ..tiny() };
+    let data = densefeat::train::data::DataSet::open(cfg.data.clone()).unwrap();
+    for step in 1..4 {
+        let p = data.train_pair(cfg.seed, step, 0).unwrap();
+        p.validate().unwrap();
+        assert_eq!(p.more_lives.len(), 2, "step {step}");
+        for e in &p.more_lives {
+            assert_eq!(e.rgb.dim(), p.live_rgb.dim());
+            assert!(e.t_lr.translation.vector.norm() >= cfg.data.rule.min_baseline);
+        }
+    }
+    // Validation pairs keep one live frame.
+    assert!(data.val_pairs(1).unwrap().iter().all(|(_, p)| p.more_lives.is_empty()));
+    let (a, b, c) =
+        (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let w1 = run(&cfg, a.path(), 1, None, None);
+    let w2 = run(&cfg, b.path(), 2, None, None);
+    assert_eq!(bits(&w1), bits(&w2));
+    let pairs = run(&tiny(), c.path(), 2, None, None);
+    assert_ne!(bits(&w1), bits(&pairs));
+    // More than 8 live frames is refused, naming the flag.
+    let bad = DataConfig { live_frames: 9, ..tiny().data };
+    let err = densefeat::train::data::DataSet::open(bad).err().expect("refused").to_string();
+    assert!(err.contains("--live-frames"), "{err}");
 }

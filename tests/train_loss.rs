@@ -4,8 +4,8 @@
 
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
 use densefeat::train::loss::{
-    pixel_sampled, pixel_terms, scale_loss, scale_loss_reference, scale_loss_with, uses_avx512, LossConfig,
-    LossKernel,
+    pixel_sampled, pixel_terms, scale_loss, scale_loss_multi, scale_loss_multi_reference,
+    scale_loss_reference, scale_loss_with, uses_avx512, LiveView, LossConfig, LossKernel,
 };
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{Array2, Array3};
@@ -329,5 +329,124 @@ fn sampled_loss_and_gradient_are_unbiased() {
                 "stride {stride} {name}: mean {mean} vs {want} (se {se})"
             );
         }
+    }
+}
+
+/// Further live frames for a case: features and warps of other poses of the same camera.
+fn more_lives(seed: u64, c: &Case, n: usize) -> Vec<(Array3<f64>, Warp)> {
+    let mut r = rng(seed ^ 0xabc);
+    let (h, w, ch) = c.f_ref.dim();
+    let cam = *c.warp.reference();
+    (0..n)
+        .map(|_| {
+            let t = Vector3::new(-0.2 + 0.1 * r(), 0.15 * r(), 0.05 * r());
+            let q = UnitQuaternion::from_euler_angles(0.03 * r(), 0.03 * r(), 0.03 * r());
+            let warp = Warp::new(&cam, &cam, &Pose::from_parts(Translation3::from(t), q));
+            (Array3::from_shape_fn((h, w, ch), |_| 0.8 * r()), warp)
+        })
+        .collect()
+}
+
+fn views<'a>(c: &'a Case, extra: &'a [(Array3<f64>, Warp)]) -> Vec<LiveView<'a, f64>> {
+    std::iter::once(LiveView { features: c.f_live.view(), warp: &c.warp })
+        .chain(extra.iter().map(|(f, w)| LiveView { features: f.view(), warp: w }))
+        .collect()
+}
+
+/// SPEC.md §13.1b: the multi-frame reference's gradients against central differences, for the
+/// reference map and every live map.
+#[test]
+fn multi_frame_reference_gradients_match_finite_differences() {
+    let c = case(5, 5, 6, 3, 10);
+    let extra = more_lives(5, &c, 2);
+    let lives = views(&c, &extra);
+    let out = scale_loss_multi_reference(&c.cfg, c.f_ref.view(), &lives, c.depth.view()).unwrap();
+    assert!(out.sums.pixels > 2, "a case with unmasked pixels");
+    assert_eq!(out.d_lives.len(), 3);
+    let loss = |f_ref: &Array3<f64>, lives: &[LiveView<'_, f64>]| {
+        scale_loss_multi_reference(&c.cfg, f_ref.view(), lives, c.depth.view()).unwrap().sums.mean()
+    };
+    let eps = 1e-6;
+    let check = |g: f64, fd: f64, what: &str| {
+        let err = (fd - g).abs() / (1e-4 + g.abs().max(fd.abs()));
+        assert!(err < 1e-4, "{what}: analytic {g}, fd {fd}");
+    };
+    for (idx, &g) in out.d_ref.indexed_iter() {
+        let (mut a, mut b) = (c.f_ref.clone(), c.f_ref.clone());
+        a[idx] += eps;
+        b[idx] -= eps;
+        check(g, (loss(&a, &lives) - loss(&b, &lives)) / (2.0 * eps), &format!("d_ref {idx:?}"));
+    }
+    let live_maps: Vec<Array3<f64>> = lives.iter().map(|l| l.features.to_owned()).collect();
+    for (n, d) in out.d_lives.iter().enumerate() {
+        for (idx, &g) in d.indexed_iter() {
+            let bumped = |delta: f64| {
+                let mut maps = live_maps.clone();
+                maps[n][idx] += delta;
+                let v: Vec<LiveView<'_, f64>> = maps
+                    .iter()
+                    .zip(&lives)
+                    .map(|(f, l)| LiveView { features: f.view(), warp: l.warp })
+                    .collect();
+                loss(&c.f_ref, &v)
+            };
+            check(g, (bumped(eps) - bumped(-eps)) / (2.0 * eps), &format!("d_live{n} {idx:?}"));
+        }
+    }
+}
+
+/// SPEC.md §13.1b: the fast multi-frame loss against the reference (3 live frames, with and
+/// without sampling), one live frame bit-identical to the pair loss, and bit-identical for 1, 2,
+/// 3 and 8 threads.
+#[test]
+fn multi_frame_fast_matches_reference_and_pair_loss() {
+    for stride in [1, 2] {
+        let mut c = case(9, 12, 16, 8, 32);
+        c.cfg.sample_stride = stride;
+        c.cfg.sample_seed = 4;
+        let extra = more_lives(9, &c, 2);
+        let lives = views(&c, &extra);
+        // The reference on the f32-rounded inputs, so only the arithmetic differs.
+        let rounded: Vec<Array3<f64>> =
+            lives.iter().map(|l| l.features.mapv(|v| f64::from(v as f32))).collect();
+        let rv: Vec<LiveView<'_, f64>> =
+            rounded.iter().zip(&lives).map(|(f, l)| LiveView { features: f.view(), warp: l.warp }).collect();
+        let fr64 = c.f_ref.mapv(|v| f64::from(v as f32));
+        let want = scale_loss_multi_reference(&c.cfg, fr64.view(), &rv, c.depth.view()).unwrap();
+        let fr = c.f_ref.mapv(|v| v as f32);
+        let fls: Vec<Array3<f32>> = lives.iter().map(|l| l.features.mapv(|v| v as f32)).collect();
+        let v32: Vec<LiveView<'_, f32>> =
+            fls.iter().zip(&lives).map(|(f, l)| LiveView { features: f.view(), warp: l.warp }).collect();
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| scale_loss_multi(&c.cfg, fr.view(), &v32, c.depth.view()).unwrap())
+        };
+        let got = run(1);
+        assert!(got.sums.pixels > 0);
+        assert_eq!(got.sums.pixels, want.sums.pixels);
+        assert_eq!(got.sums.delta125_wta, want.sums.delta125_wta);
+        let (lg, lw) = (got.sums.mean(), want.sums.mean());
+        assert!((lg - lw).abs() <= 1e-5 * lw.abs().max(1.0), "loss {lg} vs {lw}");
+        for (g, w) in std::iter::once((&got.d_ref, &want.d_ref)).chain(got.d_lives.iter().zip(&want.d_lives))
+        {
+            let scale = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            assert!(scale > 0.0);
+            for (a, b) in g.iter().zip(w.iter()) {
+                assert!((f64::from(*a) - b).abs() <= 1e-4 * scale + 1e-12, "{a} vs {b} (max {scale})");
+            }
+        }
+        for n in [2, 3, 8] {
+            let o = run(n);
+            assert_eq!(o.sums, got.sums, "{n} threads");
+            assert!(bits_equal(&o.d_ref, &got.d_ref), "{n} threads d_ref");
+            for (a, b) in o.d_lives.iter().zip(&got.d_lives) {
+                assert!(bits_equal(a, b), "{n} threads d_live");
+            }
+        }
+        // One live frame: exactly the pair loss.
+        let one = scale_loss_multi(&c.cfg, fr.view(), &v32[..1], c.depth.view()).unwrap();
+        let pair = scale_loss(&c.cfg, fr.view(), fls[0].view(), c.depth.view(), &c.warp).unwrap();
+        assert_eq!(one.sums, pair.sums);
+        assert!(bits_equal(&one.d_ref, &pair.d_ref) && bits_equal(&one.d_lives[0], &pair.d_live));
     }
 }

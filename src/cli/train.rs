@@ -110,12 +110,20 @@ pub struct TrainArgs {
     /// Checkpoint every N steps.
     #[arg(long, default_value_t = 50)]
     pub ckpt_every: usize,
+    /// Start from these weights (same network) instead of the Xavier initialisation: fine-tuning.
+    #[arg(long)]
+    pub init_weights: Option<PathBuf>,
     /// Resume from this checkpoint (the configuration must match).
     #[arg(long)]
     pub resume: Option<PathBuf>,
     /// Stop after this many steps in total (the schedule still spans --steps).
     #[arg(long)]
     pub stop_after: Option<usize>,
+    /// Live frames per training reference: 1 trains on pairs (the paper); N > 1 averages the
+    /// costs of N live frames per hypothesis before the softmax, as the mapper's cost volume
+    /// does (the multi-frame loss, SPEC.md §13.1b).
+    #[arg(long, default_value_t = 1)]
+    pub live_frames: usize,
     /// Loss pixel sampling (SPEC.md §13.1a): evaluate one pixel per SxS block at the finest
     /// supervised level (S/2 one level coarser, ...), weighted S²: unbiased; 1 evaluates every
     /// pixel (the paper).
@@ -188,12 +196,14 @@ impl TrainArgs {
                 synthetic_fraction: self.synthetic_fraction,
                 synthetic_style: self.synthetic_style.parse()?,
                 val_fraction: self.val_fraction,
+                live_frames: self.live_frames,
                 ..DataConfig::default()
             },
             val_every: self.val_every,
             val_per_source: self.val_per_source,
             ckpt_every: self.ckpt_every,
             frame_cache_mb: self.frame_cache_mb,
+            init_weights: self.init_weights.clone(),
         })
     }
 }
@@ -250,6 +260,9 @@ pub struct BenchTrainArgs {
     /// Loss pixel sampling stride at the finest supervised level (as `densefeat train`).
     #[arg(long, default_value_t = 1)]
     pub loss_sample_stride: usize,
+    /// Live frames per reference (as `densefeat train`).
+    #[arg(long, default_value_t = 1)]
+    pub live_frames: usize,
     /// Also time the stages (forward with tape, each scale's loss, backward) in separate steps and
     /// print their medians.
     #[arg(long)]
@@ -321,6 +334,7 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
         crop,
         synthetic_scenes: 1,
         synthetic_val_scenes: 0,
+        live_frames: args.live_frames,
         ..DataConfig::default()
     })?;
     let pair = data.train_pair(0, 1, 0)?;
@@ -377,8 +391,8 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
     // Forward of two images, backward ≈ 2x forward (input and weight gradients).
     let net_flops = 3.0 * 2.0 * net.flops(crop.1, crop.0);
     println!(
-        "bench train: crop {}x{}, {} bins, b1 stride {}, {} threads, deep supervision L1..L5 + L, loss sample stride {}",
-        crop.0, crop.1, args.bins, args.b1_stride, args.threads, args.loss_sample_stride
+        "bench train: crop {}x{}, {} bins, b1 stride {}, {} threads, deep supervision L1..L5 + L, loss sample stride {}, {} live frame(s)",
+        crop.0, crop.1, args.bins, args.b1_stride, args.threads, args.loss_sample_stride, args.live_frames
     );
     println!("  SGEMM indicator (256x256x256, {} threads): {sgemm:.1} GFLOP/s", args.threads);
     println!("  one pair (forward 2 images + loss at 6 scales + backward): {step:.1} ms median of {} -> {:.3} pairs/s", args.runs, 1e3 / step);

@@ -22,7 +22,8 @@ pub(crate) fn axis(x: f64, n: usize) -> Option<(usize, usize, f64)> {
     if n == 1 {
         return Some((0, 0, 0.0));
     }
-    let x0 = (x.floor() as usize).min(n - 2);
+    // x >= 0 here, so truncation is the floor (and needs no libm call).
+    let x0 = (x as usize).min(n - 2);
     Some((x0, x0 + 1, x - x0 as f64))
 }
 

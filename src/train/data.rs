@@ -19,7 +19,7 @@ use crate::sequence::{open, Sequence};
 use crate::synth::rng::{hash64, SplitMix64};
 use crate::synth::{Scene, SceneConfig, Style};
 use crate::train::frame_cache::{Frame, FrameCache, FrameKey};
-use crate::train::step::TrainingPair;
+use crate::train::step::{ExtraLive, TrainingPair};
 
 /// Which frame pairs are used.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -82,6 +82,9 @@ pub struct DataConfig {
     /// Fraction of each training sequence's frames, at its end, held out for validation (0 under
     /// the scene-level protocol of SPEC §3a, where validation comes from `val_sequences`).
     pub val_fraction: f64,
+    /// Live frames per training reference (1: pairs, the paper; more: the multi-frame loss of
+    /// SPEC.md §13.1b). Validation pairs always have one.
+    pub live_frames: usize,
 }
 
 /// First seed of the synthetic training scenes (the shipped fixture and the evaluation scenes
@@ -109,6 +112,7 @@ impl Default for DataConfig {
             synthetic_fraction: 0.5,
             synthetic_style: Style::Classic,
             val_fraction: 0.2,
+            live_frames: 1,
         }
     }
 }
@@ -123,8 +127,30 @@ struct SequenceSource {
     val: Vec<(usize, usize)>,
 }
 
-/// A reference frame, a live frame and their camera.
-type FramePair = (Arc<Frame>, Arc<Frame>, PinholeCamera);
+/// A reference frame, its live frames and their camera.
+type FrameTuple = (Arc<Frame>, Vec<Arc<Frame>>, PinholeCamera);
+
+/// `count` distinct entries of `candidates` that pass `accept`, drawn uniformly in turn (each draw
+/// removes its entry); `None` when the candidates run out first.
+fn draw_distinct(
+    candidates: &[usize],
+    count: usize,
+    rng: &mut SplitMix64,
+    accept: impl Fn(usize) -> bool,
+) -> Option<Vec<usize>> {
+    let mut left = candidates.to_vec();
+    let mut picked = Vec::with_capacity(count);
+    while picked.len() < count {
+        if left.is_empty() {
+            return None;
+        }
+        let c = left.swap_remove(rng.below(left.len()));
+        if accept(c) {
+            picked.push(c);
+        }
+    }
+    Some(picked)
+}
 
 /// The training and validation data.
 pub struct DataSet {
@@ -208,6 +234,12 @@ impl DataSet {
         let (cw, ch) = cfg.crop;
         if cw < 8 || ch < 8 {
             return Err(Error::invalid_argument("--crop", format!("{cw}x{ch}: at least 8x8")));
+        }
+        if !(1..=8).contains(&cfg.live_frames) {
+            return Err(Error::invalid_argument(
+                "--live-frames",
+                format!("{}: must be between 1 and 8", cfg.live_frames),
+            ));
         }
         if !(0.0..1.0).contains(&cfg.val_fraction) || !(0.0..=1.0).contains(&cfg.synthetic_fraction) {
             return Err(Error::invalid_argument(
@@ -355,15 +387,12 @@ impl DataSet {
     }
 
     /// A synthetic pair from scene `seed`: a random reference frame and a live frame passing the
-    /// pair rule.
-    fn synthetic_pair(
-        &self,
-        seed: u64,
-        rng: &mut SplitMix64,
-    ) -> Result<Option<FramePair>> {
+    /// pair rule, plus `extra` further live frames that pass it too (drawn only when `extra > 0`).
+    fn synthetic_pair(&self, seed: u64, rng: &mut SplitMix64, extra: usize) -> Result<Option<FrameTuple>> {
         let scene = Scene::generate(&SceneConfig { seed, ..self.synth })?;
         let poses: Vec<Pose> = (0..scene.frames()).map(|i| scene.pose(i)).collect::<Result<_>>()?;
         let cam = scene.camera();
+        let frame = |i: usize| self.cache.get(FrameKey::Synthetic(seed, i), || render(&scene, i));
         for _ in 0..ATTEMPTS {
             let i = rng.below(poses.len());
             let js: Vec<usize> = (0..poses.len())
@@ -373,16 +402,26 @@ impl DataSet {
                 continue;
             }
             let j = js[rng.below(js.len())];
-            let r = self.cache.get(FrameKey::Synthetic(seed, i), || render(&scene, i))?;
-            let (ov, _, _) = overlap_and_flow(
-                &r.depth,
-                &cam,
-                &relative_pose(&r.pose, &poses[j]),
-                (0, 0, cam.width, cam.height),
-            );
-            if ov >= self.cfg.rule.min_overlap {
-                let l = self.cache.get(FrameKey::Synthetic(seed, j), || render(&scene, j))?;
-                return Ok(Some((r, l, cam)));
+            let r = frame(i)?;
+            let overlaps = |j: usize| {
+                overlap_and_flow(
+                    &r.depth,
+                    &cam,
+                    &relative_pose(&r.pose, &poses[j]),
+                    (0, 0, cam.width, cam.height),
+                )
+                .0 >= self.cfg.rule.min_overlap
+            };
+            if overlaps(j) {
+                let mut lives = vec![frame(j)?];
+                if extra > 0 {
+                    let others: Vec<usize> = js.iter().copied().filter(|&o| o != j).collect();
+                    let Some(picked) = draw_distinct(&others, extra, rng, overlaps) else { continue };
+                    for o in picked {
+                        lives.push(frame(o)?);
+                    }
+                }
+                return Ok(Some((r, lives, cam)));
             }
         }
         Ok(None)
@@ -393,23 +432,37 @@ impl DataSet {
     fn crop(
         &self,
         r: &Frame,
-        l: &Frame,
+        lives: &[Arc<Frame>],
         cam: &PinholeCamera,
         rng: Option<&mut SplitMix64>,
     ) -> Result<TrainingPair> {
+        let Some((l, extra)) = lives.split_first() else {
+            return Err(Error::invalid_argument("data", "a training tuple needs a live frame"));
+        };
         let (cw, ch) = self.cfg.crop;
         let (w, h) = (cam.width, cam.height);
         let (x0, y0) = match rng {
             Some(rng) => (rng.below(w - cw + 1), rng.below(h - ch + 1)),
             None => ((w - cw) / 2, (h - ch) / 2),
         };
-        let t_lr = relative_pose(&r.pose, &l.pose);
-        let (_, du, dv) = overlap_and_flow(&r.depth, cam, &t_lr, (x0, y0, cw, ch));
-        let shift = |o: usize, d: f64, max: usize| ((o as f64 + d).round().max(0.0) as usize).min(max);
-        let (lx, ly) = (shift(x0, du, w - cw), shift(y0, dv, h - ch));
+        // Each live window: the reference window shifted by the mean flow.
+        let window = |l: &Frame| {
+            let t_lr = relative_pose(&r.pose, &l.pose);
+            let (_, du, dv) = overlap_and_flow(&r.depth, cam, &t_lr, (x0, y0, cw, ch));
+            let shift = |o: usize, d: f64, max: usize| ((o as f64 + d).round().max(0.0) as usize).min(max);
+            (t_lr, shift(x0, du, w - cw), shift(y0, dv, h - ch))
+        };
+        let (t_lr, lx, ly) = window(l);
         let crop_cam = |x: usize, y: usize| {
             PinholeCamera::new(cam.fx, cam.fy, cam.cx - x as f64, cam.cy - y as f64, cw, ch)
         };
+        let more_lives = extra
+            .iter()
+            .map(|e| {
+                let (t_lr, ex, ey) = window(e);
+                Ok(ExtraLive { rgb: e.rgb_window(ex, ey, cw, ch), camera: crop_cam(ex, ey)?, t_lr })
+            })
+            .collect::<Result<_>>()?;
         Ok(TrainingPair {
             ref_rgb: r.rgb_window(x0, y0, cw, ch),
             live_rgb: l.rgb_window(lx, ly, cw, ch),
@@ -418,6 +471,7 @@ impl DataSet {
             live_camera: crop_cam(lx, ly)?,
             t_lr,
             sample_seed: 0,
+            more_lives,
         })
     }
 
@@ -432,9 +486,10 @@ impl DataSet {
         for _ in 0..ATTEMPTS {
             let synthetic = self.cfg.synthetic_scenes > 0
                 && (real.is_empty() || rng.unit() < self.cfg.synthetic_fraction);
-            let (r, l, cam) = if synthetic {
+            let extra = self.cfg.live_frames - 1;
+            let (r, lives, cam) = if synthetic {
                 let seed = SYNTH_TRAIN_SEED0 + rng.below(self.cfg.synthetic_scenes) as u64;
-                match self.synthetic_pair(seed, &mut rng)? {
+                match self.synthetic_pair(seed, &mut rng, extra)? {
                     Some(x) => x,
                     None => continue,
                 }
@@ -442,12 +497,26 @@ impl DataSet {
                 let s = real[rng.below(real.len())];
                 let src = &self.sequences[s];
                 let (i, j) = src.train[rng.below(src.train.len())];
-                (self.load(s, i)?, self.load(s, j)?, src.seq.camera)
+                let mut lives = vec![self.load(s, i)?, self.load(s, j)?];
+                if extra > 0 {
+                    // Further live frames: other partners of the same reference in the pair list.
+                    let others: Vec<usize> =
+                        src.train.iter().filter(|&&(a, b)| a == i && b != j).map(|&(_, b)| b).collect();
+                    let Some(picked) = draw_distinct(&others, extra, &mut rng, |_| true) else { continue };
+                    for o in picked {
+                        lives.push(self.load(s, o)?);
+                    }
+                }
+                let r = lives.remove(0);
+                (r, lives, src.seq.camera)
             };
-            // Crop first, then augment the two crops (SPEC.md §13.5).
-            let mut pair = self.crop(&r, &l, &cam, Some(&mut rng))?;
+            // Crop first, then augment the crops (SPEC.md §13.5).
+            let mut pair = self.crop(&r, &lives, &cam, Some(&mut rng))?;
             augment(&mut pair.ref_rgb, &self.cfg.augment, &mut rng);
             augment(&mut pair.live_rgb, &self.cfg.augment, &mut rng);
+            for e in &mut pair.more_lives {
+                augment(&mut e.rgb, &self.cfg.augment, &mut rng);
+            }
             pair.sample_seed = rng.next_u64();
             return Ok(pair);
         }
@@ -468,7 +537,7 @@ impl DataSet {
                 let (i, j) = s.val[q * n / per_source.min(n)];
                 v.push((
                     s.name.clone(),
-                    self.crop(&*self.load(k, i)?, &*self.load(k, j)?, &s.seq.camera, None)?,
+                    self.crop(&*self.load(k, i)?, &[self.load(k, j)?], &s.seq.camera, None)?,
                 ));
             }
         }
@@ -476,8 +545,8 @@ impl DataSet {
             let seed = SYNTH_VAL_SEED0 + k as u64;
             let mut rng = SplitMix64::new(seed);
             for _ in 0..per_source {
-                if let Some((r, l, cam)) = self.synthetic_pair(seed, &mut rng)? {
-                    v.push((format!("synthetic-{seed}"), self.crop(&r, &l, &cam, None)?));
+                if let Some((r, lives, cam)) = self.synthetic_pair(seed, &mut rng, 0)? {
+                    v.push((format!("synthetic-{seed}"), self.crop(&r, &lives, &cam, None)?));
                 }
             }
         }

@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, ArrayView2};
+use ndarray::{Array2, Array3, ArrayView2, ArrayView3};
 
 use crate::backend::CpuBackend;
 use crate::error::{Error, Result};
@@ -12,7 +12,7 @@ use crate::geometry::{PinholeCamera, Pose, Warp};
 use crate::nn::{ForwardOutput, NetworkWeights};
 use crate::synth::rng::hash64;
 use crate::train::backprop::{backward, forward_with_tape};
-use crate::train::loss::{scale_loss, LossConfig, LossSums};
+use crate::train::loss::{scale_loss_multi, LiveView, LossConfig, LossSums};
 
 /// A reference and a live frame, cropped, with the reference's ground-truth depth.
 #[derive(Clone, Debug)]
@@ -31,6 +31,20 @@ pub struct TrainingPair {
     pub t_lr: Pose,
     /// Seed of the loss's pixel sampling for this pair (SPEC.md §13.1a; drawn with the pair).
     pub sample_seed: u64,
+    /// Further live frames of the reference (the multi-frame loss, SPEC.md §13.1b); empty for a
+    /// pair.
+    pub more_lives: Vec<ExtraLive>,
+}
+
+/// A further live frame of a training tuple (SPEC.md §13.1b), cropped like the first.
+#[derive(Clone, Debug)]
+pub struct ExtraLive {
+    /// Image `[H', W', 3]`, 0-255.
+    pub rgb: Array3<f32>,
+    /// Its camera (of the crop).
+    pub camera: PinholeCamera,
+    /// `T_lr`: reference camera to this camera.
+    pub t_lr: Pose,
 }
 
 impl TrainingPair {
@@ -41,8 +55,13 @@ impl TrainingPair {
     pub fn validate(&self) -> Result<()> {
         let (h, w, c) = self.ref_rgb.dim();
         let (hl, wl, cl) = self.live_rgb.dim();
+        let extra_ok = self.more_lives.iter().all(|e| {
+            let (he, we, ce) = e.rgb.dim();
+            ce == 3 && (e.camera.height, e.camera.width) == (he, we)
+        });
         let ok = c == 3
             && cl == 3
+            && extra_ok
             && self.ref_depth.dim() == (h, w)
             && (self.ref_camera.height, self.ref_camera.width) == (h, w)
             && (self.live_camera.height, self.live_camera.width) == (hl, wl);
@@ -105,25 +124,17 @@ pub fn depth_at_level(depth: ArrayView2<f32>, level: usize) -> Array2<f32> {
     Array2::from_shape_fn((h.div_ceil(s), w.div_ceil(s)), |(j, i)| depth[[j * s, i * s]])
 }
 
-/// One supervised scale: block index (`None` for `L`), level, reference and live maps.
-type Scale<'a> = (Option<usize>, usize, &'a Array3<f32>, &'a Array3<f32>);
-
-/// The scales of a forward output, in the fixed order `L1..Ln, L`: `(level, ref map, live map)`.
-fn scales<'a>(
-    weights: &NetworkWeights,
-    sup: &Supervision,
-    r: &'a ForwardOutput,
-    l: &'a ForwardOutput,
-) -> Vec<Scale<'a>> {
+/// The supervised scales in the fixed order `L1..Ln, L`: block index (`None` for `L`) and level.
+fn scales(weights: &NetworkWeights, sup: &Supervision) -> Vec<(Option<usize>, usize)> {
     let cfg = &weights.config;
     let mut v = Vec::new();
     if sup.deep {
         for k in 0..cfg.blocks {
-            v.push((Some(k), cfg.block_level(k), &r.blocks[k], &l.blocks[k]));
+            v.push((Some(k), cfg.block_level(k)));
         }
     }
     if sup.aggregated {
-        v.push((None, cfg.block_level(0), &r.aggregated[0], &l.aggregated[0]));
+        v.push((None, cfg.block_level(0)));
     }
     v
 }
@@ -177,49 +188,75 @@ pub fn pair_step_timed(
     *times = StepTimes::default();
     let t = Instant::now();
     let (out_r, tape_r) = forward_with_tape(weights, pair.ref_rgb.view(), cpu)?;
-    let (out_l, tape_l) = forward_with_tape(weights, pair.live_rgb.view(), cpu)?;
+    // Live frames in order: the pair's own, then the further ones.
+    let mut live_images = vec![(pair.live_rgb.view(), pair.live_camera, pair.t_lr)];
+    live_images.extend(pair.more_lives.iter().map(|e| (e.rgb.view(), e.camera, e.t_lr)));
+    let mut live_out = Vec::with_capacity(live_images.len());
+    for (img, _, _) in &live_images {
+        live_out.push(forward_with_tape(weights, *img, cpu)?);
+    }
     times.forward = ms(t);
     let n = weights.config.blocks;
+    let n_live = live_images.len();
     let mut result = PairLoss { blocks: vec![LossSums::default(); n], aggregated: LossSums::default() };
-    let mut d_ref: Vec<Option<Array3<f32>>> = vec![None; n];
-    let mut d_live: Vec<Option<Array3<f32>>> = vec![None; n];
-    let (mut d_ref_feat, mut d_live_feat) = (None, None);
+    // Gradients per image (reference first, then the live frames) and per scale: blocks, then L.
+    let mut d_blocks: Vec<Vec<Option<Array3<f32>>>> = vec![vec![None; n]; n_live + 1];
+    let mut d_feat: Vec<Option<Array3<f32>>> = vec![None; n_live + 1];
     let finest = weights.config.block_level(0);
-    for (index, (block, level, fr, fl)) in scales(weights, sup, &out_r, &out_l).into_iter().enumerate() {
+    for (index, (block, level)) in scales(weights, sup).into_iter().enumerate() {
         let t = Instant::now();
         let scale_cfg = scale_sampling(loss, finest, level, pair.sample_seed, index);
         let rc = pair.ref_camera.at_level(level as u32);
-        let lc = pair.live_camera.at_level(level as u32);
-        let warp = Warp::new(&rc, &lc, &pair.t_lr);
+        let warps: Vec<Warp> = live_images
+            .iter()
+            .map(|(_, cam, t_lr)| Warp::new(&rc, &cam.at_level(level as u32), t_lr))
+            .collect();
+        let views: Vec<LiveView<'_, f32>> = live_out
+            .iter()
+            .zip(&warps)
+            .map(|((o, _), warp)| LiveView { features: scale_map(o, block), warp })
+            .collect();
         let depth = depth_at_level(pair.ref_depth.view(), level);
-        let s = scale_loss(&scale_cfg, fr.view(), fl.view(), depth.view(), &warp)?;
+        let fr = scale_map(&out_r, block);
+        let s = scale_loss_multi(&scale_cfg, fr, &views, depth.view())?;
         let name = block.map_or_else(|| "L".to_string(), |k| format!("L{}", k + 1));
         times.losses.push((name, level, ms(t)));
+        let grads_of_images = std::iter::once(s.d_ref).chain(s.d_lives);
         match block {
             Some(k) => {
                 result.blocks[k] = s.sums;
-                d_ref[k] = Some(s.d_ref);
-                d_live[k] = Some(s.d_live);
+                for (d, g) in d_blocks.iter_mut().zip(grads_of_images) {
+                    d[k] = Some(g);
+                }
             }
             None => {
                 result.aggregated = s.sums;
-                d_ref_feat = Some(s.d_ref);
-                d_live_feat = Some(s.d_live);
+                for (d, g) in d_feat.iter_mut().zip(grads_of_images) {
+                    *d = Some(g);
+                }
             }
         }
     }
     let t = Instant::now();
     if let Some((g, scale)) = grads {
         let scaled = |d: &Option<Array3<f32>>| d.as_ref().map(|a| a * scale);
-        let dr: Vec<Option<Array3<f32>>> = d_ref.iter().map(scaled).collect();
-        let dl: Vec<Option<Array3<f32>>> = d_live.iter().map(scaled).collect();
-        let dfr = scaled(&d_ref_feat);
-        let dfl = scaled(&d_live_feat);
-        backward(weights, &tape_r, &views(&dr), dfr.as_ref().map(|a| a.view()), g)?;
-        backward(weights, &tape_l, &views(&dl), dfl.as_ref().map(|a| a.view()), g)?;
+        let tapes = std::iter::once(&tape_r).chain(live_out.iter().map(|(_, tape)| tape));
+        for ((tape, db), df) in tapes.zip(&d_blocks).zip(&d_feat) {
+            let dr: Vec<Option<Array3<f32>>> = db.iter().map(scaled).collect();
+            let dfr = scaled(df);
+            backward(weights, tape, &views(&dr), dfr.as_ref().map(|a| a.view()), g)?;
+        }
     }
     times.backward = ms(t);
     Ok(result)
+}
+
+/// The map a scale supervises: block `k`'s output, or the aggregated features (`None`).
+fn scale_map(o: &ForwardOutput, block: Option<usize>) -> ArrayView3<'_, f32> {
+    match block {
+        Some(k) => o.blocks[k].view(),
+        None => o.aggregated[0].view(),
+    }
 }
 
 /// The loss configuration of one scale (SPEC.md §13.1a): `loss.sample_stride` at the finest

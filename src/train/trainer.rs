@@ -44,16 +44,24 @@ pub struct TrainConfig {
     pub ckpt_every: usize,
     /// Byte budget of the frame cache, MiB (not in the fingerprint: it never changes a result).
     pub frame_cache_mb: usize,
+    /// Start from these weights (a SPEC.md §8.4 file of the same network) instead of §13.4's
+    /// initialisation: fine-tuning, e.g. to branch a chain into two objectives.
+    pub init_weights: Option<PathBuf>,
 }
 
 impl TrainConfig {
     /// The settings that determine the weights, as text. Stored in checkpoints; a resume must
     /// match it exactly (including `steps`, since the learning-rate schedule depends on it).
     pub fn fingerprint(&self) -> String {
-        format!(
+        let mut f = format!(
             "network={:?} init_seed={} seed={} steps={} batch={} optim={:?} loss={:?} supervision={:?} data={:?}",
             self.network, self.init_seed, self.seed, self.steps, self.batch, self.optim, self.loss, self.supervision, self.data
-        )
+        );
+        // Only when set, so the fingerprints of runs from §13.4's initialisation are unchanged.
+        if let Some(p) = &self.init_weights {
+            f.push_str(&format!(" init_weights={}", p.display()));
+        }
+        f
     }
 }
 
@@ -255,7 +263,19 @@ pub fn train(
             (c.step, c.weights, c.adam)
         }
         None => {
-            let w = training_init(&cfg.network, cfg.init_seed)?;
+            let w = match &cfg.init_weights {
+                Some(p) => {
+                    let w = NetworkWeights::load(p)?;
+                    if w.config != cfg.network {
+                        return Err(Error::bad_file(
+                            p,
+                            format!("holds the network {:?}, the run trains {:?}", w.config, cfg.network),
+                        ));
+                    }
+                    w
+                }
+                None => training_init(&cfg.network, cfg.init_seed)?,
+            };
             let a = AdamState::new(&w);
             (0, w, a)
         }

@@ -23,15 +23,22 @@ def main():
     for r in rows:
         by[(r["method"], int(r["step"]))][r["scene"]] = (float(r["delta_1.25"]), float(r["rms"]))
     steps = sorted({s for (m, s) in by if m.startswith("learned")})
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for ax, k, label in [(axes[0], 0, "mean δ<1.25 (higher is better)"), (axes[1], 1, "mean rms, m (lower is better)")]:
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4))
+    real = "sun3d_studyroom_f0935"
+    panels = [
+        (axes[0], 0, None, "mean δ<1.25 over all scenes (higher is better)"),
+        (axes[1], 1, None, "mean rms over all scenes, m (lower is better)"),
+        (axes[2], 0, real, "δ<1.25 on the real scene, SUN3D f0935"),
+    ]
+    for ax, k, only, label in panels:
+        pick = lambda d: [v[k] for sc, v in d.items() if only is None or sc == only]  # noqa: E731
         for m, style in [("learned-wta", "o--"), ("learned-tv", "o-")]:
-            ys = [sum(v[k] for v in by[(m, s)].values()) / len(by[(m, s)]) for s in steps]
+            ys = [sum(pick(by[(m, s)])) / max(1, len(pick(by[(m, s)]))) for s in steps]
             ax.plot(steps, ys, style, label=m)
         for m, style in [("rgb-wta", ":"), ("rgb-tv", "-.")]:
-            vals = [v for (mm, s), d in by.items() if mm == m for v in d.values()]
+            vals = [v for (mm, s), d in by.items() if mm == m for v in pick(d)]
             if vals:
-                ax.axhline(sum(v[k] for v in vals) / len(vals), linestyle=style[0] if style != "-." else "-.", color="grey", label=m)
+                ax.axhline(sum(vals) / len(vals), linestyle=style, color="grey", label=m)
         ax.set_xlabel("optimiser step (4 pairs each)")
         ax.set_title(label)
         ax.grid(alpha=0.3)

@@ -6,7 +6,7 @@
 #
 #   tools/train_chain/validate.sh NAME [WEIGHTS]
 #
-# Scenes: SUN3D f0935 keyframe 25 (real), classic renders 200000-200005 and realistic renders
+# Scenes: SUN3D f0935 keyframes 15, 25, 35 (real), classic renders 200000-200005 and realistic renders
 # 200050-200052 (40 frames, 320x240) at keyframe 20. RGB methods do not depend on the weights:
 # they are run once per scene and kept in runs/val/.
 set -euo pipefail
@@ -28,26 +28,27 @@ step=${step:-0}
 scenes=()
 for seed in 200000 200001 200002 200003 200004 200005; do
   d=runs/val/s$seed
-  [ -f "$d/.done" ] || { nice "$bin" synth --seed $seed --frames 40 --size 320x240 --out "$d" --quiet && touch "$d/.done"; }
+  [ -f "$d/.done" ] || { nice -n 19 "$bin" synth --seed $seed --frames 40 --size 320x240 --out "$d" --quiet && touch "$d/.done"; }
   scenes+=("$d:20")
 done
 for seed in 200050 200051 200052; do
   d=runs/val/r$seed
-  [ -f "$d/.done" ] || { nice "$bin" synth --seed $seed --frames 40 --size 320x240 --style real --out "$d" --quiet && touch "$d/.done"; }
+  [ -f "$d/.done" ] || { nice -n 19 "$bin" synth --seed $seed --frames 40 --size 320x240 --style real --out "$d" --quiet && touch "$d/.done"; }
   scenes+=("$d:20")
 done
-scenes+=("../shared/data/sun3d_studyroom_f0935:25")
+scenes+=("../shared/data/sun3d_studyroom_f0935:15:10:35")
 
 csv=$kept/validation.csv
 [ -f "$csv" ] || echo "step,scene,method,rms,delta_1.25" > "$csv"
 for sk in "${scenes[@]}"; do
-  seq=${sk%:*}; kf=${sk##*:}; scene=$(basename "$seq")
+  seq=${sk%%:*}; kf=${sk#*:}; scene=$(basename "$seq")
+  case "$kf" in *:*) kfs=$kf ;; *) kfs="$kf:10:$kf" ;; esac
   rgb=runs/val/rgb_$scene
   if [ ! -f "$rgb/table.csv" ]; then
-    nice "$bin" eval --sequence "$seq" --keyframes "$kf:10:$kf" --methods rgb-wta,rgb-tv --out "$rgb" > /dev/null 2>&1
+    nice -n 19 "$bin" eval --sequence "$seq" --keyframes "$kfs" --methods rgb-wta,rgb-tv --out "$rgb" > /dev/null 2>&1
   fi
   out=runs/val/learned_${name}_$scene
-  nice "$bin" eval --sequence "$seq" --keyframes "$kf:10:$kf" --methods learned-wta,learned-tv \
+  nice -n 19 "$bin" eval --sequence "$seq" --keyframes "$kfs" --methods learned-wta,learned-tv \
     --weights "$snap" --out "$out" > /dev/null 2>&1
   for t in "$rgb/table.csv" "$out/table.csv"; do
     # table.csv: method,rms,log_rms,abs_rel,sq_rel,delta_1.1,delta_1.25,... (the full-coverage rows).

@@ -10,8 +10,10 @@ use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
 use super::kernel::{self, LiveRows, LossKernel, Tap};
-use super::{check_inputs, hypothesis_position, pixel_sampled, pixel_target, pixel_terms, ray_point};
-use super::{LossConfig, LossSums, ScaleLoss};
+use super::{
+    check_inputs, check_lives, hypothesis_position, multi_target, pixel_sampled, pixel_terms, ray_point,
+};
+use super::{LiveView, LossConfig, LossSums, MultiScaleLoss, ScaleLoss};
 use crate::error::Result;
 use crate::geometry::Warp;
 use crate::image::sample::axis;
@@ -22,17 +24,15 @@ const CHUNKS: usize = 16;
 /// What one chunk of reference rows produces.
 struct ChunkOut {
     sums: LossSums,
-    d_live: LiveRows,
+    /// Per live frame.
+    d_live: Vec<LiveRows>,
 }
 
-/// Per-chunk scratch, reused for every pixel.
-struct Scratch {
+/// Per-chunk scratch of one live frame, reused for every pixel.
+struct PerLive {
     taps: Vec<Tap>,
     resid: Vec<f32>,
     e32: Vec<f32>,
-    coefs: Vec<f32>,
-    energies: Vec<f64>,
-    grad: Vec<f64>,
 }
 
 /// The loss of one scale and its gradients, f32 (SPEC.md §13.1, budget §13.3). Same contract as
@@ -63,25 +63,68 @@ pub fn scale_loss_with(
     depth: ArrayView2<f32>,
     warp: &Warp,
 ) -> Result<ScaleLoss<f32>> {
+    let m = scale_loss_multi_with(kernel, cfg, f_ref, &[LiveView { features: f_live, warp }], depth)?;
+    let Some(d_live) = m.d_lives.into_iter().next() else {
+        unreachable!("one live frame in, one gradient out")
+    };
+    Ok(ScaleLoss { sums: m.sums, d_ref: m.d_ref, d_live })
+}
+
+/// The multi-frame loss of one scale (SPEC.md §13.1b) and its gradients, f32: the costs of every
+/// live frame averaged per hypothesis, then §13.1's softmax, cross-entropy and regression. With
+/// one live frame it is [`scale_loss`], bit for bit. Same contract as
+/// [`super::scale_loss_multi_reference`].
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] for a bad configuration, no live frame, or shapes that
+/// disagree.
+pub fn scale_loss_multi(
+    cfg: &LossConfig,
+    f_ref: ArrayView3<f32>,
+    lives: &[LiveView<'_, f32>],
+    depth: ArrayView2<f32>,
+) -> Result<MultiScaleLoss<f32>> {
+    scale_loss_multi_with(LossKernel::Auto, cfg, f_ref, lives, depth)
+}
+
+/// [`scale_loss_multi`] with a chosen kernel implementation.
+///
+/// # Errors
+/// As [`scale_loss_multi`].
+pub fn scale_loss_multi_with(
+    kernel: LossKernel,
+    cfg: &LossConfig,
+    f_ref: ArrayView3<f32>,
+    lives: &[LiveView<'_, f32>],
+    depth: ArrayView2<f32>,
+) -> Result<MultiScaleLoss<f32>> {
     cfg.validate()?;
-    check_inputs(warp, f_ref.shape(), f_live.shape(), &depth)?;
+    check_lives(lives.len())?;
+    for l in lives {
+        check_inputs(l.warp, f_ref.shape(), l.features.shape(), &depth)?;
+    }
     let (h, w, c) = f_ref.dim();
-    let (hl, wl, _) = f_live.dim();
+    let n_live = lives.len();
     let avx512 = kernel::uses_avx512(kernel, c);
     let f_ref = f_ref.as_standard_layout();
-    let f_live = f_live.as_standard_layout();
-    let (Some(fr), Some(fl)) = (f_ref.as_slice(), f_live.as_slice()) else {
-        unreachable!("standard-layout arrays are contiguous")
-    };
+    let Some(fr) = f_ref.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
+    let live_maps: Vec<_> = lives.iter().map(|l| l.features.as_standard_layout()).collect();
+    let fls: Vec<&[f32]> = live_maps
+        .iter()
+        .map(|a| a.as_slice().unwrap_or_else(|| unreachable!("standard-layout arrays are contiguous")))
+        .collect();
+    let dims: Vec<(usize, usize)> = lives.iter().map(|l| (l.features.dim().0, l.features.dim().1)).collect();
     // The pixel count first, so every gradient is scaled once, as it is made.
     let targets: Vec<Option<(f64, usize)>> = (0..h * w)
         .into_par_iter()
-        .map(|i| pixel_target(cfg, warp, i % w, i / w, depth[[i / w, i % w]]))
+        .map(|i| multi_target(cfg, lives, i % w, i / w, depth[[i / w, i % w]]))
         .collect();
     let n = targets.iter().filter(|t| t.is_some()).count();
-    // Under sampling (SPEC.md §13.1a) each evaluated pixel stands for m = s² pixels.
+    // Under sampling (SPEC.md §13.1a) each evaluated pixel stands for m = s² pixels; each live
+    // frame's cost counts 1/N of the averaged cost.
     let m = cfg.sample_stride * cfg.sample_stride;
     let scale = if n > 0 { m as f64 / n as f64 } else { 0.0 };
+    let inv_live = 1.0 / n_live as f64;
     let mut d_ref = Array3::<f32>::zeros((h, w, c));
     let Some(d_ref_slice) = d_ref.as_slice_mut() else { unreachable!("new arrays are contiguous") };
     let chunks = CHUNKS.min(h);
@@ -96,20 +139,17 @@ pub fn scale_loss_with(
     }
     let k = cfg.bins.count;
     let rhos: Vec<f64> = (0..k).map(|l| cfg.bins.rho(l)).collect();
-    let row = wl * c;
     let outs: Vec<ChunkOut> = pieces
         .into_par_iter()
         .map(|(i, d_ref_rows)| {
             let mut sums = LossSums::default();
-            let mut d_live = LiveRows::new(hl, row);
-            let mut s = Scratch {
-                taps: Vec::with_capacity(k),
-                resid: vec![0.0; k * c],
-                e32: vec![0.0; k],
-                coefs: vec![0.0; k],
-                energies: vec![0.0; k],
-                grad: vec![0.0; k],
-            };
+            let mut d_live: Vec<LiveRows> = dims.iter().map(|&(hl, wl)| LiveRows::new(hl, wl * c)).collect();
+            let mut per_live: Vec<PerLive> = (0..n_live)
+                .map(|_| PerLive { taps: Vec::with_capacity(k), resid: vec![0.0; k * c], e32: vec![0.0; k] })
+                .collect();
+            let mut coefs = vec![0.0f32; k];
+            let mut energies = vec![0.0f64; k];
+            let mut grad = vec![0.0f64; k];
             let rows = rows_of(i);
             for y in rows.clone() {
                 for x in 0..w {
@@ -117,35 +157,60 @@ pub fn scale_loss_with(
                     if !pixel_sampled(cfg, x, y) {
                         continue;
                     }
-                    let p0 = ray_point(warp, x, y);
-                    s.taps.clear();
-                    for (l, &rho) in rhos.iter().enumerate() {
-                        // bilinear_taps, without its flat indices (no integer divisions).
-                        let Some((u, v)) = hypothesis_position(warp, &p0, rho) else { continue };
-                        let (Some((x0, x1, a)), Some((y0, y1, b))) = (axis(u, wl), axis(v, hl)) else {
-                            continue;
-                        };
-                        let wt = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
-                        s.taps.push(Tap {
-                            bin: l as u32,
-                            y: [y0 as u32, y1 as u32],
-                            xc: [x0 * c, x1 * c],
-                            w: wt.map(|v| v as f32),
-                        });
-                    }
                     let f_u = &fr[(y * w + x) * c..][..c];
-                    kernel::costs(avx512, f_u, fl, row, &s.taps, &mut s.resid, &mut s.e32);
-                    s.energies.fill(cfg.outside_cost);
-                    for (tap, &e) in s.taps.iter().zip(&s.e32) {
-                        s.energies[tap.bin as usize] = f64::from(e);
+                    for (((live, pl), fl), &(hl, wl)) in lives.iter().zip(&mut per_live).zip(&fls).zip(&dims)
+                    {
+                        let warp = live.warp;
+                        let p0 = ray_point(warp, x, y);
+                        pl.taps.clear();
+                        for (l, &rho) in rhos.iter().enumerate() {
+                            // bilinear_taps, without its flat indices (no integer divisions).
+                            let Some((u, v)) = hypothesis_position(warp, &p0, rho) else { continue };
+                            let (Some((x0, x1, a)), Some((y0, y1, b))) = (axis(u, wl), axis(v, hl)) else {
+                                continue;
+                            };
+                            let wt = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
+                            pl.taps.push(Tap {
+                                bin: l as u32,
+                                y: [y0 as u32, y1 as u32],
+                                xc: [x0 * c, x1 * c],
+                                w: wt.map(|v| v as f32),
+                            });
+                        }
+                        kernel::costs(avx512, f_u, fl, wl * c, &pl.taps, &mut pl.resid, &mut pl.e32);
                     }
-                    let terms = pixel_terms(cfg, &s.energies, target, rho_star, &mut s.grad);
+                    // E_l = (Σ_n E_l^(n)) / N, in f64, live frames in order (m outside a frame).
+                    if n_live == 1 {
+                        energies.fill(cfg.outside_cost);
+                        for (tap, &e) in per_live[0].taps.iter().zip(&per_live[0].e32) {
+                            energies[tap.bin as usize] = f64::from(e);
+                        }
+                    } else {
+                        energies.fill(0.0);
+                        for pl in &per_live {
+                            let mut next = 0;
+                            for (l, e) in energies.iter_mut().enumerate() {
+                                if next < pl.taps.len() && pl.taps[next].bin as usize == l {
+                                    *e += f64::from(pl.e32[next]);
+                                    next += 1;
+                                } else {
+                                    *e += cfg.outside_cost;
+                                }
+                            }
+                        }
+                        for e in energies.iter_mut() {
+                            *e *= inv_live;
+                        }
+                    }
+                    let terms = pixel_terms(cfg, &energies, target, rho_star, &mut grad);
                     sums.add_pixel(cfg, &terms, rho_star, m);
-                    for (coef, tap) in s.coefs.iter_mut().zip(&s.taps) {
-                        *coef = (2.0 * s.grad[tap.bin as usize] * scale) as f32;
-                    }
                     let d_u = &mut d_ref_rows[((y - rows.start) * w + x) * c..][..c];
-                    kernel::backward(avx512, &s.taps, &s.coefs, &s.resid, d_u, &mut d_live);
+                    for (pl, dl) in per_live.iter().zip(&mut d_live) {
+                        for (coef, tap) in coefs.iter_mut().zip(&pl.taps) {
+                            *coef = (2.0 * grad[tap.bin as usize] * scale * inv_live) as f32;
+                        }
+                        kernel::backward(avx512, &pl.taps, &coefs, &pl.resid, d_u, dl);
+                    }
                 }
             }
             ChunkOut { sums, d_live }
@@ -156,25 +221,32 @@ pub fn scale_loss_with(
         sums.accumulate(&o.sums);
     }
     sums.pixels = n;
-    let mut d_live = Array3::<f32>::zeros((hl, wl, c));
-    let Some(dl) = d_live.as_slice_mut() else { unreachable!("new arrays are contiguous") };
-    // Each live row: the chunks that touched it, summed in chunk order.
-    dl.par_chunks_mut(row).enumerate().for_each(|(yl, out)| {
-        let mut first = true;
-        for o in &outs {
-            let src = &o.d_live.rows[yl];
-            if src.is_empty() {
-                continue;
-            }
-            if first {
-                out.copy_from_slice(src);
-                first = false;
-            } else {
-                for (v, &g) in out.iter_mut().zip(src) {
-                    *v += g;
+    let d_lives = (0..n_live)
+        .map(|li| {
+            let (hl, wl) = dims[li];
+            let row = wl * c;
+            let mut d_live = Array3::<f32>::zeros((hl, wl, c));
+            let Some(dl) = d_live.as_slice_mut() else { unreachable!("new arrays are contiguous") };
+            // Each live row: the chunks that touched it, summed in chunk order.
+            dl.par_chunks_mut(row).enumerate().for_each(|(yl, out)| {
+                let mut first = true;
+                for o in &outs {
+                    let src = &o.d_live[li].rows[yl];
+                    if src.is_empty() {
+                        continue;
+                    }
+                    if first {
+                        out.copy_from_slice(src);
+                        first = false;
+                    } else {
+                        for (v, &g) in out.iter_mut().zip(src) {
+                            *v += g;
+                        }
+                    }
                 }
-            }
-        }
-    });
-    Ok(ScaleLoss { sums, d_ref, d_live })
+            });
+            d_live
+        })
+        .collect();
+    Ok(MultiScaleLoss { sums, d_ref, d_lives })
 }

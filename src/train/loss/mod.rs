@@ -22,11 +22,11 @@ mod fast;
 mod kernel;
 mod reference;
 
-pub use fast::{scale_loss, scale_loss_with};
+pub use fast::{scale_loss, scale_loss_multi, scale_loss_multi_with, scale_loss_with};
 pub use kernel::{uses_avx512, LossKernel};
-pub use reference::scale_loss_reference;
+pub use reference::{scale_loss_multi_reference, scale_loss_reference};
 
-use ndarray::{Array3, ArrayView2};
+use ndarray::{Array3, ArrayView2, ArrayView3};
 
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, Warp};
@@ -161,6 +161,48 @@ pub struct ScaleLoss<T> {
     pub d_ref: Array3<T>,
     /// `d mean / d f_live`, `[H', W', C]`.
     pub d_live: Array3<T>,
+}
+
+/// One live frame of a multi-frame scale loss (SPEC.md §13.1b): its features `[H', W', C]` and
+/// the warp from the reference camera to its camera.
+#[derive(Clone, Copy, Debug)]
+pub struct LiveView<'a, T> {
+    /// Live features.
+    pub features: ArrayView3<'a, T>,
+    /// Reference camera to this live camera.
+    pub warp: &'a Warp,
+}
+
+/// The multi-frame loss of one scale and its gradients (already divided by the pixel count).
+#[derive(Clone, Debug)]
+pub struct MultiScaleLoss<T> {
+    /// Sums over unmasked pixels.
+    pub sums: LossSums,
+    /// `d mean / d f_ref`, `[H, W, C]`.
+    pub d_ref: Array3<T>,
+    /// `d mean / d f_live_n`, one per live frame, in order.
+    pub d_lives: Vec<Array3<T>>,
+}
+
+/// At least one live frame.
+pub(crate) fn check_lives(n: usize) -> Result<()> {
+    if n == 0 {
+        return Err(Error::invalid_argument("loss inputs", "no live frame"));
+    }
+    Ok(())
+}
+
+/// The target of reference pixel `(x, y)` over several live frames: [`pixel_target`] of the
+/// first, and `None` unless the true match is inside every live frame (SPEC.md §13.1b).
+pub(crate) fn multi_target<T>(
+    cfg: &LossConfig,
+    lives: &[LiveView<'_, T>],
+    x: usize,
+    y: usize,
+    z: f32,
+) -> Option<(f64, usize)> {
+    let first = pixel_target(cfg, lives.first()?.warp, x, y, z)?;
+    lives[1..].iter().all(|l| pixel_target(cfg, l.warp, x, y, z).is_some()).then_some(first)
 }
 
 /// What one unmasked pixel contributes, given its costs.

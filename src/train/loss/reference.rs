@@ -2,10 +2,8 @@
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 
-use super::{
-    bilinear_taps, check_inputs, hypothesis_position, pixel_sampled, pixel_target, pixel_terms, ray_point,
-};
-use super::{LossConfig, LossSums, ScaleLoss};
+use super::{bilinear_taps, check_inputs, check_lives, hypothesis_position, multi_target, pixel_sampled};
+use super::{pixel_terms, ray_point, LiveView, LossConfig, LossSums, MultiScaleLoss, ScaleLoss};
 use crate::error::Result;
 use crate::geometry::Warp;
 
@@ -21,52 +19,89 @@ pub fn scale_loss_reference(
     depth: ArrayView2<f32>,
     warp: &Warp,
 ) -> Result<ScaleLoss<f64>> {
+    let m = scale_loss_multi_reference(cfg, f_ref, &[LiveView { features: f_live, warp }], depth)?;
+    let Some(d_live) = m.d_lives.into_iter().next() else {
+        unreachable!("one live frame in, one gradient out")
+    };
+    Ok(ScaleLoss { sums: m.sums, d_ref: m.d_ref, d_live })
+}
+
+/// The multi-frame loss of one scale and its gradients, in f64 (SPEC.md §13.1b): per hypothesis
+/// the mean over the live frames of each frame's cost (`m` outside that frame).
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] for a bad configuration, no live frame, or shapes that
+/// disagree.
+pub fn scale_loss_multi_reference(
+    cfg: &LossConfig,
+    f_ref: ArrayView3<f64>,
+    lives: &[LiveView<'_, f64>],
+    depth: ArrayView2<f32>,
+) -> Result<MultiScaleLoss<f64>> {
     cfg.validate()?;
-    check_inputs(warp, f_ref.shape(), f_live.shape(), &depth)?;
+    check_lives(lives.len())?;
+    for l in lives {
+        check_inputs(l.warp, f_ref.shape(), l.features.shape(), &depth)?;
+    }
     let (h, w, c) = f_ref.dim();
-    let (hl, wl, _) = f_live.dim();
     let k = cfg.bins.count;
+    let n_live = lives.len() as f64;
     let mut sums = LossSums::default();
     let mut d_ref = Array3::<f64>::zeros((h, w, c));
-    let mut d_live = Array3::<f64>::zeros((hl, wl, c));
+    let mut d_lives: Vec<Array3<f64>> = lives.iter().map(|l| Array3::zeros(l.features.raw_dim())).collect();
     let mut energies = vec![0.0; k];
     let mut grad = vec![0.0; k];
-    let mut taps: Vec<Option<([usize; 4], [f64; 4])>> = vec![None; k];
+    type Taps = Option<([usize; 4], [f64; 4])>;
+    let mut taps: Vec<Vec<Taps>> = vec![vec![None; k]; lives.len()];
     // Gradients are summed first (weighted s² under sampling) and divided by the unmasked pixel
     // count at the end.
     let m = cfg.sample_stride * cfg.sample_stride;
     let mut unmasked = 0;
+    let sample = |live: &LiveView<'_, f64>, idx: &[usize; 4], wt: &[f64; 4], ch: usize| -> f64 {
+        let wl = live.features.dim().1;
+        (0..4).map(|t| wt[t] * live.features[[idx[t] / wl, idx[t] % wl, ch]]).sum()
+    };
     for y in 0..h {
         for x in 0..w {
-            let Some((rho_star, target)) = pixel_target(cfg, warp, x, y, depth[[y, x]]) else { continue };
+            let Some((rho_star, target)) = multi_target(cfg, lives, x, y, depth[[y, x]]) else { continue };
             unmasked += 1;
             if !pixel_sampled(cfg, x, y) {
                 continue;
             }
-            let p0 = ray_point(warp, x, y);
-            for l in 0..k {
-                taps[l] = hypothesis_position(warp, &p0, cfg.bins.rho(l))
-                    .and_then(|(u, v)| bilinear_taps(u, v, wl, hl));
-                energies[l] = match &taps[l] {
-                    None => cfg.outside_cost,
-                    Some((idx, wt)) => (0..c)
-                        .map(|ch| {
-                            let s: f64 = (0..4).map(|t| wt[t] * f_live[[idx[t] / wl, idx[t] % wl, ch]]).sum();
-                            (f_ref[[y, x, ch]] - s) * (f_ref[[y, x, ch]] - s)
-                        })
-                        .sum(),
-                };
+            energies.fill(0.0);
+            for (live, live_taps) in lives.iter().zip(&mut taps) {
+                let (hl, wl, _) = live.features.dim();
+                let p0 = ray_point(live.warp, x, y);
+                for l in 0..k {
+                    live_taps[l] = hypothesis_position(live.warp, &p0, cfg.bins.rho(l))
+                        .and_then(|(u, v)| bilinear_taps(u, v, wl, hl));
+                    energies[l] += match &live_taps[l] {
+                        None => cfg.outside_cost,
+                        Some((idx, wt)) => (0..c)
+                            .map(|ch| {
+                                let s = sample(live, idx, wt, ch);
+                                (f_ref[[y, x, ch]] - s) * (f_ref[[y, x, ch]] - s)
+                            })
+                            .sum(),
+                    };
+                }
+            }
+            for e in energies.iter_mut() {
+                *e /= n_live;
             }
             let terms = pixel_terms(cfg, &energies, target, rho_star, &mut grad);
             sums.add_pixel(cfg, &terms, rho_star, m);
-            for l in 0..k {
-                let Some((idx, wt)) = &taps[l] else { continue };
-                for ch in 0..c {
-                    let s: f64 = (0..4).map(|t| wt[t] * f_live[[idx[t] / wl, idx[t] % wl, ch]]).sum();
-                    let r = 2.0 * m as f64 * grad[l] * (f_ref[[y, x, ch]] - s);
-                    d_ref[[y, x, ch]] += r;
-                    for t in 0..4 {
-                        d_live[[idx[t] / wl, idx[t] % wl, ch]] -= r * wt[t];
+            for ((live, live_taps), d_live) in lives.iter().zip(&taps).zip(&mut d_lives) {
+                let wl = live.features.dim().1;
+                for l in 0..k {
+                    let Some((idx, wt)) = &live_taps[l] else { continue };
+                    for ch in 0..c {
+                        let s = sample(live, idx, wt, ch);
+                        let r = 2.0 * m as f64 * grad[l] * (f_ref[[y, x, ch]] - s) / n_live;
+                        d_ref[[y, x, ch]] += r;
+                        for t in 0..4 {
+                            d_live[[idx[t] / wl, idx[t] % wl, ch]] -= r * wt[t];
+                        }
                     }
                 }
             }
@@ -76,7 +111,9 @@ pub fn scale_loss_reference(
     if sums.pixels > 0 {
         let n = sums.pixels as f64;
         d_ref.mapv_inplace(|v| v / n);
-        d_live.mapv_inplace(|v| v / n);
+        for d in &mut d_lives {
+            d.mapv_inplace(|v| v / n);
+        }
     }
-    Ok(ScaleLoss { sums, d_ref, d_live })
+    Ok(MultiScaleLoss { sums, d_ref, d_lives })
 }

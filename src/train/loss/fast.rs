@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::kernel::{self, LiveRows, LossKernel, Tap};
 use super::{
-    check_inputs, check_lives, hypothesis_position, multi_target, pixel_sampled, pixel_terms, ray_point,
+    check_inputs, check_lives, multi_target, pixel_sampled, pixel_terms_with, ray_point, PixelScratch,
 };
 use super::{LiveView, LossConfig, LossSums, MultiScaleLoss, ScaleLoss};
 use crate::error::Result;
@@ -33,6 +33,10 @@ struct PerLive {
     taps: Vec<Tap>,
     resid: Vec<f32>,
     e32: Vec<f32>,
+    /// Sample position of every hypothesis, and whether it is in front of the live camera.
+    u: Vec<f64>,
+    v: Vec<f64>,
+    front: Vec<bool>,
 }
 
 /// The loss of one scale and its gradients, f32 (SPEC.md §13.1, budget §13.3). Same contract as
@@ -145,11 +149,19 @@ pub fn scale_loss_multi_with(
             let mut sums = LossSums::default();
             let mut d_live: Vec<LiveRows> = dims.iter().map(|&(hl, wl)| LiveRows::new(hl, wl * c)).collect();
             let mut per_live: Vec<PerLive> = (0..n_live)
-                .map(|_| PerLive { taps: Vec::with_capacity(k), resid: vec![0.0; k * c], e32: vec![0.0; k] })
+                .map(|_| PerLive {
+                    taps: Vec::with_capacity(k),
+                    resid: vec![0.0; k * c],
+                    e32: vec![0.0; k],
+                    u: vec![0.0; k],
+                    v: vec![0.0; k],
+                    front: vec![false; k],
+                })
                 .collect();
             let mut coefs = vec![0.0f32; k];
             let mut energies = vec![0.0f64; k];
             let mut grad = vec![0.0f64; k];
+            let mut scratch = PixelScratch::default();
             let rows = rows_of(i);
             for y in rows.clone() {
                 for x in 0..w {
@@ -162,11 +174,27 @@ pub fn scale_loss_multi_with(
                     {
                         let warp = live.warp;
                         let p0 = ray_point(warp, x, y);
-                        pl.taps.clear();
+                        // Every hypothesis's position first (elementwise over the bins, the
+                        // arithmetic of hypothesis_position), then the in-image taps.
+                        let t = warp.translation();
+                        let cam = warp.target();
                         for (l, &rho) in rhos.iter().enumerate() {
+                            let px = p0[0] + rho * t.x;
+                            let py = p0[1] + rho * t.y;
+                            let pz = p0[2] + rho * t.z;
+                            pl.u[l] = cam.fx * px / pz + cam.cx;
+                            pl.v[l] = cam.fy * py / pz + cam.cy;
+                            pl.front[l] = pz > 0.0 && pz.is_finite();
+                        }
+                        pl.taps.clear();
+                        for l in 0..k {
+                            if !pl.front[l] {
+                                continue;
+                            }
                             // bilinear_taps, without its flat indices (no integer divisions).
-                            let Some((u, v)) = hypothesis_position(warp, &p0, rho) else { continue };
-                            let (Some((x0, x1, a)), Some((y0, y1, b))) = (axis(u, wl), axis(v, hl)) else {
+                            let (Some((x0, x1, a)), Some((y0, y1, b))) =
+                                (axis(pl.u[l], wl), axis(pl.v[l], hl))
+                            else {
                                 continue;
                             };
                             let wt = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
@@ -202,7 +230,7 @@ pub fn scale_loss_multi_with(
                             *e *= inv_live;
                         }
                     }
-                    let terms = pixel_terms(cfg, &energies, target, rho_star, &mut grad);
+                    let terms = pixel_terms_with(cfg, &energies, target, rho_star, &mut grad, &mut scratch);
                     sums.add_pixel(cfg, &terms, rho_star, m);
                     let d_u = &mut d_ref_rows[((y - rows.start) * w + x) * c..][..c];
                     for (pl, dl) in per_live.iter().zip(&mut d_live) {

@@ -24,6 +24,7 @@ mod reference;
 
 pub use fast::{scale_loss, scale_loss_multi, scale_loss_multi_with, scale_loss_with};
 pub use kernel::{uses_avx512, LossKernel};
+
 pub use reference::{scale_loss_multi_reference, scale_loss_reference};
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
@@ -222,8 +223,8 @@ pub struct PixelTerms {
 
 /// The per-pixel part of the loss, in f64 (shared by both implementations): from the costs
 /// `energies[l]` (already `m` outside the image), the target bin and `ρ*`, the terms and
-/// `grad[l] = d(CE + λ_ρ(ρ̂−ρ*)² + λ_d(d̂−z*)²) / dE_l` (SPEC.md §13.1).
-#[allow(clippy::needless_range_loop)] // bins index several parallel arrays
+/// `grad[l] = d(CE + λ_ρ(ρ̂−ρ*)² + λ_d(d̂−z*)²) / dE_l` (SPEC.md §13.1). Allocates its scratch;
+/// [`pixel_terms_with`] takes it from the caller.
 pub fn pixel_terms(
     cfg: &LossConfig,
     energies: &[f64],
@@ -231,8 +232,41 @@ pub fn pixel_terms(
     rho_star: f64,
     grad: &mut [f64],
 ) -> PixelTerms {
+    let mut scratch = PixelScratch::default();
+    pixel_terms_with(cfg, energies, target, rho_star, grad, &mut scratch)
+}
+
+/// Per-bin buffers of [`pixel_terms_with`], reused across pixels.
+#[derive(Clone, Debug, Default)]
+pub struct PixelScratch {
+    /// `ρ_l`.
+    rho: Vec<f64>,
+    /// `1 / (1 − P_l)` where the term is unclamped and `l ≠ l*`, else 0.
+    inv_q: Vec<f64>,
+}
+
+/// [`pixel_terms`] with caller-provided scratch. The passes over the bins that involve no running
+/// sum (the shifted exponentials' normalisation, `1 / (1 − P_l)`, the final gradient) are
+/// elementwise, so the compiler vectorises them; the sums (softmax denominator, `ρ̂`, `Σ g P`, the
+/// runs of `ln`) stay sequential in bin order. Both loss implementations call this one function.
+#[allow(clippy::needless_range_loop)] // bins index several parallel arrays
+pub fn pixel_terms_with(
+    cfg: &LossConfig,
+    energies: &[f64],
+    target: usize,
+    rho_star: f64,
+    grad: &mut [f64],
+    scratch: &mut PixelScratch,
+) -> PixelTerms {
     let k = energies.len();
     let bins = &cfg.bins;
+    if scratch.rho.len() != k || scratch.rho.last() != Some(&bins.rho(k - 1)) || scratch.rho[0] != bins.rho(0)
+    {
+        scratch.rho = (0..k).map(|l| bins.rho(l)).collect();
+    }
+    scratch.inv_q.resize(k, 0.0);
+    let (rho, inv_q) = (&scratch.rho[..k], &mut scratch.inv_q[..k]);
+    let grad = &mut grad[..k];
     // Softmax of s = −E, shifted by the smallest cost.
     let (wta, e_min) =
         energies
@@ -256,26 +290,29 @@ pub fn pixel_terms(
     let log_p_target = (e_min - energies[target]) - sum.ln();
     let mut ce = -log_p_target;
     // dCE/dP_l for l != l*: 1/q_l where q_l = 1 - P_l is above the floor, else 0.
-    // dCE/ds_j = P_j (g_j − Σ_l g_l P_l), with g_{l*} P_{l*} = −1.
+    for l in 0..k {
+        let q = 1.0 - grad[l];
+        inv_q[l] = if l != target && q > cfg.prob_floor { 1.0 / q } else { 0.0 };
+    }
     // Σ ln q_l is taken as the ln of products of up to 32 factors, each > prob_floor, so a
     // product stays above e^-700, far from f64's smallest normal: one ln per run of bins.
+    // dCE/ds_j = P_j (g_j − Σ_l g_l P_l), with g_{l*} P_{l*} = −1.
     let ln_run = (-700.0 / cfg.prob_floor.ln()).floor().clamp(1.0, 32.0) as usize;
     let mut gp_sum = -1.0;
     let mut rho_hat = 0.0;
     let (mut prod, mut in_prod, mut clamped) = (1.0f64, 0, 0usize);
     for l in 0..k {
         let p = grad[l];
-        rho_hat += p * bins.rho(l);
+        rho_hat += p * rho[l];
         if l != target {
-            let q = 1.0 - p;
-            if q > cfg.prob_floor {
-                prod *= q;
+            if inv_q[l] != 0.0 {
+                prod *= 1.0 - p;
                 in_prod += 1;
                 if in_prod == ln_run {
                     ce -= prod.ln();
                     (prod, in_prod) = (1.0, 0);
                 }
-                gp_sum += p / q;
+                gp_sum += p * inv_q[l];
             } else {
                 clamped += 1;
             }
@@ -292,25 +329,17 @@ pub fn pixel_terms(
     if rho_hat > cfg.rho_floor {
         dl_drho += 2.0 * cfg.lambda_d * (d_hat - z_star) * (-1.0 / (rho_hat * rho_hat));
     }
+    // g_l P_l: P_l / q_l (0 where clamped), and exactly −1 at the target even when P underflows.
+    let p_target = grad[target];
     for l in 0..k {
         let p = grad[l];
-        let g_l = if l == target {
-            -1.0 / p.max(f64::MIN_POSITIVE)
-        } else {
-            let q = 1.0 - p;
-            if q > cfg.prob_floor {
-                1.0 / q
-            } else {
-                0.0
-            }
-        };
-        // g_l P_l, written so the target term is exactly −1 even when P underflows.
-        let gp = if l == target { -1.0 } else { g_l * p };
+        let gp = p * inv_q[l];
         let ds_ce = gp - p * gp_sum;
-        let ds_rho = p * (bins.rho(l) - rho_hat) * dl_drho;
+        let ds_rho = p * (rho[l] - rho_hat) * dl_drho;
         // E = −s.
         grad[l] = -(ds_ce + ds_rho);
     }
+    grad[target] = -((-1.0 - p_target * gp_sum) + p_target * (rho[target] - rho_hat) * dl_drho);
     PixelTerms { ce, rho: rho_term, depth: depth_term, rho_hat, wta }
 }
 

@@ -39,7 +39,7 @@ def main():
             vals = [v for (mm, s), d in by.items() if mm == m for v in pick(d)]
             if vals:
                 ax.axhline(sum(vals) / len(vals), linestyle=style, color="grey", label=m)
-        ax.set_xlabel("optimiser step (4 pairs each)")
+        ax.set_xlabel("optimiser step")
         ax.set_title(label)
         ax.grid(alpha=0.3)
         ax.legend()

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use crate::error::Result;
+use crate::fusion::consistency::ConsistencyRule;
 use crate::mapping::keyframe::Regularizer;
 use crate::mapping::keyframe_select::KeyframeRule;
 use crate::mapping::sequence_map::{map_sequence, MapConfig};
@@ -49,6 +50,23 @@ pub struct MapArgs {
     /// Depths beyond this (metres) are not fused.
     #[arg(long, default_value_t = 5.0)]
     pub max_fusion_depth: f64,
+    /// Keep a keyframe's depth only where this many neighbouring keyframes confirm it (SPEC.md
+    /// §16.10: reproject, compare depth and reprojection distance); 0 turns the check off.
+    #[arg(long, default_value_t = 1)]
+    pub consistency_views: usize,
+    /// Largest relative depth difference of a confirmation.
+    #[arg(long, default_value_t = 0.05)]
+    pub consistency_depth: f64,
+    /// Largest round-trip reprojection distance of a confirmation, pixels.
+    #[arg(long, default_value_t = 2.0)]
+    pub consistency_px: f64,
+    /// Keyframes on each side a keyframe is checked against.
+    #[arg(long, default_value_t = 4)]
+    pub consistency_neighbours: usize,
+    /// Drop depth next to a discontinuity: a 3x3 neighbour more than this factor nearer or
+    /// farther (no surface bridged across an occlusion edge); <= 1 turns it off.
+    #[arg(long, default_value_t = 1.1)]
+    pub edge_ratio: f64,
     /// Distance threshold of precision, recall and F-score, metres.
     #[arg(long, default_value_t = 0.05)]
     pub fscore_threshold: f64,
@@ -91,6 +109,13 @@ pub fn run(args: MapArgs) -> Result<()> {
         min_confidence: args.mapping.min_confidence,
         fscore_threshold: args.fscore_threshold,
         auto_depth_range: args.mapping.depth_range == DepthRange::Auto,
+        consistency: ConsistencyRule {
+            min_views: args.consistency_views,
+            max_depth_error: args.consistency_depth,
+            max_reprojection_px: args.consistency_px,
+        },
+        consistency_neighbours: args.consistency_neighbours,
+        edge_ratio: args.edge_ratio,
     };
     let plan = cfg.plan(&seq)?;
     let keys: Vec<usize> = plan.keyframes.iter().map(|k| k.index).collect();

@@ -1,5 +1,7 @@
 //! TSDF fusion of keyframe depth maps and the mesh of its zero level set (SPEC.md §16).
 //!
+//! - [`consistency`]: the depth filter before fusion: multi-view geometric consistency and
+//!   depth discontinuities (SPEC.md §16.10).
 //! - [`grid`]: the voxel grid (origin, voxel size, dimensions), its bounds from camera frusta and
 //!   depth points, and the memory estimate.
 //! - [`tsdf`]: integration of a depth map into a truncated signed distance volume: per voxel,
@@ -13,6 +15,7 @@
 //! - [`metrics`]: accuracy, completeness, precision, recall and F-score between two meshes.
 //! - [`render`]: a z-buffer rasteriser for PNG pictures of a mesh.
 
+pub mod consistency;
 pub mod grid;
 pub mod mesh;
 pub mod metrics;

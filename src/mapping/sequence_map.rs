@@ -20,6 +20,7 @@ use super::keyframe::{depth_at_level, KeyframeConfig, Regularizer, Stage};
 use super::keyframe_select::{keyframe_window, select_keyframes, KeyframeRule};
 use super::output::{write_outputs_with, write_pfm};
 use crate::error::{Error, Result};
+use crate::fusion::consistency::{filter_depth, ConsistencyRule, ViewDepth};
 use crate::fusion::grid::{voxel_count, Aabb, VoxelGrid, BYTES_PER_VOXEL};
 use crate::fusion::ply::write_mesh_ply;
 use crate::fusion::render::{render, tile, View};
@@ -52,6 +53,12 @@ pub struct MapConfig {
     /// Estimate each keyframe's depth range ([`Sequence::estimate_depth_range`], `--depth-range
     /// auto`) instead of the template's `near`, `far`.
     pub auto_depth_range: bool,
+    /// The multi-view check before fusion (SPEC.md §16.10; `min_views = 0`: off).
+    pub consistency: ConsistencyRule,
+    /// Keyframes on each side (in keyframe order) that each keyframe is checked against.
+    pub consistency_neighbours: usize,
+    /// Depth-discontinuity rule before fusion: largest depth ratio to a 3x3 neighbour (<= 1: off).
+    pub edge_ratio: f64,
 }
 
 /// One keyframe's plan.
@@ -91,6 +98,8 @@ pub struct MapSummary {
     pub mesh: (usize, usize),
     /// Metrics against the fused ground truth, if the keyframes have depth.
     pub metrics: Option<MeshMetrics>,
+    /// Keyframe pixels with valid, confident depth before and after the filter of SPEC.md §16.10.
+    pub fused_pixels: (usize, usize),
 }
 
 /// Wall seconds per stage.
@@ -126,6 +135,22 @@ impl MapConfig {
         pos("--truncation", self.truncation)?;
         pos("--max-fusion-depth", self.max_fusion_depth)?;
         pos("--fscore-threshold", self.fscore_threshold)?;
+        if self.consistency.min_views > 0 {
+            pos("--consistency-depth", self.consistency.max_depth_error)?;
+            pos("--consistency-px", self.consistency.max_reprojection_px)?;
+            if self.consistency_neighbours == 0 {
+                return Err(Error::invalid_argument(
+                    "--consistency-neighbours",
+                    "0 leaves no keyframe to confirm with: use --consistency-views 0 to turn the check off",
+                ));
+            }
+        }
+        if !self.edge_ratio.is_finite() || self.edge_ratio < 0.0 {
+            return Err(Error::invalid_argument(
+                "--edge-ratio",
+                format!("{}: must be a finite number >= 0 (<= 1 turns the rule off)", self.edge_ratio),
+            ));
+        }
         if self.truncation < self.voxel {
             return Err(Error::invalid_argument(
                 "--truncation",
@@ -283,7 +308,24 @@ pub fn map_sequence(
 
     progress(n, n, "fusion");
     let t = Instant::now();
-    let maps = load_keyframes(seq, cfg, &plan, out)?;
+    let mut maps = load_keyframes(seq, cfg, &plan, out)?;
+    // Depth that agrees with its neighbours (SPEC.md §16.10): confidence first (as before), then
+    // the multi-view check against the nearest keyframes and the discontinuity rule.
+    let fused_pixels_before: usize = maps.iter().map(|m| valid_confident(m, cfg.min_confidence)).sum();
+    let filtered: Vec<DepthMap> = (0..maps.len())
+        .map(|i| {
+            let lo = i.saturating_sub(cfg.consistency_neighbours);
+            let hi = (i + cfg.consistency_neighbours + 1).min(maps.len());
+            let others: Vec<ViewDepth<'_>> =
+                (lo..hi).filter(|&j| j != i).map(|j| view_of(&maps[j])).collect();
+            filter_depth(&view_of(&maps[i]), &others, &cfg.consistency, cfg.edge_ratio)
+        })
+        .collect();
+    for (m, d) in maps.iter_mut().zip(filtered) {
+        m.depth = d;
+    }
+    let fused_pixels_after: usize = maps.iter().map(|m| valid_confident(m, cfg.min_confidence)).sum();
+    let fused_pixels = (fused_pixels_before, fused_pixels_after);
     let mut bounds = Aabb::empty();
     for m in &maps {
         add_points(&mut bounds, &m.depth, m, cfg.max_fusion_depth);
@@ -338,8 +380,14 @@ pub fn map_sequence(
     let picture = pictures(&mesh, gt_mesh.as_ref(), &maps);
     save_rgb_png(&staging.file(&out.join("mesh.png"))?, &picture)?;
     timings.write = t.elapsed().as_secs_f64();
-    let summary =
-        MapSummary { plan, resumed, timings, mesh: (mesh.vertices.len(), mesh.triangles.len()), metrics };
+    let summary = MapSummary {
+        plan,
+        resumed,
+        timings,
+        mesh: (mesh.vertices.len(), mesh.triangles.len()),
+        metrics,
+        fused_pixels,
+    };
     let doc = map_json(seq, cfg, &summary, &grid, &mesh, gt_mesh.as_ref(), &est, gt_volume.as_ref());
     write_text(
         &staging.file(&out.join("map.json"))?,
@@ -347,6 +395,16 @@ pub fn map_sequence(
     )?;
     staging.commit()?;
     Ok(summary)
+}
+
+/// A keyframe's depth, camera and pose for the filter of SPEC.md §16.10.
+fn view_of(m: &KeyframeMaps) -> ViewDepth<'_> {
+    ViewDepth { depth: m.depth.view(), camera: m.camera, pose: m.pose }
+}
+
+/// Pixels of a keyframe with valid depth and confidence at least `min` (what fusion integrates).
+fn valid_confident(m: &KeyframeMaps, min: f32) -> usize {
+    m.depth.iter().zip(m.confidence.iter()).filter(|(&d, &c)| is_valid_depth(d) && c >= min).count()
 }
 
 /// One keyframe read back for fusion.
@@ -449,6 +507,14 @@ fn map_json(
             "voxel_m": cfg.voxel,
             "truncation_m": cfg.truncation,
             "max_fusion_depth_m": cfg.max_fusion_depth,
+            "consistency": {
+                "min_views": cfg.consistency.min_views,
+                "max_depth_error": cfg.consistency.max_depth_error,
+                "max_reprojection_px": cfg.consistency.max_reprojection_px,
+                "neighbours": cfg.consistency_neighbours,
+                "edge_ratio": cfg.edge_ratio,
+                "fused_pixels_before_after": [s.fused_pixels.0, s.fused_pixels.1],
+            },
             "grid": grid,
             "volume_bytes": grid.bytes() * if gt_volume.is_some() { 2 } else { 1 },
             "volume_bytes_bound": s.plan.fusion_bytes_bound,

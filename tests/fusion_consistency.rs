@@ -116,3 +116,17 @@ fn the_filter_is_bit_identical_for_any_thread_count() {
         assert!(run(n).iter().zip(&base).all(|(a, b)| a.to_bits() == b.to_bits()), "{n} threads");
     }
 }
+
+/// A keyframe without neighbours has nothing to be checked against: its depth is kept (only the
+/// edge rule applies), and with fewer neighbours than `min_views` all of them must confirm.
+#[test]
+fn a_keyframe_without_neighbours_is_kept() {
+    let d = plane();
+    let v = ViewDepth { depth: d.view(), camera: camera(), pose: pose(0.0) };
+    assert_eq!(filter_depth(&v, &[], &rule(2), 1.1), d);
+    let d1 = plane();
+    let one = [ViewDepth { depth: d1.view(), camera: camera(), pose: pose(0.1) }];
+    let kept = filter_depth(&v, &one, &rule(3), 0.0);
+    assert_eq!(kept[[20, 30]], 2.0, "one neighbour of the three asked for confirms");
+    assert_eq!(kept[[20, 1]], 0.0, "outside the neighbour (it sees pixel 1 at -2): unconfirmed");
+}

@@ -186,3 +186,33 @@ fn three_live_frames_train_bit_identically_for_any_thread_count() {
     let err = densefeat::train::data::DataSet::open(bad).err().expect("refused").to_string();
     assert!(err.contains("--live-frames"), "{err}");
 }
+
+/// `--init-weights` (SPEC.md §13.6): a run starts from the given weights (fine-tuning), its
+/// fingerprint names them, and weights of another network are refused naming the file.
+#[test]
+fn init_weights_start_the_run_and_a_mismatch_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let start = densefeat::train::trainer::training_init(&tiny().network, 99).unwrap();
+    let path = d.path().join("start.safetensors");
+    start.save(&path).unwrap();
+    let cfg = TrainConfig { init_weights: Some(path.clone()), ..tiny() };
+    assert!(cfg.fingerprint().contains("init_weights="));
+    assert!(!tiny().fingerprint().contains("init_weights"), "unchanged without it");
+    let out = d.path().join("run");
+    let fine = run(&cfg, &out, 2, None, Some(1));
+    let scratch = run(&tiny(), &d.path().join("scratch"), 2, None, Some(1));
+    assert_ne!(bits(&fine), bits(&scratch), "one step from other weights");
+    // One step moves every weight only a little from where it started.
+    let moved = fine.layers().iter().zip(start.layers()).all(|(a, b)| {
+        a.weight.iter().zip(b.weight.iter()).all(|(x, y)| (x - y).abs() <= 2.0 * cfg.optim.lr as f32 + 1e-6)
+    });
+    assert!(moved, "the run started from the given weights");
+    let other = densefeat::train::trainer::training_init(&NetworkConfig { channels: 8, ..tiny().network }, 0)
+        .unwrap();
+    let bad = d.path().join("other.safetensors");
+    other.save(&bad).unwrap();
+    let cfg = TrainConfig { init_weights: Some(bad.clone()), ..tiny() };
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let err = pool.install(|| train(&cfg, &d.path().join("bad"), None, Some(1), false)).expect_err("refused");
+    assert!(err.to_string().contains("other.safetensors"), "{err}");
+}

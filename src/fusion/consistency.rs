@@ -142,7 +142,8 @@ pub fn smooth_mask(depth: ArrayView2<'_, f32>, max_ratio: f64) -> Array2<bool> {
 }
 
 /// `view`'s depth with the pixels that fail either rule set to 0 (invalid): at least
-/// `rule.min_views` confirmations among `others` (skipped when 0) and [`smooth_mask`] with
+/// `min(rule.min_views, others.len())` confirmations among `others` (skipped when that is 0: a
+/// keyframe with no neighbour has nothing to be checked against) and [`smooth_mask`] with
 /// `max_ratio`.
 pub fn filter_depth(
     view: &ViewDepth<'_>,
@@ -151,10 +152,11 @@ pub fn filter_depth(
     max_ratio: f64,
 ) -> Array2<f32> {
     let smooth = smooth_mask(view.depth, max_ratio);
-    let votes = (rule.min_views > 0).then(|| confirmations(view, others, rule));
+    let need = rule.min_views.min(others.len());
+    let votes = (need > 0).then(|| confirmations(view, others, rule));
     let mut out = view.depth.to_owned();
     for ((idx, v), &keep) in out.indexed_iter_mut().zip(smooth.iter()) {
-        let confirmed = votes.as_ref().is_none_or(|c| usize::from(c[idx]) >= rule.min_views);
+        let confirmed = votes.as_ref().is_none_or(|c| usize::from(c[idx]) >= need);
         if !(keep && confirmed) {
             *v = 0.0;
         }

@@ -326,6 +326,17 @@ pub fn map_sequence(
     }
     let fused_pixels_after: usize = maps.iter().map(|m| valid_confident(m, cfg.min_confidence)).sum();
     let fused_pixels = (fused_pixels_before, fused_pixels_after);
+    if fused_pixels_before > 0 && fused_pixels_after == 0 {
+        return Err(Error::invalid_argument(
+            "--consistency-views",
+            format!(
+                "the depth filter kept none of the keyframes' {fused_pixels_before} fusable pixels (no \
+                 neighbouring keyframe confirmed any, or --edge-ratio {} removed the rest): the keyframe \
+                 depths disagree everywhere; --consistency-views 0 --edge-ratio 0 fuses them unfiltered",
+                cfg.edge_ratio
+            ),
+        ));
+    }
     let mut bounds = Aabb::empty();
     for m in &maps {
         add_points(&mut bounds, &m.depth, m, cfg.max_fusion_depth);

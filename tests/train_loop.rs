@@ -162,6 +162,10 @@ fn validation_scenes_give_only_validation_pairs_and_never_train() {
 #[test]
 fn three_live_frames_train_bit_identically_for_any_thread_count() {
     let cfg = TrainConfig { data: DataConfig { live_frames: 3, ..tiny().data }, ..tiny() };
+    // The fingerprint names the live frames only when there is more than one, so pair runs keep
+    // the fingerprints (and resumable checkpoints) they had before the flag existed.
+    assert!(cfg.fingerprint().contains("live_frames: 3"));
+    assert!(!tiny().fingerprint().contains("live_frames") && tiny().fingerprint().ends_with(" }"));
     let data = densefeat::train::data::DataSet::open(cfg.data.clone()).unwrap();
     for step in 1..4 {
         let p = data.train_pair(cfg.seed, step, 0).unwrap();

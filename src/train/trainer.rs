@@ -53,9 +53,14 @@ impl TrainConfig {
     /// The settings that determine the weights, as text. Stored in checkpoints; a resume must
     /// match it exactly (including `steps`, since the learning-rate schedule depends on it).
     pub fn fingerprint(&self) -> String {
+        // `live_frames` joined DataConfig after chain b1s2 had started (SPEC.md §13.10): it is
+        // written only when it is not 1, so the fingerprints of pair runs stay what they were and
+        // their checkpoints remain resumable.
+        let data = format!("{:?}", self.data);
+        let data = data.strip_suffix(", live_frames: 1 }").map_or(data.clone(), |d| format!("{d} }}"));
         let mut f = format!(
-            "network={:?} init_seed={} seed={} steps={} batch={} optim={:?} loss={:?} supervision={:?} data={:?}",
-            self.network, self.init_seed, self.seed, self.steps, self.batch, self.optim, self.loss, self.supervision, self.data
+            "network={:?} init_seed={} seed={} steps={} batch={} optim={:?} loss={:?} supervision={:?} data={data}",
+            self.network, self.init_seed, self.seed, self.steps, self.batch, self.optim, self.loss, self.supervision
         );
         // Only when set, so the fingerprints of runs from §13.4's initialisation are unchanged.
         if let Some(p) = &self.init_weights {

@@ -223,7 +223,7 @@ fn exact_depth_warps_frames_onto_each_other() {
     let k = scene.camera();
     let frame = |i: usize| {
         let f = scene.render(i).unwrap();
-        Frame { index: i, rgb: f.rgb, depth: Some(f.depth), pose: f.pose }
+        Frame { index: i, rgb: f.rgb, depth: Some(f.depth), pose: f.pose, camera: k }
     };
     for i in [0, 17, 34] {
         let (reference, target) = (frame(i), frame(i + 5));

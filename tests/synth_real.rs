@@ -119,7 +119,7 @@ fn real_frames_warp_onto_each_other_after_a_brightness_fit() {
     let k = scene.camera();
     let frame = |i: usize| {
         let f = scene.render(i).unwrap();
-        Frame { index: i, rgb: f.rgb, depth: Some(f.depth), pose: f.pose }
+        Frame { index: i, rgb: f.rgb, depth: Some(f.depth), pose: f.pose, camera: k }
     };
     for i in [0, 20] {
         let (reference, target) = (frame(i), frame(i + 4));

@@ -90,6 +90,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             rgb,
             depth,
             sparse_depth_range: None,
+            camera: 0,
         });
     }
     let (w, h) = read_dimensions(&frames[0].rgb)?;

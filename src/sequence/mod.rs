@@ -126,6 +126,8 @@ pub struct FrameInfo {
     /// Depth range `(near, far)` of the format's sparse points seen in this frame (COLMAP
     /// `points3D`, SPEC.md §4a), in the sequence's length unit; `None` where the format has none.
     pub sparse_depth_range: Option<(f64, f64)>,
+    /// Which of [`Sequence::raw_cameras`] took this frame (0 for the one-camera formats).
+    pub camera: usize,
 }
 
 /// Stereo-specific facts of a two-frame [`Format::Stereo`] sequence (frame 0 = left, 1 = right).
@@ -140,18 +142,23 @@ pub struct StereoInfo {
     pub doffs: f64,
 }
 
-/// A posed image sequence with one shared camera.
+/// A posed image sequence: one camera, or one per frame (SPEC.md §4a: each frame may have its own
+/// intrinsics and image size; [`FrameInfo::camera`] says which).
 #[derive(Clone, Debug)]
 pub struct Sequence {
     /// Layout it was read from.
     pub format: Format,
     /// The folder it was read from.
     pub root: PathBuf,
-    /// The camera of the images [`Sequence::load_frame`] returns (undistorted when the raw images
-    /// were distorted and undistortion is on).
+    /// The camera of frame 0's images as [`Sequence::load_frame`] returns them (undistorted when the
+    /// raw images were distorted and undistortion is on). With several cameras, use
+    /// [`Sequence::frame_camera`] for any other frame.
     pub camera: PinholeCamera,
-    /// The camera of the raw image files, with its distortion.
+    /// The camera of frame 0's raw image files, with its distortion.
     pub raw_camera: Camera,
+    /// Every distinct camera of the sequence (raw, with distortion), indexed by
+    /// [`FrameInfo::camera`]; one element for the one-camera formats.
+    pub raw_cameras: Vec<Camera>,
     /// Frames in capture order.
     pub frames: Vec<FrameInfo>,
     /// Present for stereo pairs.
@@ -162,7 +169,8 @@ pub struct Sequence {
     /// What the reader decided on the user's behalf (calibration used, frames dropped, ...). Notes
     /// starting with [`WARNING_NOTE`] are warnings.
     pub notes: Vec<String>,
-    undistort: Option<UndistortMap>,
+    /// Undistortion maps of the distorted cameras (by camera index), when undistortion is on.
+    undistort: Vec<Option<UndistortMap>>,
 }
 
 /// A loaded frame.
@@ -176,12 +184,14 @@ pub struct Frame {
     pub depth: Option<DepthMap>,
     /// Camera-to-world pose `T_wc`.
     pub pose: Pose,
+    /// The (undistorted) camera of this frame's images.
+    pub camera: PinholeCamera,
 }
 
 impl Sequence {
-    /// Assemble a sequence from a reader's parts and validate it: at least one frame, every colour
-    /// and depth file present with the camera's size (read from the headers). With `undistort`,
-    /// frames are resampled into the pinhole camera when `raw_camera` has distortion.
+    /// Assemble a one-camera sequence from a reader's parts and validate it: at least one frame,
+    /// every colour and depth file present with the camera's size (read from the headers). With
+    /// `undistort`, frames are resampled into the pinhole camera when `raw_camera` has distortion.
     ///
     /// # Errors
     /// [`Error::BadSequence`] for an empty sequence, [`Error::Io`] for a missing file,
@@ -195,11 +205,35 @@ impl Sequence {
         notes: Vec<String>,
         undistort: bool,
     ) -> Result<Self> {
+        Self::from_cameras(format, root, vec![raw_camera], frames, stereo, notes, undistort)
+    }
+
+    /// [`Sequence::from_parts`] with one camera per [`FrameInfo::camera`] index: each frame's files
+    /// must have its own camera's size.
+    ///
+    /// # Errors
+    /// As [`Sequence::from_parts`]; [`Error::BadSequence`] when a frame names a camera that
+    /// `raw_cameras` lacks.
+    pub fn from_cameras(
+        format: Format,
+        root: PathBuf,
+        raw_cameras: Vec<Camera>,
+        frames: Vec<FrameInfo>,
+        stereo: Option<StereoInfo>,
+        notes: Vec<String>,
+        undistort: bool,
+    ) -> Result<Self> {
         if frames.is_empty() {
             return Err(Error::bad_sequence(&root, "the sequence has no frames"));
         }
-        let k = raw_camera.pinhole;
         for f in &frames {
+            let Some(raw) = raw_cameras.get(f.camera) else {
+                return Err(Error::bad_sequence(
+                    &root,
+                    format!("frame {} uses camera {} of {}", f.name, f.camera, raw_cameras.len()),
+                ));
+            };
+            let k = raw.pinhole;
             let mut files = vec![f.rgb.as_path()];
             if let Some(d) = &f.depth {
                 files.push(d.path());
@@ -214,16 +248,74 @@ impl Sequence {
                 if (w, h) != (k.width, k.height) {
                     return Err(Error::bad_file(
                         path,
-                        format!("image is {w}x{h}, but the sequence's camera is {}x{}", k.width, k.height),
+                        format!("image is {w}x{h}, but its camera is {}x{}", k.width, k.height),
                     ));
                 }
             }
         }
-        let map = match (&raw_camera.distortion, undistort) {
-            (Some(d), true) if !d.is_identity() => Some(UndistortMap::new(&k, d)),
-            _ => None,
-        };
-        Ok(Self { format, root, camera: k, raw_camera, frames, stereo, metric: true, notes, undistort: map })
+        let maps = raw_cameras
+            .iter()
+            .map(|c| match (&c.distortion, undistort) {
+                (Some(d), true) if !d.is_identity() => Some(UndistortMap::new(&c.pinhole, d)),
+                _ => None,
+            })
+            .collect();
+        let raw_camera = raw_cameras[frames[0].camera];
+        Ok(Self {
+            format,
+            root,
+            camera: raw_camera.pinhole,
+            raw_camera,
+            raw_cameras,
+            frames,
+            stereo,
+            metric: true,
+            notes,
+            undistort: maps,
+        })
+    }
+
+    /// The (undistorted) camera of frame `index`'s images: [`Sequence::camera`] for one-camera
+    /// sequences.
+    ///
+    /// # Panics
+    /// If `index` is out of range.
+    pub fn frame_camera(&self, index: usize) -> PinholeCamera {
+        self.raw_cameras[self.frames[index].camera].pinhole
+    }
+
+    /// The raw camera (with distortion) of frame `index`.
+    ///
+    /// # Panics
+    /// If `index` is out of range.
+    pub fn frame_raw_camera(&self, index: usize) -> &Camera {
+        &self.raw_cameras[self.frames[index].camera]
+    }
+
+    /// Whether every frame has the same camera (intrinsics and size).
+    pub fn single_camera(&self) -> bool {
+        let first = self.frame_camera(0);
+        (0..self.len()).all(|i| self.frame_camera(i) == first)
+    }
+
+    /// The one camera of the sequence, for work that needs one (training crops, the photometric
+    /// check of `inspect`).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `what` when frames have different cameras.
+    pub fn the_camera(&self, what: &str) -> Result<PinholeCamera> {
+        if self.single_camera() {
+            Ok(self.camera)
+        } else {
+            Err(Error::invalid_argument(
+                what,
+                format!(
+                    "{} has {} cameras (per-frame intrinsics or image sizes); this needs one camera",
+                    self.root.display(),
+                    self.raw_cameras.len()
+                ),
+            ))
+        }
     }
 
     /// Number of frames.
@@ -267,7 +359,7 @@ impl Sequence {
 
     /// Whether frames are undistorted on load.
     pub fn undistorts(&self) -> bool {
-        self.undistort.is_some()
+        self.undistort.iter().any(Option::is_some)
     }
 
     /// Load frame `index`: colour, depth (if any) and pose, in [`Sequence::camera`].
@@ -295,20 +387,20 @@ impl Sequence {
             )
         })?;
         let rgb = image::load_rgb(&info.rgb)?;
-        self.check_size(&info.rgb, rgb.dim().0, rgb.dim().1)?;
+        self.check_size(index, &info.rgb, rgb.dim().0, rgb.dim().1)?;
         let depth = match &info.depth {
             Some(src) if with_depth => {
                 let d = load_depth(src)?;
-                self.check_size(src.path(), d.dim().0, d.dim().1)?;
+                self.check_size(index, src.path(), d.dim().0, d.dim().1)?;
                 Some(d)
             }
             _ => None,
         };
-        let (rgb, depth) = match &self.undistort {
+        let (rgb, depth) = match &self.undistort[info.camera] {
             Some(map) => (map.rgb(&rgb), depth.map(|d| map.depth(&d))),
             None => (rgb, depth),
         };
-        Ok(Frame { index, rgb, depth, pose: info.pose })
+        Ok(Frame { index, rgb, depth, pose: info.pose, camera: self.frame_camera(index) })
     }
 
     /// Load frame `index`'s ground-truth disparity in pixels (stereo sequences only; 0 = unknown).
@@ -319,19 +411,19 @@ impl Sequence {
         match self.frames.get(index).and_then(|f| f.depth.as_ref()) {
             Some(DepthSource::Disparity { path, encoding, .. }) => {
                 let d = crate::sequence::disparity::load_disparity(path, *encoding)?;
-                self.check_size(path, d.dim().0, d.dim().1)?;
+                self.check_size(index, path, d.dim().0, d.dim().1)?;
                 Ok(Some(d))
             }
             _ => Ok(None),
         }
     }
 
-    fn check_size(&self, path: &Path, h: usize, w: usize) -> Result<()> {
-        let k = &self.raw_camera.pinhole;
+    fn check_size(&self, index: usize, path: &Path, h: usize, w: usize) -> Result<()> {
+        let k = &self.frame_raw_camera(index).pinhole;
         if (w, h) != (k.width, k.height) {
             return Err(Error::bad_file(
                 path,
-                format!("image is {w}x{h}, but the sequence's camera is {}x{}", k.width, k.height),
+                format!("image is {w}x{h}, but its camera is {}x{}", k.width, k.height),
             ));
         }
         Ok(())

@@ -115,6 +115,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             rgb,
             depth,
             sparse_depth_range: None,
+            camera: 0,
         });
     }
     frames.sort_by(|a, b| a.rgb.cmp(&b.rgb));

@@ -63,7 +63,15 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
         }
         depth_files += usize::from(root.join(format!("{name}.depth.png")).is_file());
         let pose = read_pose(&pose_path)?;
-        frames.push(FrameInfo { name, timestamp: None, pose, rgb, depth: None, sparse_depth_range: None });
+        frames.push(FrameInfo {
+            name,
+            timestamp: None,
+            pose,
+            rgb,
+            depth: None,
+            sparse_depth_range: None,
+            camera: 0,
+        });
     }
     if frames.is_empty() {
         return Err(Error::bad_sequence(root, "no frame-*.color.png files"));

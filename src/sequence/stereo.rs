@@ -111,6 +111,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             rgb: left,
             depth: left_depth,
             sparse_depth_range: None,
+            camera: 0,
         },
         FrameInfo {
             name: "right".into(),
@@ -119,6 +120,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             rgb: right,
             depth: right_depth,
             sparse_depth_range: None,
+            camera: 0,
         },
     ];
     let stereo = StereoInfo { baseline, calibrated, doffs };

@@ -117,6 +117,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             rgb: rgb_path,
             depth,
             sparse_depth_range: None,
+            camera: 0,
         });
     }
     if frames.is_empty() {

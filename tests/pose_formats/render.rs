@@ -114,6 +114,7 @@ pub fn assert_warp_matches_renderer(
         rgb: r.frames[i].0.clone(),
         depth: Some(r.frames[i].1.clone()),
         pose: r.frames[i].2,
+        camera: r.camera,
     };
     let truth = photometric_warp_check(&r.camera, &truth_frame(a), &truth_frame(b)).unwrap();
     eprintln!(

@@ -71,7 +71,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
     if images.is_empty() {
         return Err(Error::bad_file(&img_path, "the model has no registered images"));
     }
-    let camera = shared_camera(&cameras, &images, &cam_path, &img_path)?;
+    let (raw_cameras, camera_of) = camera_table(&cameras, &images, &cam_path, &img_path)?;
     let points: Option<HashMap<u64, [f64; 3]>> =
         points.map(|p| p.into_iter().map(|RawPoint { id, xyz }| (id, xyz)).collect());
     let images_dir = root.join("images");
@@ -113,6 +113,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             rgb,
             depth: None,
             sparse_depth_range,
+            camera: camera_of[&im.camera_id],
         });
     }
     match &points {
@@ -132,47 +133,73 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             images_dir.display()
         ));
     }
+    if raw_cameras.len() > 1 {
+        let mut sizes: Vec<(usize, usize)> =
+            raw_cameras.iter().map(|c| (c.pinhole.width, c.pinhole.height)).collect();
+        sizes.sort_unstable();
+        sizes.dedup();
+        notes.push(format!(
+            "{} cameras ({} image sizes): each frame is used with its own camera",
+            raw_cameras.len(),
+            sizes.len()
+        ));
+    }
     notes.push(format!("{WARNING_NOTE}{NO_SCALE_WARNING}"));
-    let mut seq =
-        Sequence::from_parts(Format::Colmap, root.to_path_buf(), camera, frames, None, notes, opt.undistort)?;
+    let mut seq = Sequence::from_cameras(
+        Format::Colmap,
+        root.to_path_buf(),
+        raw_cameras,
+        frames,
+        None,
+        notes,
+        opt.undistort,
+    )?;
     seq.metric = false;
     Ok(seq)
 }
 
-/// The one camera the registered images share (identical parameters if several ids).
-fn shared_camera(
+/// The distinct cameras the registered images use (COLMAP ids with identical model, size and
+/// parameters merged), in order of first use by image name, and each used id's index among them.
+fn camera_table(
     cameras: &[RawCamera],
     images: &[RawImage],
     cam_path: &Path,
     img_path: &Path,
-) -> Result<crate::geometry::Camera> {
+) -> Result<(Vec<crate::geometry::Camera>, HashMap<u32, usize>)> {
     for (i, c) in cameras.iter().enumerate() {
         if cameras[..i].iter().any(|o| o.id == c.id) {
             return Err(c.loc.error(cam_path, format!("camera id {} is defined twice", c.id)));
         }
     }
-    let mut used: Option<&RawCamera> = None;
-    for im in images {
+    let mut sorted: Vec<&RawImage> = images.iter().collect();
+    sorted.sort_by(|a, b| a.name.cmp(&b.name));
+    let mut distinct: Vec<&RawCamera> = Vec::new();
+    let mut index = HashMap::new();
+    for im in sorted {
+        if index.contains_key(&im.camera_id) {
+            continue;
+        }
         let c = cameras.iter().find(|c| c.id == im.camera_id).ok_or_else(|| {
             im.loc.error(
                 img_path,
                 format!("image {} uses camera {}, which {} lacks", im.id, im.camera_id, cam_path.display()),
             )
         })?;
-        match used {
-            None => used = Some(c),
-            Some(u) if (u.model, u.width, u.height, &u.params) != (c.model, c.width, c.height, &c.params) => {
-                return Err(c.loc.error(
-                    cam_path,
-                    format!(
-                        "registered images use cameras {} and {} with different intrinsics; a sequence has \
-                         one camera (reconstruct with --ImageReader.single_camera 1)",
-                        u.id, c.id
-                    ),
-                ))
+        let same = |u: &&RawCamera| {
+            (u.model, u.width, u.height, &u.params) == (c.model, c.width, c.height, &c.params)
+        };
+        let i = match distinct.iter().position(|u| same(u)) {
+            Some(i) => i,
+            None => {
+                distinct.push(c);
+                distinct.len() - 1
             }
-            Some(_) => {}
-        }
+        };
+        index.insert(im.camera_id, i);
     }
-    used.ok_or_else(|| Error::bad_file(img_path, "the model has no registered images"))?.to_camera(cam_path)
+    if distinct.is_empty() {
+        return Err(Error::bad_file(img_path, "the model has no registered images"));
+    }
+    let cams = distinct.iter().map(|c| c.to_camera(cam_path)).collect::<Result<Vec<_>>>()?;
+    Ok((cams, index))
 }

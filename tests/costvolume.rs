@@ -26,6 +26,8 @@ struct Case {
     bins: InverseDepthBins,
     /// Per-frame truncation `τ` (SPEC.md §9.13).
     truncation: f32,
+    /// Each live frame's own camera (SPEC.md §9.1); empty: the reference camera.
+    live_cameras: Vec<PinholeCamera>,
 }
 
 impl Case {
@@ -59,7 +61,31 @@ impl Case {
                 (feats(&mut rng), Pose::from_parts(t, r))
             })
             .collect();
-        Self { reference, live, camera, bins, truncation: NO_TRUNCATION }
+        Self { reference, live, camera, bins, truncation: NO_TRUNCATION, live_cameras: Vec::new() }
+    }
+
+    /// The same problem with every live frame seen by a camera of its own: a random size (1..24
+    /// pixels a side) and intrinsics, its features redrawn at that size.
+    fn own_cameras(mut self, seed: u64) -> Self {
+        let mut rng = SplitMix64::new(seed ^ 0x5eed);
+        let c = self.reference.dim().2;
+        for (f, _) in &mut self.live {
+            let (h, w) = (1 + (rng.next_u64() % 24) as usize, 1 + (rng.next_u64() % 24) as usize);
+            let fl = rng.range(0.5, 1.5) * w.max(h) as f64;
+            self.live_cameras.push(
+                PinholeCamera::new(
+                    fl,
+                    fl * rng.range(0.8, 1.2),
+                    (w as f64 - 1.0) * rng.range(0.3, 0.7),
+                    (h as f64 - 1.0) * rng.range(0.3, 0.7),
+                    w,
+                    h,
+                )
+                .unwrap(),
+            );
+            *f = Array3::from_shape_simple_fn((h, w, c), || rng.range(-2.0, 2.0) as f32);
+        }
+        self
     }
 
     fn run(&self, imp: CostVolumeImpl) -> CostVolume {
@@ -67,8 +93,11 @@ impl Case {
             .unwrap()
             .with_truncation(self.truncation)
             .unwrap();
-        for (f, t) in &self.live {
-            cv.add_frame(f.view(), t).unwrap();
+        for (i, (f, t)) in self.live.iter().enumerate() {
+            match self.live_cameras.get(i) {
+                Some(cam) => cv.add_frame_seen_by(f.view(), cam, t).unwrap(),
+                None => cv.add_frame(f.view(), t).unwrap(),
+            }
         }
         cv
     }
@@ -119,6 +148,7 @@ proptest! {
         frames in 1usize..4,
         tau_per_channel in prop::sample::select(vec![f32::INFINITY, 0.5, 1.0]),
         bytes: bool,
+        own_cameras: bool,
     ) {
         // Features are uniform in [-2, 2]: a channel's |difference| averages about 4/3, so τ = c
         // truncates most per-frame costs and τ = c/2 nearly all. Byte-valued features (0..=255)
@@ -126,6 +156,8 @@ proptest! {
         let scale = if bytes { 63.75 } else { 1.0 };
         let tau = if tau_per_channel.is_finite() { tau_per_channel * scale * c as f32 } else { NO_TRUNCATION };
         let case = Case::from_seed(seed, h, w, c, k, frames);
+        // Live frames with cameras of their own (sizes and intrinsics), SPEC.md §9.1.
+        let case = if own_cameras { case.own_cameras(seed) } else { case };
         let case = Case { truncation: tau, ..if bytes { case.bytes() } else { case } };
         let oracle = case.run(CostVolumeImpl::Reference);
         let fast = case.run(CostVolumeImpl::Fast);
@@ -187,21 +219,26 @@ fn fast_kernel_reports_which_path_ran() {
 fn output_independent_of_thread_count() {
     // Every kernel of the fast path: the RGB gather kernel (float and packed byte-valued maps), the
     // 16·N-channel block kernel, the per-lane channel loop (35), the portable kernel.
-    for (c, imp, tau, bytes) in [
-        (3, CostVolumeImpl::Fast, NO_TRUNCATION, false),
-        (3, CostVolumeImpl::Fast, NO_TRUNCATION, true),
-        (32, CostVolumeImpl::Fast, NO_TRUNCATION, false),
-        (35, CostVolumeImpl::Fast, NO_TRUNCATION, false),
-        (3, CostVolumeImpl::FastPortable, NO_TRUNCATION, false),
-        (32, CostVolumeImpl::FastPortable, NO_TRUNCATION, false),
-        (3, CostVolumeImpl::Fast, 3.0, false),
-        (32, CostVolumeImpl::Fast, 32.0, false),
+    // Live frames with cameras of their own run through the same kernels.
+    for (c, imp, tau, bytes, own) in [
+        (3, CostVolumeImpl::Fast, NO_TRUNCATION, false, false),
+        (3, CostVolumeImpl::Fast, NO_TRUNCATION, true, false),
+        (32, CostVolumeImpl::Fast, NO_TRUNCATION, false, false),
+        (35, CostVolumeImpl::Fast, NO_TRUNCATION, false, false),
+        (3, CostVolumeImpl::FastPortable, NO_TRUNCATION, false, false),
+        (32, CostVolumeImpl::FastPortable, NO_TRUNCATION, false, false),
+        (3, CostVolumeImpl::Fast, 3.0, false, false),
+        (32, CostVolumeImpl::Fast, 32.0, false, false),
+        (3, CostVolumeImpl::Fast, NO_TRUNCATION, true, true),
+        (32, CostVolumeImpl::Fast, NO_TRUNCATION, false, true),
     ] {
         let case = Case::from_seed(7, 37, 45, c, 17, 3);
+        let case = if own { case.own_cameras(3) } else { case };
         let case = Case { truncation: tau, ..if bytes { case.bytes() } else { case } };
         let run = |n| thread_pool(n).install(|| case.run(imp));
         let one = run(1);
-        assert!(one.counts().iter().any(|&n| n == 3), "some cells must be seen by every frame");
+        assert!(own || one.counts().iter().any(|&n| n == 3), "some cells must be seen by every frame");
+        assert!(one.counts().iter().any(|&n| n > 0), "some cells must be seen");
         for n in [2, 3, 8] {
             let other = run(n);
             assert_eq!(
@@ -437,4 +474,64 @@ fn truncation_must_be_positive_and_set_first() {
     let mut started = cv();
     started.add_frame(Array3::zeros((6, 8, 3)).view(), &Pose::identity()).unwrap();
     assert!(started.with_truncation(10.0).is_err());
+}
+
+/// A textured plane `z = 2` seen by a 40x30 keyframe camera and by live cameras of other sizes and
+/// intrinsics (60x44 and 24x18): each live image is rendered in its own camera, and the
+/// winner-take-all depth of the volume built with [`CostVolume::add_frame_seen_by`] is the plane's
+/// (SPEC.md §9.1: `K_r⁻¹` for the keyframe, `K_n` for each live frame).
+#[test]
+fn live_frames_with_their_own_cameras_recover_a_plane() {
+    let z0 = 2.0;
+    // Texture on the plane, a smooth function of world (x, y).
+    let tex = |x: f64, y: f64| (128.0 + 60.0 * (7.0 * x).sin() + 50.0 * (5.3 * y + 2.0 * x).cos()) as f32;
+    let render = |cam: &PinholeCamera, pose: &Pose| {
+        Array3::from_shape_fn((cam.height, cam.width, 1), |(v, u, _)| {
+            // Camera-to-world `pose`: the ray through (u, v) meets z = z0 in the world.
+            let d = pose.rotation * cam.ray(u as f64, v as f64);
+            let o = pose.translation.vector;
+            let s = (z0 - o.z) / d.z;
+            tex(o.x + s * d.x, o.y + s * d.y)
+        })
+    };
+    let key_cam = PinholeCamera::new(40.0, 40.0, 19.5, 14.5, 40, 30).unwrap();
+    let key_pose = Pose::identity();
+    let bins = InverseDepthBins::from_depth_range(1.0, 5.0, 64).unwrap();
+    let lives = [
+        (PinholeCamera::new(58.0, 61.0, 30.5, 21.0, 60, 44).unwrap(), Vector3::new(0.15, 0.0, 0.0)),
+        (PinholeCamera::new(25.0, 24.0, 11.0, 9.0, 24, 18).unwrap(), Vector3::new(-0.12, 0.05, 0.0)),
+        (PinholeCamera::new(40.0, 40.0, 19.5, 14.5, 40, 30).unwrap(), Vector3::new(0.0, 0.13, 0.02)),
+    ];
+    for imp in [CostVolumeImpl::Reference, CostVolumeImpl::Fast] {
+        let mut cv = CostVolume::with_impl(render(&key_cam, &key_pose), key_cam, bins, imp).unwrap();
+        for (cam, t) in &lives {
+            let pose = Pose::from_parts(Translation3::from(*t), UnitQuaternion::identity());
+            cv.add_frame_seen_by(render(cam, &pose).view(), cam, &relative_pose(&key_pose, &pose)).unwrap();
+        }
+        let wta = cv.winner_take_all();
+        let (mut good, mut n) = (0, 0);
+        for y in 4..26 {
+            for x in 4..36 {
+                if wta.valid[[y, x]] {
+                    n += 1;
+                    good += usize::from((f64::from(wta.depth[[y, x]]) - z0).abs() < 0.1);
+                }
+            }
+        }
+        assert!(n > 500 && good as f64 > 0.95 * n as f64, "{imp:?}: {good} of {n} within 10 cm");
+        // Using the keyframe's camera for the live frames (the old one-camera warp) does not work:
+        // the check above is not passed by accident.
+        let mut wrong = CostVolume::with_impl(render(&key_cam, &key_pose), key_cam, bins, imp).unwrap();
+        let (cam, t) = &lives[1];
+        let pose = Pose::from_parts(Translation3::from(*t), UnitQuaternion::identity());
+        let img = render(cam, &pose);
+        let fake = PinholeCamera::new(40.0, 40.0, 19.5, 14.5, 24, 18).unwrap();
+        wrong.add_frame_seen_by(img.view(), &fake, &relative_pose(&key_pose, &pose)).unwrap();
+        let w = wrong.winner_take_all();
+        let bad = (4..26)
+            .flat_map(|y| (4..36).map(move |x| (y, x)))
+            .filter(|&(y, x)| w.valid[[y, x]] && (f64::from(w.depth[[y, x]]) - z0).abs() < 0.1)
+            .count();
+        assert!(bad < good / 2, "{imp:?}: the wrong camera gives {bad} good pixels");
+    }
 }

@@ -60,7 +60,7 @@ fn fit_from_correct_depth_recovers_the_rendered_exposure_change() {
     }
     assert!(truth.iter().any(|t| (t.0 - 1.0).abs() > 0.03), "the drift is visible: {truth:?}");
     let (rho, valid) = inverse_depth_of(k.depth.view());
-    let views: Vec<_> = live.iter().map(|l| l.view()).collect();
+    let views: Vec<_> = live.iter().map(|l| (l.view(), camera)).collect();
     let got = fit_from_depth(k.rgb.view(), &views, &poses, &camera, rho.view(), valid.view());
     assert_eq!(got.frames.len(), live_idx.len());
     for (i, (&(a, e), &(ta, te))) in got.frames.iter().zip(&truth).enumerate() {
@@ -95,8 +95,14 @@ fn affine_fit_resists_outlier_pairs() {
     let camera = densefeat::geometry::PinholeCamera::new(40.0, 40.0, 24.5, 19.5, w, h).unwrap();
     let rho = Array2::from_elem((h, w), 0.5f32);
     let valid = Array2::from_elem((h, w), true);
-    let got =
-        fit_from_depth(key.view(), &[live.view()], &[Pose::identity()], &camera, rho.view(), valid.view());
+    let got = fit_from_depth(
+        key.view(),
+        &[(live.view(), camera)],
+        &[Pose::identity()],
+        &camera,
+        rho.view(),
+        valid.view(),
+    );
     let (fa, fe) = got.frames[0];
     assert!((fa - a).abs() < 0.01 && (fe - e).abs() < 1.0, "({fa}, {fe}) vs ({a}, {e})");
 }
@@ -107,7 +113,7 @@ fn fit_is_identical_for_any_thread_count() {
     let lc = 2;
     let coarse = |i: usize| {
         let f = seq.load_frame(i).unwrap();
-        (densefeat::mapping::features::downsample_to(f.rgb.view(), lc).unwrap(), f.pose)
+        (densefeat::mapping::features::downsample_to(f.rgb.view(), lc).unwrap(), f.pose, f.camera)
     };
     let key = coarse(20);
     let live: Vec<_> = [12, 16, 24, 28].iter().map(|&i| coarse(i)).collect();

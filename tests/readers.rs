@@ -18,7 +18,7 @@ fn gains(label: &str, seq: &Sequence, starts: &[usize], offset: usize) -> Vec<f6
         .map(|&i| {
             let r = seq.load_frame(i).unwrap();
             let t = seq.load_frame(i + offset).unwrap();
-            let c = photometric_warp_check(&seq.camera, &r, &t).unwrap();
+            let c = photometric_warp_check(&r, &t).unwrap();
             eprintln!(
                 "{label}: {} -> {i}: warped {:.2} identity {:.2} gain {:.2} in view {:.2}",
                 i + offset,
@@ -206,7 +206,7 @@ fn cones_right_view_warps_into_left_view_frame() {
     let seq = open(&dir).unwrap();
     let (l, r) = (seq.load_frame(0).unwrap(), seq.load_frame(1).unwrap());
     // Reference = right view with its own GT (disp6): warping the left view into it must work too.
-    let c = photometric_warp_check(&seq.camera, &r, &l).unwrap();
+    let c = photometric_warp_check(&r, &l).unwrap();
     eprintln!("cones left -> right: gain {:.2}", c.gain());
     assert!(c.gain() > 4.0);
 }
@@ -398,7 +398,7 @@ fn stereo_pair_reads_jpeg_views() {
     assert!(seq.frames.iter().all(|f| f.rgb.extension().unwrap() == "jpg"));
     let r = seq.load_frame(0).unwrap();
     let l = seq.load_frame(1).unwrap();
-    assert!(photometric_warp_check(&seq.camera, &r, &l).unwrap().gain() > 4.0);
+    assert!(photometric_warp_check(&r, &l).unwrap().gain() > 4.0);
 }
 
 #[test]

@@ -227,9 +227,9 @@ fn exact_depth_warps_frames_onto_each_other() {
     };
     for i in [0, 17, 34] {
         let (reference, target) = (frame(i), frame(i + 5));
-        let all = photometric_warp_check(&k, &reference, &target).unwrap();
+        let all = photometric_warp_check(&reference, &target).unwrap();
         let depth = reference.depth.as_ref().map(|d| mask_discontinuities(d, 2));
-        let smooth = photometric_warp_check(&k, &Frame { depth, ..reference }, &target).unwrap();
+        let smooth = photometric_warp_check(&Frame { depth, ..reference }, &target).unwrap();
         for (what, c) in [("all pixels", all), ("away from depth edges", smooth)] {
             println!(
                 "frames {i} <- {} ({what}): warped {:.3}, identity {:.3} grey levels, gain {:.1}, {} px",

@@ -123,10 +123,10 @@ fn real_frames_warp_onto_each_other_after_a_brightness_fit() {
     };
     for i in [0, 20] {
         let (reference, target) = (frame(i), frame(i + 4));
-        let good = photometric_warp_check(&k, &reference, &target).unwrap();
+        let good = photometric_warp_check(&reference, &target).unwrap();
         // The same pixels warped with a wrong pose (frame i + 12's) must match much worse.
         let wrong = Frame { pose: scene.pose(i + 12).unwrap(), ..target.clone() };
-        let bad = photometric_warp_check(&k, &reference, &wrong).unwrap();
+        let bad = photometric_warp_check(&reference, &wrong).unwrap();
         println!(
             "frames {i} <- {}: warped {:.2}, after affine fit {:.2} (a {:.3}, b {:.1}), identity {:.2}, wrong pose {:.2}, {} px",
             i + 4,

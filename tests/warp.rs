@@ -17,7 +17,7 @@ fn synthetic_fixture_warp_is_near_exact() {
     let seq = open(fixture()).unwrap();
     for i in (0..seq.len() - 5).step_by(3) {
         let (a, b) = (seq.load_frame(i).unwrap(), seq.load_frame(i + 5).unwrap());
-        let c = photometric_warp_check(&seq.camera, &a, &b).unwrap();
+        let c = photometric_warp_check(&a, &b).unwrap();
         eprintln!(
             "synthetic {i} -> {}: warped {:.2} (after affine brightness fit {:.2}, a = {:.3}, b = {:.1}), identity {:.2}",
             i + 5,

@@ -332,8 +332,12 @@ impl Backend for CpuBackend {
 struct CpuVolume(CostVolume);
 
 impl VolumeBuilder for CpuVolume {
-    fn add_frame(&mut self, live: &Tensor, t_nr: &Pose) -> Result<()> {
-        self.0.add_frame(host("cpu", live)?.view(), t_nr)
+    fn add_frame_seen_by(&mut self, live: &Tensor, camera: &PinholeCamera, t_nr: &Pose) -> Result<()> {
+        self.0.add_frame_seen_by(host("cpu", live)?.view(), camera, t_nr)
+    }
+
+    fn camera(&self) -> &PinholeCamera {
+        self.0.camera()
     }
 
     fn frames(&self) -> usize {

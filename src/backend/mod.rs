@@ -243,7 +243,18 @@ pub trait VolumeBuilder: Send {
     ///
     /// # Errors
     /// Shape errors, the frame limit; [`Error::Unsupported`].
-    fn add_frame(&mut self, live: &Tensor, t_nr: &Pose) -> Result<()>;
+    fn add_frame(&mut self, live: &Tensor, t_nr: &Pose) -> Result<()> {
+        let camera = *self.camera();
+        self.add_frame_seen_by(live, &camera, t_nr)
+    }
+    /// Add one live frame's features seen by their own `camera` (`[H', W', C]`, `H' x W'` its
+    /// size) with `T_nr` (SPEC.md §9.1).
+    ///
+    /// # Errors
+    /// Shape errors, the frame limit; [`Error::Unsupported`].
+    fn add_frame_seen_by(&mut self, live: &Tensor, camera: &PinholeCamera, t_nr: &Pose) -> Result<()>;
+    /// The reference camera.
+    fn camera(&self) -> &PinholeCamera;
     /// Frames added so far.
     fn frames(&self) -> usize;
     /// A host copy of the volume so far (for diagnostics that look at it while it fills).

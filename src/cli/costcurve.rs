@@ -112,7 +112,8 @@ fn preflight(
     if args.keyframe >= seq.len() {
         return Err(flag("keyframe", format!("{}: the sequence has {} frames", args.keyframe, seq.len())));
     }
-    let (w0, h0) = (seq.camera.width, seq.camera.height);
+    let camera = seq.the_camera("--sequence")?;
+    let (w0, h0) = (camera.width, camera.height);
     if let Some(p) = pixels.iter().find(|(x, y)| *x >= w0 || *y >= h0) {
         return Err(flag("pixels", format!("{p:?} is outside the {w0}x{h0} image")));
     }

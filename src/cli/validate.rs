@@ -66,11 +66,15 @@ pub fn size(name: &str, text: &str) -> Result<(usize, usize)> {
 /// # Errors
 /// [`Error::BadFile`] naming the first colour image.
 pub fn frames_big_enough(seq: &Sequence, command: &str) -> Result<()> {
-    let (w, h) = (seq.camera.width, seq.camera.height);
-    if w >= MIN_FRAME_SIDE && h >= MIN_FRAME_SIDE {
+    // Every frame's own camera; the first too-small frame is named.
+    let Some(i) = (0..seq.len()).find(|&i| {
+        let c = seq.frame_camera(i);
+        c.width < MIN_FRAME_SIDE || c.height < MIN_FRAME_SIDE
+    }) else {
         return Ok(());
-    }
-    let file = seq.frames.first().map(|f| f.rgb.clone()).unwrap_or_else(|| seq.root.clone());
+    };
+    let (w, h) = (seq.frame_camera(i).width, seq.frame_camera(i).height);
+    let file = seq.frames[i].rgb.clone();
     Err(Error::bad_file(
         file,
         format!("frames are {w}x{h} pixels; {command} needs at least {MIN_FRAME_SIDE}x{MIN_FRAME_SIDE}"),
@@ -145,13 +149,20 @@ pub fn mapping_preflight(
         c.live_frames(seq.len()).map_err(|e| flag("keyframe", e.to_string()))?;
     }
     let level = crate::mapping::FeatureExtractor::network_level()?;
-    let grid = seq.camera.at_level(level);
+    // The largest keyframe camera bounds every volume.
+    let key_camera = keyframes
+        .iter()
+        .filter(|&&k| k < seq.len())
+        .map(|&k| seq.frame_camera(k))
+        .max_by_key(|c| c.width * c.height)
+        .unwrap_or(seq.camera);
+    let grid = key_camera.at_level(level);
     for kind in kinds {
         let (channels, stride) = feature_channels(kind)?;
         let mut bytes = crate::memory::cost_volume_bytes(grid.height, grid.width, cfg.bins, channels);
         if !matches!(kind, crate::mapping::FeatureKind::Rgb) {
             let net =
-                crate::memory::network_forward_bytes(seq.camera.height, seq.camera.width, channels, stride);
+                crate::memory::network_forward_bytes(key_camera.height, key_camera.width, channels, stride);
             bytes = bytes.saturating_add(net);
         }
         let what = format!(

@@ -21,9 +21,12 @@ use crate::geometry::{PinholeCamera, Warp};
 /// Width of the channel loop's partial sums (one AVX-512 register of `f32`).
 const LANES: usize = 16;
 
-/// Camera and warp of one live frame.
+/// Cameras and warp of one live frame.
 pub(super) struct Geometry<'a> {
+    /// The reference camera (the volume's rows and columns).
     pub camera: &'a PinholeCamera,
+    /// The live frame's camera (its features' size; projection and bounds).
+    pub live: &'a PinholeCamera,
     pub warp: &'a Warp,
     /// `t_nr`.
     pub t: Vector3<f64>,
@@ -89,7 +92,8 @@ pub(super) fn add_frame(
     #[cfg(target_arch = "x86_64")]
     let use_blocks = use_avx512
         && super::fast_avx512::available()
-        && super::fast_avx512::fits_i32(w, geo.camera.height, feats.channels);
+        && super::fast_avx512::fits_i32(w, geo.camera.height, feats.channels)
+        && super::fast_avx512::fits_i32(geo.live.width, geo.live.height, feats.channels);
     // The block kernel loads whole 64-byte channel chunks of 16·N-channel maps: from a
     // cache-line-aligned copy no load straddles two lines (a copy changes no value).
     #[cfg(target_arch = "x86_64")]
@@ -113,7 +117,7 @@ pub(super) fn add_frame(
     // pixel, so the block kernel gathers 4 words per hypothesis instead of 12 floats (same values).
     #[cfg(target_arch = "x86_64")]
     let packed = if use_blocks {
-        super::fast_avx512::PackedRgb::new(feats.live, feats.channels, geo.camera.width)
+        super::fast_avx512::PackedRgb::new(feats.live, feats.channels, geo.live.width)
     } else {
         None
     };
@@ -186,15 +190,17 @@ fn row<const CH: usize>(
     count_row: &mut [u16],
     scratch: &mut Scratch,
 ) {
-    let cam = geo.camera;
+    // Reference pixels in the reference camera; positions, bounds and offsets in the live one.
+    let cam = geo.live;
     debug_assert!(CH == 0 || CH == feats.channels);
     let c = if CH == 0 { feats.channels } else { CH };
-    let (w, h, k_count) = (cam.width, cam.height, rhos.len());
+    let (w, k_count) = (geo.camera.width, rhos.len());
+    let (lw, lh) = (cam.width, cam.height);
     // Bounds and corner clamps of `image::sample`: valid iff 0 <= x <= W-1; x0 = min(floor x, W-2);
     // on a 1-pixel-wide image x0 = 0, a = 0 and the right corner aliases the left one.
-    let (x_max, y_max) = ((w - 1) as f64, (h - 1) as f64);
-    let (x_cap, y_cap) = (w.saturating_sub(2) as f64, h.saturating_sub(2) as f64);
-    let (dx, dy) = (if w > 1 { c } else { 0 }, if h > 1 { w * c } else { 0 });
+    let (x_max, y_max) = ((lw - 1) as f64, (lh - 1) as f64);
+    let (x_cap, y_cap) = (lw.saturating_sub(2) as f64, lh.saturating_sub(2) as f64);
+    let (dx, dy) = (if lw > 1 { c } else { 0 }, if lh > 1 { lw * c } else { 0 });
     let (fx, fy, cx, cy) = (cam.fx, cam.fy, cam.cx, cam.cy);
     let t = geo.t;
     let Scratch { ok, offset, w: wts } = scratch;
@@ -217,7 +223,7 @@ fn row<const CH: usize>(
             let (x0, y0) = (u.floor().min(x_cap), v.floor().min(y_cap));
             let (fa, fb) = (u - x0, v - y0);
             // Saturating casts: garbage (never read) where `ok` is false.
-            offset[k] = (y0 as usize * w + x0 as usize) * c;
+            offset[k] = (y0 as usize * lw + x0 as usize) * c;
             w00[k] = ((1.0 - fa) * (1.0 - fb)) as f32;
             w10[k] = (fa * (1.0 - fb)) as f32;
             w01[k] = ((1.0 - fa) * fb) as f32;

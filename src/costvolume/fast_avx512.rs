@@ -215,24 +215,27 @@ pub(super) unsafe fn row(
     sum_row: &mut [f32],
     count_row: &mut [u16],
 ) {
-    let cam = geo.camera;
+    // The reference row is walked in the reference camera; warped positions, bounds and offsets
+    // are in the live camera (its own size and intrinsics, SPEC.md §9.1).
+    let cam = geo.live;
     let c = feats.channels;
-    let (w, h, k_count) = (cam.width, cam.height, rhos.len());
+    let (w, k_count) = (geo.camera.width, rhos.len());
+    let (lw, lh) = (cam.width, cam.height);
     let t = geo.t;
     let mut g = RowGeo {
         a: [0.0; 3],
         t: [t.x, t.y, t.z],
         f: [cam.fx, cam.fy],
         centre: [cam.cx, cam.cy],
-        max: [(w - 1) as f64, (h - 1) as f64],
-        cap: [w.saturating_sub(2) as f64, h.saturating_sub(2) as f64],
-        w: w as i32,
+        max: [(lw - 1) as f64, (lh - 1) as f64],
+        cap: [lw.saturating_sub(2) as f64, lh.saturating_sub(2) as f64],
+        w: lw as i32,
         // Offsets count pixels in the packed map, floats otherwise.
         c: if packed.is_some() { 1 } else { c as i32 },
     };
     // Corner steps in the units of the offsets (pixels in the packed map, floats otherwise).
     let unit = g.c as usize;
-    let (dx, dy) = (if w > 1 { unit } else { 0 }, if h > 1 { w * unit } else { 0 });
+    let (dx, dy) = (if lw > 1 { unit } else { 0 }, if lh > 1 { lw * unit } else { 0 });
     // How many pixels ahead the sums and counts are prefetched: about one memory latency's worth of
     // work (a pixel of the 3-channel kernel is quicker than one of the 16·N-channel kernels).
     let ahead = if c <= 3 { 4 } else { 2 };

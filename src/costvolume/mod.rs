@@ -229,7 +229,23 @@ impl CostVolume {
     /// # Errors
     /// [`Error::InvalidArgument`] on a shape mismatch, or when [`MAX_FRAMES`] frames were already added.
     pub fn add_frame(&mut self, live: ArrayView3<f32>, t_nr: &Pose) -> Result<()> {
-        check_shape("live features", live.dim(), &self.camera, Some(self.reference.dim().2))?;
+        let camera = self.camera;
+        self.add_frame_seen_by(live, &camera, t_nr)
+    }
+
+    /// Add one live frame seen by its own camera: features `[H', W', C]` with `H' x W'` the live
+    /// camera's size (the reference's channel count), warped with `π_n(T_nr π_r⁻¹(u, ρ))`, the
+    /// reference camera's `K_r⁻¹` and the live camera's `K_n` (SPEC.md §9.1).
+    ///
+    /// # Errors
+    /// As [`CostVolume::add_frame`].
+    pub fn add_frame_seen_by(
+        &mut self,
+        live: ArrayView3<f32>,
+        camera: &PinholeCamera,
+        t_nr: &Pose,
+    ) -> Result<()> {
+        check_shape("live features", live.dim(), camera, Some(self.reference.dim().2))?;
         if self.frames >= MAX_FRAMES {
             return Err(Error::invalid_argument(
                 "cost volume",
@@ -237,8 +253,9 @@ impl CostVolume {
             ));
         }
         let live = live.as_standard_layout();
-        let warp = Warp::new(&self.camera, &self.camera, t_nr);
-        let geo = fast::Geometry { camera: &self.camera, warp: &warp, t: t_nr.translation.vector };
+        let warp = Warp::new(&self.camera, camera, t_nr);
+        let geo =
+            fast::Geometry { camera: &self.camera, live: camera, warp: &warp, t: t_nr.translation.vector };
         match (&mut self.sums, self.imp) {
             (Sums::F64(sums), _) => reference::add_frame(
                 &self.reference.view(),

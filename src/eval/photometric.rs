@@ -4,7 +4,7 @@
 //! convention make the warped error several times smaller; any one of them wrong does not.
 
 use crate::error::{Error, Result};
-use crate::geometry::{relative_pose, PinholeCamera, Warp};
+use crate::geometry::{relative_pose, Warp};
 use crate::image::{is_valid_depth, sample_bilinear, to_gray};
 use crate::sequence::Frame;
 
@@ -33,19 +33,17 @@ impl WarpCheck {
     }
 }
 
-/// Warp `target` into `reference` (both in `camera`) using the reference's depth and both poses.
+/// Warp `target` into `reference` (each in its own [`Frame::camera`]) using the reference's depth
+/// and both poses. The identity error compares the same pixel position in both images (where the
+/// target has it).
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] if the reference has no depth or no pixel lands in the target.
-pub fn photometric_warp_check(
-    camera: &PinholeCamera,
-    reference: &Frame,
-    target: &Frame,
-) -> Result<WarpCheck> {
+pub fn photometric_warp_check(reference: &Frame, target: &Frame) -> Result<WarpCheck> {
     let depth = reference.depth.as_ref().ok_or_else(|| {
         Error::invalid_argument("reference frame", format!("frame {} has no depth", reference.index))
     })?;
-    let warp = Warp::new(camera, camera, &relative_pose(&reference.pose, &target.pose));
+    let warp = Warp::new(&reference.camera, &target.camera, &relative_pose(&reference.pose, &target.pose));
     let (g_ref, g_tgt) = (to_gray(&reference.rgb), to_gray(&target.rgb));
     let g_tgt3 = g_tgt.view().insert_axis(ndarray::Axis(2));
     let (mut sum_w, mut sum_i, mut n, mut n_depth) = (0.0f64, 0.0f64, 0usize, 0usize);
@@ -62,7 +60,7 @@ pub fn photometric_warp_check(
         }
         let r = g_ref[[y, x]];
         sum_w += (r - s[0]).abs() as f64;
-        sum_i += (r - g_tgt[[y, x]]).abs() as f64;
+        sum_i += (r - g_tgt.get((y, x)).copied().unwrap_or(r)).abs() as f64;
         pairs.push((r as f64, s[0] as f64));
         n += 1;
     }

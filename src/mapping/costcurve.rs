@@ -90,7 +90,8 @@ pub fn cost_curves(
     if order.is_empty() {
         return Err(Error::invalid_argument("--sequence", "one frame: no live frame to match"));
     }
-    let (w0, h0) = (seq.camera.width, seq.camera.height);
+    let seq_camera = seq.the_camera("--sequence")?;
+    let (w0, h0) = (seq_camera.width, seq_camera.height);
     if let Some(p) = pixels.iter().find(|(x, y)| *x >= w0 || *y >= h0) {
         return Err(Error::invalid_argument("--pixels", format!("{p:?} is outside the {w0}x{h0} image")));
     }
@@ -103,7 +104,7 @@ pub fn cost_curves(
     let mut curves = Vec::new();
     for kind in kinds {
         let ex = FeatureExtractor::new(kind.clone(), rgb_level, backend.clone())?;
-        let camera = ex.camera(&seq.camera);
+        let camera = ex.camera(&seq_camera);
         let grid: Vec<_> =
             pixels.iter().map(|&p| grid_pixel(p, ex.level(), (camera.width, camera.height))).collect();
         // The default per-frame truncation (SPEC.md §9.13): the curves the mapper sees.

@@ -377,7 +377,9 @@ pub fn reconstruct(
     let bins = cfg.validate()?;
     let live = cfg.live_frames(seq.len())?;
     let level = cfg.level;
-    let camera = seq.camera.at_level(level);
+    // The keyframe's camera; each live frame is warped into its own (SPEC.md §9.1).
+    let key_camera = seq.frame_camera(cfg.keyframe.min(seq.len().saturating_sub(1)));
+    let camera = key_camera.at_level(level);
     let backend = cfg.backend.as_ref();
     let extractor = FeatureExtractor::new(cfg.features.clone(), level, cfg.backend.clone())?;
     let mut timings = StageTimings::default();
@@ -411,13 +413,13 @@ pub fn reconstruct(
         let t = Instant::now();
         // After the memory check: each live frame is loaded and reduced to the coarse level at
         // once (only the coarse images are kept; the volume loop loads them again).
-        let lc = photometric::coarse_level(&seq.camera, level);
+        let lc = photometric::coarse_level(&key_camera, level);
         let coarse = |rgb: &RgbImage| downsample_to(rgb.view(), lc);
         let all = live
             .par_iter()
-            .map(|&m| seq.load_frame_rgb(m).and_then(|f| Ok((coarse(&f.rgb)?, f.pose))))
+            .map(|&m| seq.load_frame_rgb(m).and_then(|f| Ok((coarse(&f.rgb)?, f.pose, f.camera))))
             .collect::<Result<Vec<_>>>()?;
-        let fit = photometric::fit((&coarse(&key.rgb)?, &key.pose), &all, &seq.camera, &bins, lc)?;
+        let fit = photometric::fit((&coarse(&key.rgb)?, &key.pose), &all, &key_camera, &bins, lc)?;
         timings.photometric = t.elapsed().as_secs_f64();
         fit
     };
@@ -447,7 +449,11 @@ pub fn reconstruct(
         let f = extractor.extract(&photo.correct_live(i, &frame.rgb))?.data;
         timings.features += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        cv.add_frame(&backend.upload_owned(f)?, &relative_pose(&key.pose, &frame.pose))?;
+        cv.add_frame_seen_by(
+            &backend.upload_owned(f)?,
+            &frame.camera.at_level(level),
+            &relative_pose(&key.pose, &frame.pose),
+        )?;
         timings.cost_volume += t.elapsed().as_secs_f64();
         progress(Stage::CostVolume, i + 1, live.len());
     }

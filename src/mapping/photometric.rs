@@ -99,14 +99,14 @@ pub fn coarse_level(camera: &PinholeCamera, level: u32) -> u32 {
 }
 
 /// Fit the window's correction. `key` is the keyframe's colour and pose, `live` the live frames'
-/// colour and poses (window order), all already at level `lc` = [`coarse_level`] of the
-/// full-resolution `camera`.
+/// colour, pose and full-resolution camera (window order), the images already at level `lc` =
+/// [`coarse_level`] of the keyframe's full-resolution `camera`.
 ///
 /// # Errors
 /// Cost-volume and image-shape errors (none for a consistent sequence).
 pub fn fit(
     key: (&RgbImage, &Pose),
-    live: &[(RgbImage, Pose)],
+    live: &[(RgbImage, Pose, PinholeCamera)],
     camera: &PinholeCamera,
     bins: &InverseDepthBins,
     lc: u32,
@@ -117,30 +117,32 @@ pub fn fit(
     }
     let cam = camera.at_level(lc);
     let key_c = key.0;
-    let live_c: Vec<ArrayView3<f32>> = live.iter().map(|(rgb, _)| rgb.view()).collect();
-    let poses: Vec<Pose> = live.iter().map(|(_, p)| relative_pose(key.1, p)).collect();
+    let live_c: Vec<ArrayView3<f32>> = live.iter().map(|(rgb, _, _)| rgb.view()).collect();
+    let poses: Vec<Pose> = live.iter().map(|(_, p, _)| relative_pose(key.1, p)).collect();
+    let cams: Vec<PinholeCamera> = live.iter().map(|(_, _, c)| c.at_level(lc)).collect();
     let coarse_bins = InverseDepthBins::new(bins.rho_min, bins.rho_max, COARSE_BINS)?;
     let mut current = PhotometricFit::identity(n);
     for _ in 0..ROUNDS {
         let mut cv = CostVolume::new(key_c.clone(), cam, coarse_bins)?;
-        for (i, ((img, _), pose)) in live.iter().zip(&poses).enumerate() {
-            cv.add_frame(current.correct_live(i, img).view(), pose)?;
+        for (i, ((img, _, _), pose)) in live.iter().zip(&poses).enumerate() {
+            cv.add_frame_seen_by(current.correct_live(i, img).view(), &cams[i], pose)?;
         }
         let mut costs = cv.costs();
         filter_evidence(&mut costs, cv.counts_view(), 0.25);
         let wta = winner_take_all_costs(costs.view(), &coarse_bins);
+        let views: Vec<_> = live_c.iter().zip(&cams).map(|(v, c)| (*v, *c)).collect();
         current =
-            fit_from_depth(key_c.view(), &live_c, &poses, &cam, wta.inverse_depth.view(), wta.valid.view());
+            fit_from_depth(key_c.view(), &views, &poses, &cam, wta.inverse_depth.view(), wta.valid.view());
     }
     Ok(current)
 }
 
 /// The Huber IRLS fit of `(a_i, e_i)` per live frame from a keyframe inverse depth (`valid` pixels
-/// with `ρ > 0`), all images on `camera`'s grid; `poses[i]` is `T_nr` of frame `i`. A frame with
-/// fewer than two distinct pairs keeps the identity.
+/// with `ρ > 0`) on `camera`'s grid; `live[i]` is frame `i`'s image and its camera (at the same
+/// level), `poses[i]` its `T_nr`. A frame with fewer than two distinct pairs keeps the identity.
 pub fn fit_from_depth(
     key: ArrayView3<f32>,
-    live: &[ArrayView3<f32>],
+    live: &[(ArrayView3<f32>, PinholeCamera)],
     poses: &[Pose],
     camera: &PinholeCamera,
     inverse_depth: ArrayView2<f32>,
@@ -149,8 +151,8 @@ pub fn fit_from_depth(
     let frames: Vec<((f64, f64), usize)> = live
         .par_iter()
         .zip(poses)
-        .map(|(img, pose)| {
-            let pairs = collect_pairs(key, *img, camera, pose, inverse_depth, valid);
+        .map(|((img, live_camera), pose)| {
+            let pairs = collect_pairs(key, *img, (camera, live_camera), pose, inverse_depth, valid);
             (fit_affine(&pairs), pairs.len())
         })
         .collect();
@@ -164,12 +166,12 @@ pub fn fit_from_depth(
 fn collect_pairs(
     key: ArrayView3<f32>,
     live: ArrayView3<f32>,
-    camera: &PinholeCamera,
+    (camera, live_camera): (&PinholeCamera, &PinholeCamera),
     t_nr: &Pose,
     inverse_depth: ArrayView2<f32>,
     valid: ArrayView2<bool>,
 ) -> Vec<(f64, f64)> {
-    let warp = Warp::new(camera, camera, t_nr);
+    let warp = Warp::new(camera, live_camera, t_nr);
     let (h, w) = valid.dim();
     let mut out = Vec::new();
     let mut sample = [0.0f32; 3];

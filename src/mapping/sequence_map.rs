@@ -192,8 +192,14 @@ impl MapConfig {
                 Ok(PlannedKeyframe { index: k, past, future, depth_range })
             })
             .collect::<Result<_>>()?;
-        let key_poses: Vec<_> = keys.iter().map(|&k| poses[k]).collect();
-        let frusta = Aabb::of_frusta(&cam, &key_poses, self.max_fusion_depth).padded(self.truncation);
+        // Each keyframe's frustum in its own camera.
+        let mut frusta = Aabb::empty();
+        for &k in &keys {
+            let b = Aabb::of_frusta(&seq.frame_camera(k), &[poses[k]], self.max_fusion_depth);
+            frusta.add(b.min);
+            frusta.add(b.max);
+        }
+        let frusta = frusta.padded(self.truncation);
         let volumes = if seq.frames[keys[0]].depth.is_some() { 2 } else { 1 };
         let fusion_bytes_bound =
             voxel_count(&frusta, self.voxel).saturating_mul(BYTES_PER_VOXEL).saturating_mul(volumes);
@@ -429,10 +435,10 @@ struct KeyframeMaps {
 }
 
 fn load_keyframes(seq: &Sequence, cfg: &MapConfig, plan: &MapPlan, out: &Path) -> Result<Vec<KeyframeMaps>> {
-    let camera = seq.camera.at_level(cfg.keyframe.level);
     plan.keyframes
         .iter()
         .map(|k| {
+            let camera = seq.frame_camera(k.index).at_level(cfg.keyframe.level);
             let dir = keyframe_dir(out, k.index);
             let depth = read_pfm(&dir.join(depth_file(cfg)))?;
             let confidence = read_pfm(&dir.join("confidence.pfm"))?;

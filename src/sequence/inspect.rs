@@ -96,6 +96,10 @@ pub struct Summary {
     pub colour_formats: Vec<(String, usize)>,
     /// Camera of the loaded frames.
     pub camera: PinholeCamera,
+    /// Number of distinct cameras (1 unless frames have their own intrinsics or sizes).
+    pub cameras: usize,
+    /// Distinct image sizes `(width, height)` and how many frames have each, most common first.
+    pub sizes: Vec<((usize, usize), usize)>,
     /// Distortion of the raw files.
     pub distortion: Option<RadTan>,
     /// Whether frames are undistorted on load.
@@ -234,6 +238,8 @@ impl Summary {
             frames: seq.len(),
             colour_formats: colour_formats(seq),
             camera: seq.camera,
+            cameras: seq.raw_cameras.len(),
+            sizes: frame_sizes(seq),
             distortion: seq.raw_camera.distortion,
             undistorted: seq.undistorts(),
             notes,
@@ -319,7 +325,7 @@ fn consistency(seq: &Sequence, offset: usize) -> Result<Option<Consistency>> {
             continue;
         }
         let (r, t) = (seq.load_frame(i)?, seq.load_frame(i + offset)?);
-        if let Ok(c) = photometric_warp_check(&seq.camera, &r, &t) {
+        if let Ok(c) = photometric_warp_check(&r, &t) {
             pairs.push((i, i + offset, c));
         }
     }
@@ -353,10 +359,23 @@ impl fmt::Display for Summary {
         let k = &self.camera;
         writeln!(f, "sequence     {}", self.root.display())?;
         writeln!(f, "format       {}", self.format)?;
-        writeln!(f, "frames       {} ({}x{})", self.frames, k.width, k.height)?;
+        if self.sizes.len() > 1 {
+            let sizes: Vec<String> = self.sizes.iter().map(|((w, h), n)| format!("{w}x{h} x{n}")).collect();
+            writeln!(f, "frames       {} ({} sizes: {})", self.frames, self.sizes.len(), sizes.join(", "))?;
+        } else {
+            writeln!(f, "frames       {} ({}x{})", self.frames, k.width, k.height)?;
+        }
         let colour: Vec<String> = self.colour_formats.iter().map(|(n, c)| format!("{n} x{c}")).collect();
         writeln!(f, "colour       {}", colour.join(", "))?;
-        writeln!(f, "camera       fx {} fy {} cx {} cy {}", k.fx, k.fy, k.cx, k.cy)?;
+        if self.cameras > 1 {
+            writeln!(
+                f,
+                "cameras      {} (each frame is used with its own); frame 0: fx {} fy {} cx {} cy {}",
+                self.cameras, k.fx, k.fy, k.cx, k.cy
+            )?;
+        } else {
+            writeln!(f, "camera       fx {} fy {} cx {} cy {}", k.fx, k.fy, k.cx, k.cy)?;
+        }
         match &self.distortion {
             Some(d) if !d.is_identity() => writeln!(
                 f,
@@ -457,4 +476,16 @@ impl fmt::Display for Summary {
         }
         Ok(())
     }
+}
+
+/// Distinct frame sizes and their frame counts, most common first (ties by size).
+fn frame_sizes(seq: &Sequence) -> Vec<((usize, usize), usize)> {
+    let mut counts: std::collections::BTreeMap<(usize, usize), usize> = std::collections::BTreeMap::new();
+    for i in 0..seq.len() {
+        let c = seq.frame_camera(i);
+        *counts.entry((c.width, c.height)).or_default() += 1;
+    }
+    let mut v: Vec<_> = counts.into_iter().collect();
+    v.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    v
 }

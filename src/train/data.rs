@@ -290,6 +290,8 @@ impl DataSet {
     /// validation pairs, the rest training pairs.
     fn open_sequence(path: &Path, cfg: &DataConfig, val_fraction: f64) -> Result<SequenceSource> {
         let seq = open(path)?;
+        // Training crops share one camera per sequence (SPEC.md §13.5).
+        seq.the_camera("--data")?;
         let (cw, ch) = cfg.crop;
         if seq.camera.width < cw || seq.camera.height < ch {
             return Err(Error::invalid_argument(

@@ -108,7 +108,7 @@ pub fn assert_warp_matches_renderer(
         fa.depth = Some(d.clone());
     }
     let fb = seq.load_frame(b).unwrap();
-    let read = photometric_warp_check(&seq.camera, &fa, &fb).unwrap();
+    let read = photometric_warp_check(&fa, &fb).unwrap();
     let truth_frame = |i: usize| Frame {
         index: i,
         rgb: r.frames[i].0.clone(),
@@ -116,7 +116,7 @@ pub fn assert_warp_matches_renderer(
         pose: r.frames[i].2,
         camera: r.camera,
     };
-    let truth = photometric_warp_check(&r.camera, &truth_frame(a), &truth_frame(b)).unwrap();
+    let truth = photometric_warp_check(&truth_frame(a), &truth_frame(b)).unwrap();
     eprintln!(
         "warp {b} -> {a}: read {:.3} (identity {:.3}), renderer {:.3} (identity {:.3})",
         read.warped_error, read.identity_error, truth.warped_error, truth.identity_error

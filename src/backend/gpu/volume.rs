@@ -84,10 +84,17 @@ impl GpuVolume {
 }
 
 /// The geometry `volume.wgsl` reads (see its header): `R K⁻¹`, `t`, intrinsics, bounds, `τ`, `ρ_k`.
-fn geometry(camera: &PinholeCamera, bins: &InverseDepthBins, t_nr: &Pose, truncation: f32) -> Vec<f64> {
-    let warp = Warp::new(camera, camera, t_nr);
+fn geometry(
+    camera: &PinholeCamera,
+    live: &PinholeCamera,
+    bins: &InverseDepthBins,
+    t_nr: &Pose,
+    truncation: f32,
+) -> Vec<f64> {
+    let warp = Warp::new(camera, live, t_nr);
     let rk = warp.rotation_k_inv();
     let t = warp.translation();
+    let camera = live;
     let (w, h) = (camera.width, camera.height);
     let mut g: Vec<f64> = (0..3).flat_map(|r| (0..3).map(move |c| rk[(r, c)])).collect();
     g.extend([t.x, t.y, t.z, camera.fx, camera.fy, camera.cx, camera.cy]);
@@ -99,9 +106,13 @@ fn geometry(camera: &PinholeCamera, bins: &InverseDepthBins, t_nr: &Pose, trunca
 }
 
 impl VolumeBuilder for GpuVolume {
-    fn add_frame(&mut self, live: &Tensor, t_nr: &Pose) -> Result<()> {
+    fn camera(&self) -> &PinholeCamera {
+        &self.camera
+    }
+
+    fn add_frame_seen_by(&mut self, live: &Tensor, camera: &PinholeCamera, t_nr: &Pose) -> Result<()> {
         let lb = self.gpu.buffer(live)?;
-        check_shape("live features", live.dim(), &self.camera, Some(self.reference.dim().2))?;
+        check_shape("live features", live.dim(), camera, Some(self.reference.dim().2))?;
         if self.frames >= MAX_FRAMES {
             return Err(Error::invalid_argument(
                 "cost volume",
@@ -109,11 +120,13 @@ impl VolumeBuilder for GpuVolume {
             ));
         }
         let gpu = &self.gpu;
-        let (h, w, c) = live.dim();
-        let p = super::params([self.cells, h, w, c, self.bins.count]);
+        let (lh, lw, c) = live.dim();
+        let (_, w, _) = self.reference.dim();
+        let p = super::params([self.cells, lh, w, c, self.bins.count, lw]);
         let pb = gpu.storage_bytes(bytemuck::cast_slice(&p));
         let gb = gpu.storage_bytes(bytemuck::cast_slice(&geometry(
             &self.camera,
+            camera,
             &self.bins,
             t_nr,
             self.truncation,

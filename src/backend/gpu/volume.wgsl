@@ -3,7 +3,8 @@
 // exactly one invocation per frame, frames in submission order: no atomics, the same bits run
 // after run.
 //
-// p = [cells, h, w, c, k]
+// p = [cells, h', w, c, k, w'] (w the reference width, h' x w' the live map's size: the live frame
+// has its own camera, SPEC.md §9.1)
 // g = [R K⁻¹ row-major (9), t_nr (3), fx, fy, cx, cy, x_max, y_max, x_cap, y_cap, τ, ρ_0 .. ρ_{K-1}]
 // (x_max = W-1, x_cap = max(W-2, 0), likewise for y; τ the per-frame truncation, SPEC.md §9.13,
 // f32::MAX for none).
@@ -22,10 +23,11 @@ const RHO0: u32 = 21u;
 fn add_frame(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = gid.x + gid.y * nwg.x * 64u;
     if (i >= p[0]) { return; }
-    let h = p[1];
+    let lh = p[1];
     let w = p[2];
     let c = p[3];
     let kk = p[4];
+    let lw = p[5];
     let k = i % kk;
     let pix = i / kk;
     let x = pix % w;
@@ -54,10 +56,10 @@ fn add_frame(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let w10 = f32(fa * (f64(1.0) - fb));
     let w01 = f32((f64(1.0) - fa) * fb);
     let w11 = f32(fa * fb);
-    let o = (u32(y0) * w + u32(x0)) * c;
+    let o = (u32(y0) * lw + u32(x0)) * c;
     // On a 1-pixel-wide (-high) map the right (lower) corner aliases the left (upper) one.
-    let dx = select(0u, c, w > 1u);
-    let dy = select(0u, w * c, h > 1u);
+    let dx = select(0u, c, lw > 1u);
+    let dy = select(0u, lw * c, lh > 1u);
     let r = pix * c;
     var l1 = 0.0f;
     for (var ch = 0u; ch < c; ch++) {

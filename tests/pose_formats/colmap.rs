@@ -7,7 +7,7 @@ use densefeat::image::save_rgb_png;
 use densefeat::sequence::colmap::{write_model, CameraModel, ColmapExport};
 use densefeat::sequence::depth_range::depth_range_of;
 use densefeat::sequence::inspect::Summary;
-use densefeat::sequence::{open, open_with, Format, OpenOptions};
+use densefeat::sequence::{open, open_with, Format, Frame, OpenOptions};
 use nalgebra::Point3;
 
 use crate::render::{
@@ -362,4 +362,196 @@ fn colmap_opencv_images_are_undistorted_onto_the_pinhole_rendering() {
     eprintln!("worst grey error against the pinhole rendering: undistorted {on:.3}, raw {off:.3}");
     assert!(on < 1.0, "undistorted worst error {on}");
     assert!(off > 10.0 * on, "distortion must matter in this test: raw worst error {off}");
+}
+
+/// A COLMAP text model written by hand, as COLMAP's undistorter writes one: a `PINHOLE` camera per
+/// image, principal points in COLMAP's convention (top-left pixel centre at `(0.5, 0.5)`), images of
+/// two sizes, and 2D observations made by projecting the world points with a projection written
+/// here (not by our COLMAP writer). Images 0 and 2 have identical parameters under different ids.
+struct PerImageModel {
+    dir: tempfile::TempDir,
+    cameras: Vec<densefeat::geometry::PinholeCamera>,
+    depth0: densefeat::image::DepthMap,
+}
+
+fn per_image_model(frames: usize) -> PerImageModel {
+    use densefeat::geometry::PinholeCamera;
+    use std::fmt::Write as _;
+    let shapes = [
+        (80.0, 80.0, 47.5, 35.5, 96, 72),
+        (62.0, 63.0, 39.0, 29.0, 80, 60),
+        (80.0, 80.0, 47.5, 35.5, 96, 72),
+        (70.0, 70.0, 40.0, 31.0, 80, 60),
+    ];
+    let cameras: Vec<PinholeCamera> = (0..frames)
+        .map(|i| {
+            let (fx, fy, cx, cy, w, h) = shapes[i % shapes.len()];
+            PinholeCamera::new(fx, fy, cx, cy, w, h).unwrap()
+        })
+        .collect();
+    // Frame i of the same scene (seed and trajectory), rendered through camera i.
+    let renders: Vec<Rendered> = cameras.iter().map(|&c| render(96, 72, frames, Some(c))).collect();
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("images")).unwrap();
+    std::fs::create_dir_all(dir.path().join("sparse/0")).unwrap();
+    // World points: every 5th pixel of frame 0's rendered depth.
+    let (_, depth0, pose0) = &renders[0].frames[0];
+    let k0 = cameras[0];
+    let mut points = Vec::new();
+    for ((y, x), &z) in depth0.indexed_iter() {
+        if z > 0.0 && x % 5 == 0 && y % 5 == 0 {
+            let c = nalgebra::Vector3::new(
+                (x as f64 - k0.cx) / k0.fx * f64::from(z),
+                (y as f64 - k0.cy) / k0.fy * f64::from(z),
+                f64::from(z),
+            );
+            points.push(pose0 * Point3::from(c));
+        }
+    }
+    let (mut cams, mut imgs, mut pts) = (String::new(), String::new(), String::new());
+    cams.push_str("# Camera list with one line of data per camera:\n");
+    imgs.push_str("# Image list with two lines of data per image:\n");
+    for (i, k) in cameras.iter().enumerate() {
+        let (rgb, _, pose) = &renders[i].frames[i];
+        let name = format!("{i:04}.png");
+        save_rgb_png(&dir.path().join("images").join(&name), rgb).unwrap();
+        // COLMAP: principal point with the top-left pixel centre at (0.5, 0.5).
+        writeln!(
+            cams,
+            "{} PINHOLE {} {} {} {} {} {}",
+            i + 1,
+            k.width,
+            k.height,
+            k.fx,
+            k.fy,
+            k.cx + 0.5,
+            k.cy + 0.5
+        )
+        .unwrap();
+        let t_cw = pose.inverse();
+        let q = t_cw.rotation.quaternion();
+        let t = t_cw.translation.vector;
+        writeln!(imgs, "{} {} {} {} {} {} {} {} {} {name}", i + 1, q.w, q.i, q.j, q.k, t.x, t.y, t.z, i + 1)
+            .unwrap();
+        let mut obs = Vec::new();
+        for (id, p) in points.iter().enumerate() {
+            let c = t_cw * p;
+            if c.z <= 0.0 {
+                continue;
+            }
+            let (u, v) = (k.fx * c.x / c.z + k.cx + 0.5, k.fy * c.y / c.z + k.cy + 0.5);
+            if u >= 0.0 && v >= 0.0 && u < k.width as f64 && v < k.height as f64 {
+                obs.push(format!("{u} {v} {}", id + 1));
+            }
+        }
+        writeln!(imgs, "{}", obs.join(" ")).unwrap();
+    }
+    for (id, p) in points.iter().enumerate() {
+        writeln!(pts, "{} {} {} {} 128 128 128 0.5", id + 1, p.x, p.y, p.z).unwrap();
+    }
+    let sparse = dir.path().join("sparse/0");
+    std::fs::write(sparse.join("cameras.txt"), cams).unwrap();
+    std::fs::write(sparse.join("images.txt"), imgs).unwrap();
+    std::fs::write(sparse.join("points3D.txt"), pts).unwrap();
+    PerImageModel { dir, cameras, depth0: depth0.clone() }
+}
+
+#[test]
+fn colmap_one_camera_per_image_of_two_sizes_loads_with_each_frames_camera() {
+    let m = per_image_model(4);
+    let seq = open(m.dir.path()).unwrap();
+    assert_eq!(seq.raw_cameras.len(), 3, "ids 1 and 3 have identical parameters: merged");
+    for (i, want) in m.cameras.iter().enumerate() {
+        let got = seq.frame_camera(i);
+        assert_eq!((got.width, got.height), (want.width, want.height), "frame {i}");
+        for (a, b) in [(got.fx, want.fx), (got.fy, want.fy), (got.cx, want.cx), (got.cy, want.cy)] {
+            assert!((a - b).abs() < 1e-12, "frame {i}: {got:?} vs {want:?}");
+        }
+        let f = seq.load_frame(i).unwrap();
+        assert_eq!(f.rgb.dim().1, want.width, "frame {i} is loaded at its own size");
+        assert_eq!(f.camera, got);
+    }
+    // The stored 2D observations, reprojected from points3D with the reader's cameras and poses
+    // (COLMAP's coordinates are ours + 0.5).
+    let sparse = m.dir.path().join("sparse/0");
+    let pts: std::collections::HashMap<u64, Point3<f64>> =
+        std::fs::read_to_string(sparse.join("points3D.txt"))
+            .unwrap()
+            .lines()
+            .map(|l| {
+                let f: Vec<f64> = l.split(' ').take(4).map(|v| v.parse().unwrap()).collect();
+                (f[0] as u64, Point3::new(f[1], f[2], f[3]))
+            })
+            .collect();
+    let text = std::fs::read_to_string(sparse.join("images.txt")).unwrap();
+    let lines: Vec<&str> = text.lines().skip(1).collect();
+    let (mut worst, mut n) = (0.0f64, 0);
+    for (i, pair) in lines.chunks(2).enumerate() {
+        let t_cw = seq.frames[i].pose.inverse();
+        let k = seq.frame_camera(i);
+        let f: Vec<&str> = pair[1].split(' ').collect();
+        for o in f.chunks(3) {
+            let (u, v, id): (f64, f64, u64) =
+                (o[0].parse().unwrap(), o[1].parse().unwrap(), o[2].parse().unwrap());
+            let uv = k.project(&(t_cw * pts[&id]).coords).unwrap();
+            worst = worst.max(((uv.x + 0.5 - u).powi(2) + (uv.y + 0.5 - v).powi(2)).sqrt());
+            n += 1;
+        }
+    }
+    eprintln!("{n} observations reproject within {worst:e} px");
+    assert!(n > 200 && worst < 1.5, "{n} observations, worst {worst} px");
+    assert!(worst < 1e-6, "exact model: {worst} px");
+    // The images agree with those cameras: frame 1 (80x60, its own intrinsics) warps onto frame 0
+    // (96x72) with the rendered depth far better than without a warp.
+    let mut f0 = seq.load_frame(0).unwrap();
+    f0.depth = Some(m.depth0.clone());
+    let f1 = seq.load_frame(1).unwrap();
+    let c = densefeat::eval::photometric_warp_check(&f0, &f1).unwrap();
+    // With frame 0's intrinsics for frame 1 (the one-camera assumption) the warp is much worse.
+    let k0 = m.cameras[0];
+    let one = densefeat::geometry::PinholeCamera::new(k0.fx, k0.fy, k0.cx, k0.cy, 80, 60).unwrap();
+    let wrong = densefeat::eval::photometric_warp_check(&f0, &Frame { camera: one, ..f1 }).unwrap();
+    eprintln!("warp 1 -> 0: own camera {c:?}, frame 0's camera {wrong:?}");
+    assert!(c.gain() > 2.5 && c.warped_error < 0.6 * wrong.warped_error, "{c:?} vs {wrong:?}");
+    let text = Summary::new(&seq).unwrap().to_string();
+    eprintln!("{text}");
+    assert!(text.contains("cameras      3 (each frame is used with its own)"), "{text}");
+    assert!(text.contains("frames       4 (2 sizes: 80x60 x2, 96x72 x2)"), "{text}");
+}
+
+#[test]
+fn colmap_one_camera_per_image_reconstructs_and_maps() {
+    use std::process::Command;
+    let m = per_image_model(8);
+    let exe = env!("CARGO_BIN_EXE_densefeat");
+    let o = m.dir.path().join("out");
+    let ran = Command::new(exe)
+        .args(["map", "--features", "rgb", "--bins", "32", "--voxel-size", "0.05", "--scale", "1"])
+        .args(["--depth-range", "auto", "--consistency-views", "0"])
+        .arg("--sequence")
+        .arg(m.dir.path())
+        .arg("--out")
+        .arg(&o)
+        .output()
+        .unwrap();
+    assert!(ran.status.success(), "{}", String::from_utf8_lossy(&ran.stderr));
+    let ply = std::fs::read(o.join("mesh.ply")).unwrap();
+    let head = String::from_utf8_lossy(&ply[..ply.len().min(400)]).to_string();
+    let faces: usize = head
+        .lines()
+        .find_map(|l| l.strip_prefix("element face "))
+        .map(|v| v.trim().parse().unwrap())
+        .unwrap();
+    assert!(faces > 100, "{head}");
+    // The keyframe depth, against the rendering of frame 0: the per-frame cameras are right.
+    let seq = open_with(m.dir.path(), &OpenOptions { scale: Some(1.0), ..OpenOptions::default() }).unwrap();
+    let cfg = densefeat::mapping::keyframe::KeyframeConfig {
+        bins: 64,
+        ..densefeat::mapping::keyframe::KeyframeConfig::new(0, 0.5, 8.0)
+    };
+    let r = densefeat::mapping::keyframe::reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    let gt = densefeat::mapping::keyframe::depth_at_level(&m.depth0, r.level);
+    let metrics = densefeat::eval::depth_metrics(r.tv.as_ref().unwrap().depth.view(), gt.view()).unwrap();
+    eprintln!("per-camera keyframe: {metrics:?}");
+    assert!(metrics.delta_1_25 > 0.7, "{metrics:?}");
 }

@@ -273,6 +273,16 @@ fn exact_ops_are_bit_identical_to_reference() {
     }
 }
 
+/// The camera of a live map: the case's when the sizes match, else one of the map's own size with
+/// other intrinsics (SPEC.md §9.1: each live frame in its own camera).
+fn live_camera(case: &VolumeCase, x: &Array3<f32>) -> PinholeCamera {
+    let (h, w, _) = x.dim();
+    if (h, w) == (case.camera.height, case.camera.width) {
+        return case.camera;
+    }
+    PinholeCamera::new(14.0, 13.0, (w as f64 - 1.0) / 2.0 + 0.3, (h as f64 - 1.0) / 2.0 - 0.2, w, h).unwrap()
+}
+
 /// A small random scene for the volume: reference and live features, camera, bins, poses.
 #[derive(Clone)]
 struct VolumeCase {
@@ -291,8 +301,10 @@ fn volume_case_sized(seed: u64, (h, w): (usize, usize), c: usize, k: usize) -> V
     let camera =
         PinholeCamera::new(12.0, 12.0, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0, w, h).unwrap();
     let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
+    // The third live frame has a camera of its own, 2 rows and 3 columns larger (`live_camera`).
     let live = (0..3)
-        .map(|_| {
+        .map(|i| {
+            let (h, w) = if i == 2 { (h + 2, w + 3) } else { (h, w) };
             let t = nalgebra::Vector3::new(
                 rng.random_range(-0.3..0.3),
                 rng.random_range(-0.3..0.3),
@@ -321,7 +333,7 @@ fn try_build(
     let tau = if abs { NO_TRUNCATION } else { case.truncation };
     let mut v = b.cost_volume(&r, case.camera, case.bins, tau)?;
     for (x, pose) in &case.live {
-        v.add_frame(&b.upload_owned(f(x, -1.0))?, pose)?;
+        v.add_frame_seen_by(&b.upload_owned(f(x, -1.0))?, &live_camera(case, x), pose)?;
     }
     assert_eq!(v.frames(), case.live.len());
     v.finish()
@@ -468,7 +480,7 @@ fn volume_snapshots_match_and_runs_repeat_bit_for_bit() {
             let mut v = b.cost_volume(&b.upload(case.reference.view())?, case.camera, case.bins, NO_TRUNCATION)?;
             let mut snaps = Vec::new();
             for (x, pose) in &case.live {
-                v.add_frame(&b.upload(x.view())?, pose)?;
+                v.add_frame_seen_by(&b.upload(x.view())?, &live_camera(&case, x), pose)?;
                 snaps.push(v.snapshot()?);
             }
             Ok((snaps, v.finish()?))

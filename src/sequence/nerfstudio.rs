@@ -63,7 +63,8 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
         notes.push(format!("camera option ({c}) ignored: transforms.json gives the camera"));
     }
     let mut frames = Vec::with_capacity(frames_json.len());
-    let mut camera: Option<(Camera, usize)> = None;
+    // Distinct cameras in order of first use; a frame's keys may give it its own (SPEC.md §4a).
+    let mut cameras: Vec<Camera> = Vec::new();
     for (i, f) in frames_json.iter().enumerate() {
         let at = |what: String| bad(format!("frames[{i}]: {what}"));
         let f = f.as_object().ok_or_else(|| at("not a JSON object".into()))?;
@@ -92,16 +93,13 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             }
         };
         let cam = frame_camera(top, f, &rgb).map_err(at)?;
-        match &camera {
-            None => camera = Some((cam, i)),
-            Some((c, j)) if *c != cam => {
-                return Err(at(format!(
-                    "intrinsics {:?} differ from frames[{j}]'s {:?}; a sequence has one camera",
-                    cam, c
-                )))
+        let camera_index = match cameras.iter().position(|c| *c == cam) {
+            Some(k) => k,
+            None => {
+                cameras.push(cam);
+                cameras.len() - 1
             }
-            Some(_) => {}
-        }
+        };
         let depth = match depth {
             Some(DepthSource::Png16 { path: p, metres_per_unit, .. }) => {
                 Some(fit_depth(p, metres_per_unit, &cam.pinhole).map_err(at)?)
@@ -115,7 +113,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             rgb,
             depth,
             sparse_depth_range: None,
-            camera: 0,
+            camera: camera_index,
         });
     }
     frames.sort_by(|a, b| a.rgb.cmp(&b.rgb));
@@ -132,11 +130,19 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
     } else {
         notes.push(format!("{WARNING_NOTE}{NO_SCALE_WARNING}"));
     }
-    let (camera, _) = camera.ok_or_else(|| bad("\"frames\" is empty".into()))?;
-    let mut seq = Sequence::from_parts(
+    if cameras.is_empty() {
+        return Err(bad("\"frames\" is empty".into()));
+    }
+    if cameras.len() > 1 {
+        notes.push(format!(
+            "{} cameras (per-frame intrinsics): each frame is used with its own camera",
+            cameras.len()
+        ));
+    }
+    let mut seq = Sequence::from_cameras(
         Format::Nerfstudio,
         root.to_path_buf(),
-        camera,
+        cameras,
         frames,
         None,
         notes,

@@ -128,7 +128,7 @@ struct SequenceSource {
 }
 
 /// A reference frame, its live frames and their camera.
-type FrameTuple = (Arc<Frame>, Vec<Arc<Frame>>, PinholeCamera);
+type FrameTuple = (Arc<Frame>, Vec<Arc<Frame>>);
 
 /// `count` distinct entries of `candidates` that pass `accept`, drawn uniformly in turn (each draw
 /// removes its entry); `None` when the candidates run out first.
@@ -178,11 +178,11 @@ fn passes_pose_rule(rule: &PairRule, a: &Pose, b: &Pose) -> bool {
 /// land inside the live camera, and their mean displacement.
 fn overlap_and_flow(
     depth: &Array2<f32>,
-    cam: &PinholeCamera,
+    (cam, live): (&PinholeCamera, &PinholeCamera),
     t_lr: &Pose,
     window: (usize, usize, usize, usize),
 ) -> (f64, f64, f64) {
-    let warp = Warp::new(cam, cam, t_lr);
+    let warp = Warp::new(cam, live, t_lr);
     let (x0, y0, w, h) = window;
     let (mut n, mut inside, mut du, mut dv) = (0usize, 0usize, 0.0, 0.0);
     for y in (y0..y0 + h).step_by(GRID) {
@@ -193,7 +193,7 @@ fn overlap_and_flow(
             }
             n += 1;
             if let Some(p) = warp.apply(x as f64, y as f64, 1.0 / f64::from(z)) {
-                if cam.contains(p.uv.x, p.uv.y) {
+                if live.contains(p.uv.x, p.uv.y) {
                     inside += 1;
                     du += p.uv.x - x as f64;
                     dv += p.uv.y - y as f64;
@@ -210,7 +210,7 @@ fn overlap_and_flow(
 /// Frame `i` of a synthetic scene.
 fn render(scene: &Scene, i: usize) -> Result<Frame> {
     let f = scene.render(i)?;
-    Ok(Frame::new(f.rgb, f.depth, f.pose))
+    Ok(Frame::new(f.rgb, f.depth, f.pose, scene.camera()))
 }
 
 /// `clamp(g I + b + n, 0, 255)` with `g`, `b` drawn once and `n` per value.
@@ -290,18 +290,12 @@ impl DataSet {
     /// validation pairs, the rest training pairs.
     fn open_sequence(path: &Path, cfg: &DataConfig, val_fraction: f64) -> Result<SequenceSource> {
         let seq = open(path)?;
-        // Training crops share one camera per sequence (SPEC.md §13.5).
-        seq.the_camera("--data")?;
         let (cw, ch) = cfg.crop;
-        if seq.camera.width < cw || seq.camera.height < ch {
+        // Every camera of the sequence must hold the crop (frames may have their own, SPEC.md §4a).
+        if let Some(c) = seq.raw_cameras.iter().map(|c| c.pinhole).find(|c| c.width < cw || c.height < ch) {
             return Err(Error::invalid_argument(
                 "--crop",
-                format!(
-                    "{cw}x{ch} is larger than {}'s {}x{} frames",
-                    path.display(),
-                    seq.camera.width,
-                    seq.camera.height
-                ),
+                format!("{cw}x{ch} is larger than {}'s {}x{} frames", path.display(), c.width, c.height),
             ));
         }
         let n = seq.len();
@@ -318,7 +312,7 @@ impl DataSet {
             };
             depths.push(d);
         }
-        let full = (0, 0, seq.camera.width, seq.camera.height);
+
         let pairs = |range: std::ops::Range<usize>| {
             let mut v = Vec::new();
             for i in range.clone() {
@@ -327,7 +321,9 @@ impl DataSet {
                     if i == j || !passes_pose_rule(&cfg.rule, a, b) {
                         continue;
                     }
-                    let (ov, _, _) = overlap_and_flow(&depths[i], &seq.camera, &relative_pose(a, b), full);
+                    let (ci, cj) = (seq.frame_camera(i), seq.frame_camera(j));
+                    let full = (0, 0, ci.width, ci.height);
+                    let (ov, _, _) = overlap_and_flow(&depths[i], (&ci, &cj), &relative_pose(a, b), full);
                     if ov >= cfg.rule.min_overlap {
                         v.push((i, j));
                     }
@@ -384,7 +380,7 @@ impl DataSet {
             let depth = f
                 .depth
                 .ok_or_else(|| Error::bad_sequence(s.seq.root.clone(), format!("frame {i} has no depth")))?;
-            Ok(Frame::new(f.rgb, depth, f.pose))
+            Ok(Frame::new(f.rgb, depth, f.pose, f.camera))
         })
     }
 
@@ -408,7 +404,7 @@ impl DataSet {
             let overlaps = |j: usize| {
                 overlap_and_flow(
                     &r.depth,
-                    &cam,
+                    (&cam, &cam),
                     &relative_pose(&r.pose, &poses[j]),
                     (0, 0, cam.width, cam.height),
                 )
@@ -423,7 +419,7 @@ impl DataSet {
                         lives.push(frame(o)?);
                     }
                 }
-                return Ok(Some((r, lives, cam)));
+                return Ok(Some((r, lives)));
             }
         }
         Ok(None)
@@ -431,46 +427,47 @@ impl DataSet {
 
     /// Crops a pair: the reference window at `(x0, y0)` (random when `rng` is given, else
     /// centred), the live window shifted by the mean flow.
-    fn crop(
-        &self,
-        r: &Frame,
-        lives: &[Arc<Frame>],
-        cam: &PinholeCamera,
-        rng: Option<&mut SplitMix64>,
-    ) -> Result<TrainingPair> {
+    fn crop(&self, r: &Frame, lives: &[Arc<Frame>], rng: Option<&mut SplitMix64>) -> Result<TrainingPair> {
         let Some((l, extra)) = lives.split_first() else {
             return Err(Error::invalid_argument("data", "a training tuple needs a live frame"));
         };
         let (cw, ch) = self.cfg.crop;
+        let cam = &r.camera;
         let (w, h) = (cam.width, cam.height);
         let (x0, y0) = match rng {
             Some(rng) => (rng.below(w - cw + 1), rng.below(h - ch + 1)),
             None => ((w - cw) / 2, (h - ch) / 2),
         };
-        // Each live window: the reference window shifted by the mean flow.
+        // Each live window: the reference window shifted by the mean flow, in the live frame's own
+        // camera (its size bounds the window).
         let window = |l: &Frame| {
             let t_lr = relative_pose(&r.pose, &l.pose);
-            let (_, du, dv) = overlap_and_flow(&r.depth, cam, &t_lr, (x0, y0, cw, ch));
+            let (_, du, dv) = overlap_and_flow(&r.depth, (cam, &l.camera), &t_lr, (x0, y0, cw, ch));
             let shift = |o: usize, d: f64, max: usize| ((o as f64 + d).round().max(0.0) as usize).min(max);
-            (t_lr, shift(x0, du, w - cw), shift(y0, dv, h - ch))
+            let (lw, lh) = (l.camera.width, l.camera.height);
+            (t_lr, shift(x0, du, lw - cw), shift(y0, dv, lh - ch))
         };
         let (t_lr, lx, ly) = window(l);
-        let crop_cam = |x: usize, y: usize| {
-            PinholeCamera::new(cam.fx, cam.fy, cam.cx - x as f64, cam.cy - y as f64, cw, ch)
+        let crop_cam = |c: &PinholeCamera, x: usize, y: usize| {
+            PinholeCamera::new(c.fx, c.fy, c.cx - x as f64, c.cy - y as f64, cw, ch)
         };
         let more_lives = extra
             .iter()
             .map(|e| {
                 let (t_lr, ex, ey) = window(e);
-                Ok(ExtraLive { rgb: e.rgb_window(ex, ey, cw, ch), camera: crop_cam(ex, ey)?, t_lr })
+                Ok(ExtraLive {
+                    rgb: e.rgb_window(ex, ey, cw, ch),
+                    camera: crop_cam(&e.camera, ex, ey)?,
+                    t_lr,
+                })
             })
             .collect::<Result<_>>()?;
         Ok(TrainingPair {
             ref_rgb: r.rgb_window(x0, y0, cw, ch),
             live_rgb: l.rgb_window(lx, ly, cw, ch),
             ref_depth: r.depth.slice(s![y0..y0 + ch, x0..x0 + cw]).to_owned(),
-            ref_camera: crop_cam(x0, y0)?,
-            live_camera: crop_cam(lx, ly)?,
+            ref_camera: crop_cam(cam, x0, y0)?,
+            live_camera: crop_cam(&l.camera, lx, ly)?,
             t_lr,
             sample_seed: 0,
             more_lives,
@@ -489,7 +486,7 @@ impl DataSet {
             let synthetic = self.cfg.synthetic_scenes > 0
                 && (real.is_empty() || rng.unit() < self.cfg.synthetic_fraction);
             let extra = self.cfg.live_frames - 1;
-            let (r, lives, cam) = if synthetic {
+            let (r, lives) = if synthetic {
                 let seed = SYNTH_TRAIN_SEED0 + rng.below(self.cfg.synthetic_scenes) as u64;
                 match self.synthetic_pair(seed, &mut rng, extra)? {
                     Some(x) => x,
@@ -510,10 +507,10 @@ impl DataSet {
                     }
                 }
                 let r = lives.remove(0);
-                (r, lives, src.seq.camera)
+                (r, lives)
             };
             // Crop first, then augment the crops (SPEC.md §13.5).
-            let mut pair = self.crop(&r, &lives, &cam, Some(&mut rng))?;
+            let mut pair = self.crop(&r, &lives, Some(&mut rng))?;
             augment(&mut pair.ref_rgb, &self.cfg.augment, &mut rng);
             augment(&mut pair.live_rgb, &self.cfg.augment, &mut rng);
             for e in &mut pair.more_lives {
@@ -537,18 +534,15 @@ impl DataSet {
             let n = s.val.len();
             for q in 0..per_source.min(n) {
                 let (i, j) = s.val[q * n / per_source.min(n)];
-                v.push((
-                    s.name.clone(),
-                    self.crop(&*self.load(k, i)?, &[self.load(k, j)?], &s.seq.camera, None)?,
-                ));
+                v.push((s.name.clone(), self.crop(&*self.load(k, i)?, &[self.load(k, j)?], None)?));
             }
         }
         for k in 0..self.cfg.synthetic_val_scenes {
             let seed = SYNTH_VAL_SEED0 + k as u64;
             let mut rng = SplitMix64::new(seed);
             for _ in 0..per_source {
-                if let Some((r, lives, cam)) = self.synthetic_pair(seed, &mut rng, 0)? {
-                    v.push((format!("synthetic-{seed}"), self.crop(&r, &lives, &cam, None)?));
+                if let Some((r, lives)) = self.synthetic_pair(seed, &mut rng, 0)? {
+                    v.push((format!("synthetic-{seed}"), self.crop(&r, &lives, None)?));
                 }
             }
         }

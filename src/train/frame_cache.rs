@@ -9,9 +9,9 @@ use std::sync::{Arc, Mutex};
 use ndarray::{s, Array2, Array3};
 
 use crate::error::Result;
-use crate::geometry::Pose;
+use crate::geometry::{PinholeCamera, Pose};
 
-/// One frame: image (0-255), depth (metres, 0 invalid), camera-to-world pose.
+/// One frame: image (0-255), depth (metres, 0 invalid), camera-to-world pose, its camera.
 #[derive(Clone, Debug)]
 pub(crate) struct Frame {
     rgb: Rgb,
@@ -19,6 +19,8 @@ pub(crate) struct Frame {
     pub depth: Array2<f32>,
     /// Camera-to-world pose.
     pub pose: Pose,
+    /// The frame's camera (a sequence may have one per frame, SPEC.md §4a).
+    pub camera: PinholeCamera,
 }
 
 /// The image, as bytes when that is lossless (decoded 8-bit images and the realistic renderer's
@@ -31,10 +33,10 @@ enum Rgb {
 
 impl Frame {
     /// A frame from an f32 image, stored as bytes if every value is an integer in 0..=255.
-    pub fn new(rgb: Array3<f32>, depth: Array2<f32>, pose: Pose) -> Self {
+    pub fn new(rgb: Array3<f32>, depth: Array2<f32>, pose: Pose, camera: PinholeCamera) -> Self {
         let bytes = rgb.iter().all(|&v| (0.0..=255.0).contains(&v) && v.fract() == 0.0);
         let rgb = if bytes { Rgb::U8(rgb.mapv(|v| v as u8)) } else { Rgb::F32(rgb) };
-        Frame { rgb, depth, pose }
+        Frame { rgb, depth, pose, camera }
     }
 
     /// The image window of `h x w` pixels at `(x0, y0)`, as f32 (the exact stored values).

@@ -145,7 +145,6 @@ fn transforms_json_malformed_inputs_name_file_and_entry() {
             Box::new(|v| drop(v["frames"][1].as_object_mut().unwrap().remove("depth_file_path"))),
             vec!["1 of 2 frames have depth_file_path"],
         ),
-        (Box::new(|v| v["frames"][1]["fl_x"] = 99.0.into()), vec!["frames[1]", "differ from frames[0]"]),
         (Box::new(|v| v["camera_model"] = "OPENCV_FISHEYE".into()), vec!["camera_model \"OPENCV_FISHEYE\""]),
         (Box::new(|v| v["fl_x"] = (-3.0).into()), vec!["frames[0]", "fx"]),
         (Box::new(|v| v["frames"] = Value::Array(vec![])), vec!["\"frames\" is empty"]),
@@ -155,6 +154,23 @@ fn transforms_json_malformed_inputs_name_file_and_entry() {
         edit_json(d.path(), f);
         assert_error(open(d.path()), &parts);
     }
+}
+
+#[test]
+fn transforms_json_frames_with_their_own_intrinsics_get_their_own_camera() {
+    // A frame's `fl_x` overrides the top level's: that frame is read with a camera of its own
+    // (SPEC.md §4a per-frame cameras); the others share the top-level camera.
+    let r = render(48, 36, 3, None);
+    let d = tempfile::tempdir().unwrap();
+    write(d.path(), &r, false, true);
+    edit_json(d.path(), |v| v["frames"][1]["fl_x"] = 99.0.into());
+    let seq = open(d.path()).unwrap();
+    assert_eq!(seq.raw_cameras.len(), 2);
+    assert_eq!(seq.frame_camera(1).fx, 99.0);
+    assert_eq!(seq.frame_camera(0), r.camera);
+    assert_eq!(seq.frame_camera(2), r.camera);
+    assert_eq!(seq.load_frame(1).unwrap().camera.fx, 99.0);
+    assert!(seq.notes.iter().any(|n| n.contains("2 cameras (per-frame intrinsics)")), "{:?}", seq.notes);
 }
 
 #[test]

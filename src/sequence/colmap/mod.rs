@@ -188,7 +188,7 @@ fn camera_table(
         let same = |u: &&RawCamera| {
             (u.model, u.width, u.height, &u.params) == (c.model, c.width, c.height, &c.params)
         };
-        let i = match distinct.iter().position(|u| same(u)) {
+        let i = match distinct.iter().position(same) {
             Some(i) => i,
             None => {
                 distinct.push(c);

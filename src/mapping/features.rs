@@ -1,11 +1,13 @@
-//! What fills the cost volume: raw RGB (the DTAM baseline) or the learned features, on one common
-//! output grid of pyramid level `L` (0 = the input resolution, the default; SPEC.md §11.1).
-//! RGB is tent-downsampled `L` times (SPEC.md §2.1). The learned network outputs its features at
-//! its own level `L_n` (1 with block-1 stride 2, 0 with block-1 stride 1, SPEC.md §8): when
-//! `L < L_n` they are bilinearly upsampled on the integer-centre grid of SPEC.md §2.1 (output pixel
-//! `i` sits at network pixel `i / 2^(L_n - L)`, clamped to the last network pixel), when `L > L_n`
-//! tent-downsampled. Both kinds are matched and evaluated on the same pixels with the level-`L`
-//! intrinsics of SPEC.md §2.6.
+//! What fills the cost volume: raw RGB (the DTAM baseline), the learned features, or one of the
+//! per-pixel descriptor baselines of the paper's feature comparison (block 1 of the network alone,
+//! dense SIFT; SPEC.md §9a), on one common output grid of pyramid level `L` (0 = the input
+//! resolution, the default; SPEC.md §11.1).
+//! RGB and dense SIFT are computed at level 0 and tent-downsampled `L` times (SPEC.md §2.1). The
+//! network outputs its features (and block 1 its output) at its own level `L_n` (1 with block-1
+//! stride 2, 0 with block-1 stride 1, SPEC.md §8): when `L < L_n` they are bilinearly upsampled on the
+//! integer-centre grid of SPEC.md §2.1 (output pixel `i` sits at network pixel `i / 2^(L_n - L)`,
+//! clamped to the last network pixel), when `L > L_n` tent-downsampled. Every kind is matched and
+//! evaluated on the same pixels with the level-`L` intrinsics of SPEC.md §2.6.
 
 use std::path::{Path, PathBuf};
 
@@ -13,6 +15,7 @@ use ndarray::{Array3, ArrayView3};
 use rayon::prelude::*;
 
 use crate::backend::Backend;
+use crate::dsift::{dense_sift, DsiftImpl, DsiftParams};
 use crate::error::{Error, Result};
 use crate::geometry::PinholeCamera;
 use crate::image::sample::axis;
@@ -46,24 +49,61 @@ pub enum FeatureKind {
     Rgb,
     /// The learned network: the shipped weights (`None`) or a safetensors file.
     Learned(Option<PathBuf>),
+    /// Block 1's output of the network alone (the paper's "B1 only" baseline, SPEC.md §9a.1): the
+    /// shipped weights (`None`) or a safetensors file.
+    B1(Option<PathBuf>),
+    /// Dense SIFT, 128 channels (SPEC.md §9a.2).
+    Dsift,
 }
 
 impl std::str::FromStr for FeatureKind {
     type Err = Error;
 
-    /// `rgb`, `learned`, or `learned=PATH`.
+    /// `rgb`, `learned`, `learned=PATH`, `b1`, `b1=PATH` or `dsift`.
     fn from_str(s: &str) -> Result<Self> {
+        let weights = |p: &str| (!p.is_empty()).then(|| PathBuf::from(p));
         match s {
-            "rgb" => Ok(FeatureKind::Rgb),
-            "learned" => Ok(FeatureKind::Learned(None)),
-            _ => match s.strip_prefix("learned=") {
-                Some(p) if !p.is_empty() => Ok(FeatureKind::Learned(Some(PathBuf::from(p)))),
-                _ => Err(Error::invalid_argument(
-                    "--features",
-                    format!("{s:?}: expected rgb, learned or learned=WEIGHTS"),
-                )),
-            },
+            "rgb" => return Ok(FeatureKind::Rgb),
+            "learned" => return Ok(FeatureKind::Learned(None)),
+            "b1" => return Ok(FeatureKind::B1(None)),
+            "dsift" => return Ok(FeatureKind::Dsift),
+            _ => {}
         }
+        if let Some(p) = s.strip_prefix("learned=").and_then(weights) {
+            return Ok(FeatureKind::Learned(Some(p)));
+        }
+        if let Some(p) = s.strip_prefix("b1=").and_then(weights) {
+            return Ok(FeatureKind::B1(Some(p)));
+        }
+        Err(Error::invalid_argument(
+            "--features",
+            format!("{s:?}: expected rgb, learned, learned=WEIGHTS, b1, b1=WEIGHTS or dsift"),
+        ))
+    }
+}
+
+impl FeatureKind {
+    /// The short name used in tables, folder names and messages: `rgb`, `learned`, `b1` or `dsift`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            FeatureKind::Rgb => "rgb",
+            FeatureKind::Learned(_) => "learned",
+            FeatureKind::B1(_) => "b1",
+            FeatureKind::Dsift => "dsift",
+        }
+    }
+
+    /// The weights file of a network kind (`None`: the shipped weights, or not a network kind).
+    pub fn weights(&self) -> Option<&Path> {
+        match self {
+            FeatureKind::Learned(p) | FeatureKind::B1(p) => p.as_deref(),
+            FeatureKind::Rgb | FeatureKind::Dsift => None,
+        }
+    }
+
+    /// Whether the features come from the network (learned, block 1).
+    pub fn uses_network(&self) -> bool {
+        matches!(self, FeatureKind::Learned(_) | FeatureKind::B1(_))
     }
 }
 
@@ -87,22 +127,24 @@ pub struct FeatureExtractor {
 }
 
 impl FeatureExtractor {
-    /// Load the network if needed. Features are produced on the level-`level` grid (RGB
-    /// tent-downsampled; learned features resampled from the network's own level, see the module
-    /// documentation).
+    /// Load the network if needed. Features are produced on the level-`level` grid (RGB and dense
+    /// SIFT tent-downsampled from level 0; network features resampled from the network's own level,
+    /// see the module documentation).
     ///
     /// # Errors
     /// Weight-file errors naming the file.
     pub fn new(kind: FeatureKind, level: u32, backend: Arc<dyn Backend>) -> Result<Self> {
         let net = match &kind {
-            FeatureKind::Rgb => None,
-            FeatureKind::Learned(path) => Some(FeatureNet::new(load_weights(path.as_deref())?)?),
+            FeatureKind::Learned(path) | FeatureKind::B1(path) => {
+                Some(FeatureNet::new(load_weights(path.as_deref())?)?)
+            }
+            FeatureKind::Rgb | FeatureKind::Dsift => None,
         };
         let net_level = net.as_ref().map(Self::output_level);
         Ok(Self { kind, backend, net, level, net_level })
     }
 
-    /// The level the network computes its features at (`None` for RGB).
+    /// The level the network computes its features at (`None` for RGB and dense SIFT).
     pub fn network_output_level(&self) -> Option<u32> {
         self.net_level
     }
@@ -124,11 +166,17 @@ impl FeatureExtractor {
         &self.kind
     }
 
-    /// A short name for tables: `rgb` or `learned`.
+    /// A short name for tables: `rgb`, `learned`, `b1` or `dsift`.
     pub fn name(&self) -> &'static str {
-        match self.kind {
-            FeatureKind::Rgb => "rgb",
-            FeatureKind::Learned(_) => "learned",
+        self.kind.name()
+    }
+
+    /// Channels of the feature maps it produces.
+    pub fn channels(&self) -> usize {
+        match (&self.kind, &self.net) {
+            (FeatureKind::Dsift, _) => crate::dsift::CHANNELS,
+            (_, Some(net)) => net.config().channels,
+            _ => crate::nn::config::IMAGE_CHANNELS,
         }
     }
 
@@ -150,7 +198,10 @@ impl FeatureExtractor {
         let (h0, w0, _) = rgb.dim();
         let data = match (&self.net, self.net_level) {
             (Some(net), Some(nl)) => {
-                let f = net.features(rgb.view(), self.backend.as_ref())?;
+                let f = match self.kind {
+                    FeatureKind::B1(_) => net.block1(rgb.view(), self.backend.as_ref())?,
+                    _ => net.features(rgb.view(), self.backend.as_ref())?,
+                };
                 match self.level.cmp(&nl) {
                     std::cmp::Ordering::Equal => f,
                     std::cmp::Ordering::Greater => downsample_to(f.view(), self.level - nl)?,
@@ -158,6 +209,14 @@ impl FeatureExtractor {
                         let s = 1usize << self.level;
                         upsample_to(f.view(), nl - self.level, h0.div_ceil(s), w0.div_ceil(s))
                     }
+                }
+            }
+            _ if self.kind == FeatureKind::Dsift => {
+                let d = dense_sift(rgb.view(), &DsiftParams::DEFAULT, DsiftImpl::Fast)?;
+                if self.level == 0 {
+                    d
+                } else {
+                    downsample_to(d.view(), self.level)?
                 }
             }
             _ => downsample_to(rgb.view(), self.level)?,

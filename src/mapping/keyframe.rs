@@ -57,19 +57,32 @@ pub struct Truncation {
     pub rgb: f32,
     /// `τ` for learned features (any weights), L1 over their channels.
     pub learned: f32,
+    /// `τ` for block-1 features (any weights), L1 over their channels (SPEC.md §9a.1).
+    pub b1: f32,
+    /// `τ` for dense SIFT, L1 over its 128 channels in the descriptor's units (SPEC.md §9a.2).
+    pub dsift: f32,
 }
 
 impl Truncation {
-    /// The defaults (none for either kind), chosen on validation and training scenes (SPEC.md §9.13).
-    pub const DEFAULT: Self = Self { rgb: DEFAULT_TRUNCATION_RGB, learned: DEFAULT_TRUNCATION_LEARNED };
-    /// No truncation for either kind.
-    pub const NONE: Self = Self { rgb: NO_TRUNCATION, learned: NO_TRUNCATION };
+    /// The defaults (none for every kind), chosen on validation and training scenes (SPEC.md §9.13,
+    /// §9a.3).
+    pub const DEFAULT: Self = Self {
+        rgb: DEFAULT_TRUNCATION_RGB,
+        learned: DEFAULT_TRUNCATION_LEARNED,
+        b1: DEFAULT_TRUNCATION_B1,
+        dsift: DEFAULT_TRUNCATION_DSIFT,
+    };
+    /// No truncation for any kind.
+    pub const NONE: Self =
+        Self { rgb: NO_TRUNCATION, learned: NO_TRUNCATION, b1: NO_TRUNCATION, dsift: NO_TRUNCATION };
 
     /// `τ` for `kind`.
     pub fn of(&self, kind: &FeatureKind) -> f32 {
         match kind {
             FeatureKind::Rgb => self.rgb,
             FeatureKind::Learned(_) => self.learned,
+            FeatureKind::B1(_) => self.b1,
+            FeatureKind::Dsift => self.dsift,
         }
     }
 }
@@ -79,6 +92,10 @@ pub const DEFAULT_TRUNCATION_RGB: f32 = NO_TRUNCATION;
 /// Default learned-feature truncation: none (SPEC.md §9.13: it lowered δ on the real validation
 /// scene).
 pub const DEFAULT_TRUNCATION_LEARNED: f32 = NO_TRUNCATION;
+/// Default block-1 truncation: none, as for the learned features (SPEC.md §9a.3).
+pub const DEFAULT_TRUNCATION_B1: f32 = NO_TRUNCATION;
+/// Default dense-SIFT truncation: none (SPEC.md §9a.3).
+pub const DEFAULT_TRUNCATION_DSIFT: f32 = NO_TRUNCATION;
 
 /// Everything [`reconstruct`] needs.
 #[derive(Clone, Debug)]
@@ -198,6 +215,8 @@ impl KeyframeConfig {
         }
         check_truncation("truncate-rgb", self.truncation.rgb)?;
         check_truncation("truncate-learned", self.truncation.learned)?;
+        check_truncation("truncate-b1", self.truncation.b1)?;
+        check_truncation("truncate-dsift", self.truncation.dsift)?;
         if let Some(l) = self.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
             return Err(Error::invalid_argument("lambda-sweep", format!("λ = {l}: must be positive")));
         }
@@ -279,7 +298,7 @@ pub struct KeyframeResult {
     pub keyframe: usize,
     /// Indices of the live frames used.
     pub live_frames: Vec<usize>,
-    /// Feature name (`rgb` or `learned`).
+    /// Feature name (`rgb`, `learned`, `b1` or `dsift`).
     pub features: &'static str,
     /// Pyramid level of the grid.
     pub level: u32,

@@ -26,12 +26,15 @@ fn feature_kinds_and_methods_parse() {
     assert_eq!(parse("b1").unwrap(), FeatureKind::B1(None));
     assert_eq!(parse("b1=w.safetensors").unwrap(), FeatureKind::B1(Some(PathBuf::from("w.safetensors"))));
     assert_eq!(parse("dsift").unwrap(), FeatureKind::Dsift);
+    assert_eq!(parse("patch7").unwrap(), FeatureKind::Patch7);
     for bad in ["b1=", "sift", "dsift=x", "B1"] {
         let e = parse(bad).unwrap_err().to_string();
         assert!(e.contains("--features") && e.contains("dsift") && e.contains("b1"), "{bad}: {e}");
     }
     assert_eq!(FeatureKind::B1(None).name(), "b1");
     assert_eq!(FeatureKind::Dsift.name(), "dsift");
+    assert_eq!(FeatureKind::Patch7.name(), "patch7");
+    assert_eq!("patch7-tv".parse::<Method>().unwrap(), Method::Patch7Tv);
     for m in Method::EVERY {
         assert_eq!(m.name().parse::<Method>().unwrap(), m);
         assert!(m.name().starts_with(m.feature_name()));
@@ -41,9 +44,11 @@ fn feature_kinds_and_methods_parse() {
     assert_eq!(Method::B1Tv.features(Some(w)), FeatureKind::B1(Some(w.to_path_buf())));
     assert!("sift-tv".parse::<Method>().unwrap_err().to_string().contains("dsift-tv"));
     // Every kind has its own truncation, none by default (SPEC.md §9a.3).
-    let t = Truncation { rgb: 1.0, learned: 2.0, b1: 3.0, dsift: 4.0 };
+    let t = Truncation { rgb: 1.0, learned: 2.0, b1: 3.0, dsift: 4.0, patch7: 5.0 };
     assert_eq!(t.of(&FeatureKind::B1(None)), 3.0);
     assert_eq!(t.of(&FeatureKind::Dsift), 4.0);
+    assert_eq!(t.of(&FeatureKind::Patch7), 5.0);
+    assert_eq!(Truncation::DEFAULT.of(&FeatureKind::Patch7), NO_TRUNCATION);
     assert_eq!(Truncation::DEFAULT.of(&FeatureKind::Dsift), NO_TRUNCATION);
     assert_eq!(Truncation::DEFAULT.of(&FeatureKind::B1(None)), NO_TRUNCATION);
 }
@@ -171,4 +176,44 @@ fn eval_runs_dsift_wta_and_b1_tv_on_the_rendered_fixture() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--truncate-dsift"), "{err}");
+}
+
+#[test]
+fn patch7_extractor_gives_the_level_grey_image() {
+    // SPEC.md §9a.5: the features of `patch7` are the tent-downsampled colour's grey (1 channel);
+    // the patch volume compares warped patches of it.
+    let seq = open(Path::new(FIXTURE)).unwrap();
+    let rgb = seq.load_frame(10).unwrap().rgb;
+    let ex = FeatureExtractor::new(FeatureKind::Patch7, 1, default_backend()).unwrap();
+    assert_eq!((ex.channels(), ex.name()), (1, "patch7"));
+    let got = ex.extract(&rgb).unwrap().data;
+    let colour = densefeat::mapping::features::downsample_to(rgb.view(), 1).unwrap();
+    let want = densefeat::image::to_gray(&colour).insert_axis(ndarray::Axis(2));
+    assert_eq!(bits(&got), bits(&want));
+    // The volume builder is the patch volume on the host.
+    let upload = ex.upload(got.clone()).unwrap();
+    assert!(upload.as_host().is_some());
+}
+
+#[test]
+fn eval_runs_patch7_on_the_rendered_fixture() {
+    // SPEC.md §9a.5: `eval --methods patch7-wta,patch7-tv` on the fixture at level 2 (80x60), 16 bins,
+    // 3 live frames either side: both rows, δ<1.25 > 0.6 (measured 0.841 and 0.857).
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["eval", "--sequence", FIXTURE, "--keyframes", "20:1:20", "--window", "3,3"])
+        .args(["--bins", "16", "--level", "2", "--iterations", "60", "--methods", "patch7-wta,patch7-tv"])
+        .arg("--out")
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let csv = std::fs::read_to_string(dir.path().join("table.csv")).unwrap();
+    let col = csv.lines().next().unwrap().split(',').position(|c| c == "delta_1.25").unwrap();
+    for method in ["patch7-wta", "patch7-tv"] {
+        let line =
+            csv.lines().find(|l| l.starts_with(&format!("{method},"))).unwrap_or_else(|| panic!("{csv}"));
+        let delta: f64 = line.split(',').nth(col).unwrap().parse().unwrap();
+        assert!(delta > 0.6, "{method}: δ<1.25 = {delta}\n{csv}");
+    }
 }

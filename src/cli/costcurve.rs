@@ -28,7 +28,7 @@ pub struct CostcurveArgs {
     /// Level-0 keyframe pixels "x,y;x,y;..." (column, row).
     #[arg(long)]
     pub pixels: String,
-    /// Feature kinds, comma-separated: rgb, learned, learned=WEIGHTS, b1, b1=WEIGHTS, dsift.
+    /// Feature kinds, comma-separated: rgb, learned, learned=WEIGHTS, b1, b1=WEIGHTS, dsift, patch7.
     #[arg(long, default_value = "rgb,learned")]
     pub features: String,
     /// Numbers of added frames at which curves are recorded (clamped to the frames that exist).

@@ -28,7 +28,7 @@ pub struct EvalArgs {
     #[arg(long)]
     pub keyframes: String,
     /// Comma-separated methods: FEATURES-wta or FEATURES-tv with FEATURES rgb, learned, b1 (block 1
-    /// of the network alone) or dsift (dense SIFT), SPEC.md §9a.
+    /// of the network alone), dsift (dense SIFT) or patch7 (affine-warped 7x7 patches), SPEC.md §9a.
     #[arg(long, default_value = "rgb-wta,rgb-tv,learned-wta,learned-tv", value_delimiter = ',')]
     pub methods: Vec<Method>,
     /// Weights of the learned and block-1 features (default: the shipped ones).

@@ -96,6 +96,10 @@ pub struct MappingArgs {
     /// the descriptor's units, 512 per unit length), or `none` (SPEC.md §9a.3).
     #[arg(long, default_value = "none", value_parser = parse_truncation)]
     pub truncate_dsift: f32,
+    /// Per-frame truncation of the 7x7-patch cost (`--features patch7`; L1 of the mean-removed
+    /// patches, grey levels), or `none` (SPEC.md §9a.5).
+    #[arg(long, default_value = "none", value_parser = parse_truncation)]
+    pub truncate_patch7: f32,
     /// Refuse to run when the estimated memory exceeds this many MiB.
     #[arg(long, default_value_t = DEFAULT_MAX_MEMORY_MB)]
     pub max_memory_mb: usize,
@@ -222,6 +226,7 @@ impl MappingArgs {
                 learned: self.truncate_learned,
                 b1: self.truncate_b1,
                 dsift: self.truncate_dsift,
+                patch7: self.truncate_patch7,
             },
         })
     }

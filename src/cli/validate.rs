@@ -106,7 +106,7 @@ impl MemoryLimit {
 }
 
 /// Feature channels and the network's block-1 stride of a feature kind (`(3, 1)` for RGB, `(128, 1)`
-/// for dense SIFT), reading a weights file's header and tensors now so that a bad file is reported
+/// for dense SIFT, `(1, 1)` for 7x7 patches), reading a weights file's header and tensors now so that a bad file is reported
 /// before any work.
 ///
 /// # Errors
@@ -116,6 +116,7 @@ pub fn feature_channels(kind: &crate::mapping::FeatureKind) -> Result<(usize, us
     let w = match kind {
         FeatureKind::Rgb => return Ok((3, 1)),
         FeatureKind::Dsift => return Ok((crate::dsift::CHANNELS, 1)),
+        FeatureKind::Patch7 => return Ok((1, 1)),
         FeatureKind::Learned(path) | FeatureKind::B1(path) => {
             crate::mapping::features::load_weights(path.as_deref())?
         }
@@ -138,7 +139,7 @@ pub fn feature_memory(
     use crate::mapping::FeatureKind;
     let (channels, stride) = feature_channels(kind)?;
     let bytes = match kind {
-        FeatureKind::Rgb => 0,
+        FeatureKind::Rgb | FeatureKind::Patch7 => 0,
         FeatureKind::Dsift => crate::dsift::extraction_bytes(height, width),
         FeatureKind::Learned(_) | FeatureKind::B1(_) => {
             crate::memory::network_forward_bytes(height, width, channels, stride)

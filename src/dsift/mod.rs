@@ -22,7 +22,7 @@
 //! where `h = 0`). Samples outside the image have zero gradient; at the image's edge the missing
 //! neighbour of a central difference is the edge pixel itself (edge replication).
 //!
-//! Two implementations, both always compiled ([`DsiftImpl`]): [`reference`] (per pixel, per window
+//! Two implementations, both always compiled ([`DsiftImpl`]): [`mod@reference`] (per pixel, per window
 //! sample, f64: the oracle) and [`fast`] (orientation planes, then two separable passes of the
 //! 1-D weights `k_j`, f32, rows in parallel; bit-identical for any thread count).
 

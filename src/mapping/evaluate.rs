@@ -32,6 +32,10 @@ pub enum Method {
     DsiftWta,
     /// Dense SIFT, DTAM Huber-TV.
     DsiftTv,
+    /// Affine-warped 7x7 patches (SPEC.md §9a.5), winner-take-all.
+    Patch7Wta,
+    /// Affine-warped 7x7 patches, DTAM Huber-TV.
+    Patch7Tv,
 }
 
 impl Method {
@@ -39,7 +43,7 @@ impl Method {
     pub const ALL: [Method; 4] = [Method::RgbWta, Method::RgbTv, Method::LearnedWta, Method::LearnedTv];
 
     /// Every method: the paper's four, then the per-pixel descriptor baselines (SPEC.md §9a).
-    pub const EVERY: [Method; 8] = [
+    pub const EVERY: [Method; 10] = [
         Method::RgbWta,
         Method::RgbTv,
         Method::LearnedWta,
@@ -48,9 +52,11 @@ impl Method {
         Method::B1Tv,
         Method::DsiftWta,
         Method::DsiftTv,
+        Method::Patch7Wta,
+        Method::Patch7Tv,
     ];
 
-    /// `FEATURES-wta` or `FEATURES-tv`, FEATURES one of `rgb`, `learned`, `b1`, `dsift`.
+    /// `FEATURES-wta` or `FEATURES-tv`, FEATURES one of `rgb`, `learned`, `b1`, `dsift`, `patch7`.
     pub fn name(self) -> &'static str {
         match self {
             Method::RgbWta => "rgb-wta",
@@ -61,6 +67,8 @@ impl Method {
             Method::B1Tv => "b1-tv",
             Method::DsiftWta => "dsift-wta",
             Method::DsiftTv => "dsift-tv",
+            Method::Patch7Wta => "patch7-wta",
+            Method::Patch7Tv => "patch7-tv",
         }
     }
 
@@ -72,10 +80,11 @@ impl Method {
             Method::LearnedWta | Method::LearnedTv => FeatureKind::Learned(w),
             Method::B1Wta | Method::B1Tv => FeatureKind::B1(w),
             Method::DsiftWta | Method::DsiftTv => FeatureKind::Dsift,
+            Method::Patch7Wta | Method::Patch7Tv => FeatureKind::Patch7,
         }
     }
 
-    /// The feature kind's short name (`rgb`, `learned`, `b1`, `dsift`).
+    /// The feature kind's short name (`rgb`, `learned`, `b1`, `dsift`, `patch7`).
     pub fn feature_name(self) -> &'static str {
         self.features(None).name()
     }
@@ -87,7 +96,7 @@ impl Method {
 
     /// Whether it runs DTAM.
     pub fn tv(self) -> bool {
-        matches!(self, Method::RgbTv | Method::LearnedTv | Method::B1Tv | Method::DsiftTv)
+        matches!(self, Method::RgbTv | Method::LearnedTv | Method::B1Tv | Method::DsiftTv | Method::Patch7Tv)
     }
 }
 
@@ -188,7 +197,7 @@ pub fn evaluate(
     let mut conf_per_kf: Vec<(Method, f32, DepthMetrics)> = Vec::new();
     let mut timing_sums: Vec<StageTimings> = vec![StageTimings::default(); methods.len()];
     // One volume per keyframe and feature kind, kinds in this order.
-    for kind in ["rgb", "learned", "b1", "dsift"] {
+    for kind in ["rgb", "learned", "b1", "dsift", "patch7"] {
         let wanted: Vec<usize> = (0..methods.len()).filter(|&i| methods[i].feature_name() == kind).collect();
         let Some(&first) = wanted.first() else { continue };
         let mut cfg = base.clone();

@@ -14,12 +14,13 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array3, ArrayView3};
 use rayon::prelude::*;
 
-use crate::backend::Backend;
+use crate::backend::{Backend, Tensor, VolumeBuilder};
+use crate::costvolume::patch::{PatchImpl, PatchVolume};
 use crate::dsift::{dense_sift, DsiftImpl, DsiftParams};
 use crate::error::{Error, Result};
-use crate::geometry::PinholeCamera;
+use crate::geometry::{InverseDepthBins, PinholeCamera};
 use crate::image::sample::axis;
-use crate::image::{sample_bilinear, RgbImage};
+use crate::image::{sample_bilinear, to_gray, RgbImage};
 use crate::nn::{downsample2x, FeatureNet, NetworkWeights};
 use std::sync::Arc;
 
@@ -54,12 +55,15 @@ pub enum FeatureKind {
     B1(Option<PathBuf>),
     /// Dense SIFT, 128 channels (SPEC.md §9a.2).
     Dsift,
+    /// 7x7 grey patches, affine-warped per hypothesis before matching (SPEC.md §9a.5): the features
+    /// are the grey image (1 channel) and the patch volume compares patches of it.
+    Patch7,
 }
 
 impl std::str::FromStr for FeatureKind {
     type Err = Error;
 
-    /// `rgb`, `learned`, `learned=PATH`, `b1`, `b1=PATH` or `dsift`.
+    /// `rgb`, `learned`, `learned=PATH`, `b1`, `b1=PATH`, `dsift` or `patch7`.
     fn from_str(s: &str) -> Result<Self> {
         let weights = |p: &str| (!p.is_empty()).then(|| PathBuf::from(p));
         match s {
@@ -67,6 +71,7 @@ impl std::str::FromStr for FeatureKind {
             "learned" => return Ok(FeatureKind::Learned(None)),
             "b1" => return Ok(FeatureKind::B1(None)),
             "dsift" => return Ok(FeatureKind::Dsift),
+            "patch7" => return Ok(FeatureKind::Patch7),
             _ => {}
         }
         if let Some(p) = s.strip_prefix("learned=").and_then(weights) {
@@ -77,19 +82,21 @@ impl std::str::FromStr for FeatureKind {
         }
         Err(Error::invalid_argument(
             "--features",
-            format!("{s:?}: expected rgb, learned, learned=WEIGHTS, b1, b1=WEIGHTS or dsift"),
+            format!("{s:?}: expected rgb, learned, learned=WEIGHTS, b1, b1=WEIGHTS, dsift or patch7"),
         ))
     }
 }
 
 impl FeatureKind {
-    /// The short name used in tables, folder names and messages: `rgb`, `learned`, `b1` or `dsift`.
+    /// The short name used in tables, folder names and messages: `rgb`, `learned`, `b1`, `dsift` or
+    /// `patch7`.
     pub fn name(&self) -> &'static str {
         match self {
             FeatureKind::Rgb => "rgb",
             FeatureKind::Learned(_) => "learned",
             FeatureKind::B1(_) => "b1",
             FeatureKind::Dsift => "dsift",
+            FeatureKind::Patch7 => "patch7",
         }
     }
 
@@ -97,7 +104,7 @@ impl FeatureKind {
     pub fn weights(&self) -> Option<&Path> {
         match self {
             FeatureKind::Learned(p) | FeatureKind::B1(p) => p.as_deref(),
-            FeatureKind::Rgb | FeatureKind::Dsift => None,
+            FeatureKind::Rgb | FeatureKind::Dsift | FeatureKind::Patch7 => None,
         }
     }
 
@@ -138,7 +145,7 @@ impl FeatureExtractor {
             FeatureKind::Learned(path) | FeatureKind::B1(path) => {
                 Some(FeatureNet::new(load_weights(path.as_deref())?)?)
             }
-            FeatureKind::Rgb | FeatureKind::Dsift => None,
+            FeatureKind::Rgb | FeatureKind::Dsift | FeatureKind::Patch7 => None,
         };
         let net_level = net.as_ref().map(Self::output_level);
         Ok(Self { kind, backend, net, level, net_level })
@@ -166,7 +173,7 @@ impl FeatureExtractor {
         &self.kind
     }
 
-    /// A short name for tables: `rgb`, `learned`, `b1` or `dsift`.
+    /// A short name for tables: `rgb`, `learned`, `b1`, `dsift` or `patch7`.
     pub fn name(&self) -> &'static str {
         self.kind.name()
     }
@@ -175,6 +182,7 @@ impl FeatureExtractor {
     pub fn channels(&self) -> usize {
         match (&self.kind, &self.net) {
             (FeatureKind::Dsift, _) => crate::dsift::CHANNELS,
+            (FeatureKind::Patch7, _) => 1,
             (_, Some(net)) => net.config().channels,
             _ => crate::nn::config::IMAGE_CHANNELS,
         }
@@ -219,9 +227,52 @@ impl FeatureExtractor {
                     downsample_to(d.view(), self.level)?
                 }
             }
+            _ if self.kind == FeatureKind::Patch7 => {
+                let grey = to_gray(&downsample_to(rgb.view(), self.level)?);
+                grey.insert_axis(ndarray::Axis(2))
+            }
             _ => downsample_to(rgb.view(), self.level)?,
         };
         Ok(FeatureMap { data, level: self.level })
+    }
+
+    /// A volume for a keyframe's features from [`FeatureExtractor::extract`]: the backend's cost
+    /// volume (SPEC.md §9), or for [`FeatureKind::Patch7`] the patch volume (SPEC.md §9a.5, CPU).
+    ///
+    /// # Errors
+    /// As the backend's `cost_volume` or [`PatchVolume::new`]; [`Error::Unsupported`] for
+    /// [`FeatureKind::Patch7`] on a backend other than the CPU.
+    pub fn volume(
+        &self,
+        reference: Array3<f32>,
+        camera: PinholeCamera,
+        bins: InverseDepthBins,
+        truncation: f32,
+    ) -> Result<Box<dyn VolumeBuilder>> {
+        if self.kind == FeatureKind::Patch7 {
+            // No silent fallback (STYLE §7): the patch kernel exists on the CPU only.
+            if self.backend.name() != "cpu" {
+                return Err(Error::Unsupported {
+                    backend: self.backend.name().into(),
+                    what: "the patch7 cost volume (SPEC.md §9a.5) runs on the CPU only: use --backend cpu"
+                        .into(),
+                });
+            }
+            return Ok(Box::new(PatchVolume::new(reference, camera, bins, truncation, PatchImpl::Fast)?));
+        }
+        self.backend.cost_volume(&self.backend.upload_owned(reference)?, camera, bins, truncation)
+    }
+
+    /// Features from [`FeatureExtractor::extract`] where [`FeatureExtractor::volume`]'s builder reads
+    /// them: uploaded to the backend, or on the host for [`FeatureKind::Patch7`].
+    ///
+    /// # Errors
+    /// The backend's upload errors.
+    pub fn upload(&self, features: Array3<f32>) -> Result<Tensor> {
+        if self.kind == FeatureKind::Patch7 {
+            return Ok(Tensor::host(features));
+        }
+        self.backend.upload_owned(features)
     }
 }
 

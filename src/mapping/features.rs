@@ -1,7 +1,7 @@
 //! What fills the cost volume: raw RGB (the DTAM baseline), the learned features, or one of the
-//! per-pixel descriptor baselines of the paper's feature comparison (block 1 of the network alone,
-//! dense SIFT; SPEC.md §9a), on one common output grid of pyramid level `L` (0 = the input
-//! resolution, the default; SPEC.md §11.1).
+//! baselines of the paper's feature comparison (block 1 of the network alone, dense SIFT, and the
+//! grey image whose affine-warped 7x7 patches the patch volume compares; SPEC.md §9a), on one common
+//! output grid of pyramid level `L` (0 = the input resolution, the default; SPEC.md §11.1).
 //! RGB and dense SIFT are computed at level 0 and tent-downsampled `L` times (SPEC.md §2.1). The
 //! network outputs its features (and block 1 its output) at its own level `L_n` (1 with block-1
 //! stride 2, 0 with block-1 stride 1, SPEC.md §8): when `L < L_n` they are bilinearly upsampled on the

@@ -9,8 +9,10 @@
 //!
 //! - [`backend`]: the one seam for compute backends: the op list and the CPU backend.
 //! - [`costvolume`]: the multi-view feature cost volume (paper eq. 4) and winner-take-all depth.
+//! - [`dsift`]: dense SIFT, a hand-crafted per-pixel descriptor baseline for the cost volume.
 //! - [`dtam`]: Huber-TV regularisation of inverse depth (DTAM's primal-dual optimiser).
-//! - [`mapping`]: keyframe reconstruction with RGB or learned features, outputs and evaluation.
+//! - [`mapping`]: keyframe reconstruction with RGB, learned, block-1 or dense-SIFT features, outputs
+//!   and evaluation.
 //! - [`fusion`]: TSDF fusion of keyframe depth maps, its mesh, mesh-to-mesh metrics and pictures.
 //! - [`geometry`]: pinhole cameras, distortion, SE(3), the inverse-depth warp.
 //! - [`image`]: image types, PNG I/O, bilinear sampling, undistortion.
@@ -40,6 +42,7 @@
 pub mod backend;
 pub mod cli;
 pub mod costvolume;
+pub mod dsift;
 pub mod dtam;
 pub mod error;
 pub mod eval;

@@ -418,3 +418,37 @@ fn features_pass_equals_the_forward_passs_features() {
         }
     }
 }
+
+#[test]
+fn block1_equals_the_forward_passs_first_block() {
+    // SPEC §9a.1: `FeatureNet::block1` runs block 1 alone (the input padded as for the whole
+    // network) and gives `forward(..).blocks[0]` bit for bit, on the fast and the reference (f64)
+    // kernels; its shape is the block-1 level's with `channels` channels; fast against reference
+    // within the budget of a one-block network; 1, 2, 3, 8 threads identical.
+    let (fast, reference) = (CpuBackend::default(), CpuBackend::reference());
+    for config in every_config(5).chain([NetworkConfig::default()]) {
+        let net = FeatureNet::new(weights(&config, 41)).unwrap();
+        for (h, w) in [(1, 1), (17, 13), (33, 47)] {
+            let img = image(h, w, 41);
+            let l = config.block_level(0);
+            let want_shape = [h.div_ceil(1 << l), w.div_ceil(1 << l), config.channels];
+            let b1 = net.block1(img.view(), &fast).unwrap();
+            assert_eq!(b1.shape(), want_shape, "{config:?} {h}x{w}");
+            let full = net.forward(img.view(), &fast).unwrap();
+            assert_eq!(bits(&b1), bits(&full.blocks[0]), "fast, {config:?} {h}x{w}");
+            let b1_ref = net.block1(img.view(), &reference).unwrap();
+            let full_ref = net.forward(img.view(), &reference).unwrap();
+            assert_eq!(bits(&b1_ref), bits(&full_ref.blocks[0]), "reference, {config:?} {h}x{w}");
+            let budget = relative_budget(&NetworkConfig { blocks: 1, ..config });
+            let rel = max_diff(&b1, &b1_ref) / max_abs(&b1_ref).max(f64::MIN_POSITIVE);
+            assert!(rel <= budget, "{config:?} {h}x{w}: {rel:e} > {budget:e}");
+        }
+    }
+    let net = FeatureNet::new(weights(&NetworkConfig::default(), 42)).unwrap();
+    let img = image(47, 61, 42);
+    let run = |n: usize| thread_pool(n).install(|| net.block1(img.view(), &fast).unwrap());
+    let one = run(1);
+    for n in [2, 3, 8] {
+        assert_eq!(bits(&run(n)), bits(&one), "threads = {n}");
+    }
+}

@@ -14,7 +14,7 @@ use crate::memory;
 use crate::plot::grid_of_plots_png;
 use crate::sequence::Sequence;
 
-use super::validate::{feature_channels, flag, frames_big_enough, MemoryLimit};
+use super::validate::{feature_memory, flag, frames_big_enough, MemoryLimit};
 
 /// Arguments of `densefeat costcurve`.
 #[derive(Debug, Clone, Args)]
@@ -28,7 +28,7 @@ pub struct CostcurveArgs {
     /// Level-0 keyframe pixels "x,y;x,y;..." (column, row).
     #[arg(long)]
     pub pixels: String,
-    /// Feature kinds, comma-separated: rgb, learned, learned=WEIGHTS.
+    /// Feature kinds, comma-separated: rgb, learned, learned=WEIGHTS, b1, b1=WEIGHTS, dsift, patch7.
     #[arg(long, default_value = "rgb,learned")]
     pub features: String,
     /// Numbers of added frames at which curves are recorded (clamped to the frames that exist).
@@ -125,12 +125,10 @@ fn preflight(
     }
     let level = FeatureExtractor::network_level()?;
     for kind in kinds {
-        let (channels, stride) = feature_channels(kind)?;
+        let (channels, extraction) = feature_memory(kind, h0, w0)?;
         let grid = seq.camera.at_level(level);
-        let mut bytes = memory::cost_volume_bytes(grid.height, grid.width, args.bins, channels);
-        if !matches!(kind, FeatureKind::Rgb) {
-            bytes = bytes.saturating_add(memory::network_forward_bytes(h0, w0, channels, stride));
-        }
+        let bytes = memory::cost_volume_bytes(grid.height, grid.width, args.bins, channels)
+            .saturating_add(extraction);
         let what =
             format!("the {}x{}x{} cost volume with {channels} channels", grid.height, grid.width, args.bins);
         args.memory.check(&what, bytes, "use fewer --bins")?;

@@ -27,10 +27,11 @@ pub struct EvalArgs {
     /// Keyframes `START:STEP:END`, END inclusive.
     #[arg(long)]
     pub keyframes: String,
-    /// Comma-separated methods.
+    /// Comma-separated methods: FEATURES-wta or FEATURES-tv with FEATURES rgb, learned, b1 (block 1
+    /// of the network alone), dsift (dense SIFT) or patch7 (affine-warped 7x7 patches), SPEC.md §9a.
     #[arg(long, default_value = "rgb-wta,rgb-tv,learned-wta,learned-tv", value_delimiter = ',')]
     pub methods: Vec<Method>,
-    /// Learned-feature weights (default: the shipped ones).
+    /// Weights of the learned and block-1 features (default: the shipped ones).
     #[arg(long)]
     pub weights: Option<PathBuf>,
     /// DTAM λ for the learned features (default: --lambda).
@@ -113,12 +114,12 @@ fn preflight(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<()>
             return Err(flag("lambda-sweep", format!("λ = {bad}: must be positive")));
         }
     }
-    let mut kinds = Vec::new();
-    if args.methods.iter().any(|m| !m.learned()) {
-        kinds.push(FeatureKind::Rgb);
-    }
-    if args.methods.iter().any(|m| m.learned()) {
-        kinds.push(FeatureKind::Learned(args.weights.clone()));
+    let mut kinds: Vec<FeatureKind> = Vec::new();
+    for m in &args.methods {
+        let kind = m.features(args.weights.as_deref());
+        if !kinds.contains(&kind) {
+            kinds.push(kind);
+        }
     }
     let cfg = args.mapping.config(seq, keyframes[0], FeatureKind::Rgb, Regularizer::Tv)?;
     mapping_preflight(seq, &cfg, keyframes, &kinds, "eval")

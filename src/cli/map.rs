@@ -23,7 +23,8 @@ pub struct MapArgs {
     /// Frames to map, `FIRST:LAST` (inclusive; default: all).
     #[arg(long)]
     pub frames: Option<String>,
-    /// `learned` (shipped weights), `learned=WEIGHTS.safetensors` or `rgb`.
+    /// `learned` (shipped weights), `learned=WEIGHTS.safetensors`, `rgb`, `b1` / `b1=WEIGHTS` (block 1
+    /// of the network alone), `dsift` (dense SIFT) or `patch7` (affine-warped 7x7 patches), SPEC.md §9a.
     #[arg(long, default_value = "learned")]
     pub features: FeatureKind,
     /// `tv` (DTAM) or `none` (winner-take-all).

@@ -1,4 +1,4 @@
-//! Flags shared by `reconstruct`, `eval` and `demo`: window, depth range, bins, every DTAM
+//! Flags shared by `reconstruct`, `eval`, `demo` and `map`: window, depth range, bins, every DTAM
 //! parameter and the memory limit; and the progress bar.
 
 use std::path::Path;
@@ -88,6 +88,18 @@ pub struct MappingArgs {
     /// Per-frame truncation of the learned-feature cost (L1 over the channels), or `none`.
     #[arg(long, default_value = "none", value_parser = parse_truncation)]
     pub truncate_learned: f32,
+    /// Per-frame truncation of the block-1 feature cost (`--features b1`; L1 over the channels), or
+    /// `none` (SPEC.md §9a.3).
+    #[arg(long, default_value = "none", value_parser = parse_truncation)]
+    pub truncate_b1: f32,
+    /// Per-frame truncation of the dense-SIFT cost (`--features dsift`; L1 over the 128 channels in
+    /// the descriptor's units, 512 per unit length), or `none` (SPEC.md §9a.3).
+    #[arg(long, default_value = "none", value_parser = parse_truncation)]
+    pub truncate_dsift: f32,
+    /// Per-frame truncation of the 7x7-patch cost (`--features patch7`; L1 of the mean-removed
+    /// patches, grey levels), or `none` (SPEC.md §9a.5).
+    #[arg(long, default_value = "none", value_parser = parse_truncation)]
+    pub truncate_patch7: f32,
     /// Refuse to run when the estimated memory exceeds this many MiB.
     #[arg(long, default_value_t = DEFAULT_MAX_MEMORY_MB)]
     pub max_memory_mb: usize,
@@ -209,7 +221,13 @@ impl MappingArgs {
             lambda_sweep: Vec::new(),
             backend: self.backend.resolve()?,
             photometric: self.photometric,
-            truncation: Truncation { rgb: self.truncate_rgb, learned: self.truncate_learned },
+            truncation: Truncation {
+                rgb: self.truncate_rgb,
+                learned: self.truncate_learned,
+                b1: self.truncate_b1,
+                dsift: self.truncate_dsift,
+                patch7: self.truncate_patch7,
+            },
         })
     }
 }

@@ -21,7 +21,8 @@ pub struct ReconstructArgs {
     /// Keyframe index.
     #[arg(long)]
     pub keyframe: usize,
-    /// `rgb`, `learned` (shipped weights) or `learned=WEIGHTS.safetensors`.
+    /// `rgb`, `learned` (shipped weights), `learned=WEIGHTS.safetensors`, `b1` / `b1=WEIGHTS` (block 1
+    /// of the network alone), `dsift` (dense SIFT) or `patch7` (affine-warped 7x7 patches), SPEC.md §9a.
     #[arg(long, default_value = "rgb")]
     pub features: FeatureKind,
     /// `none` (winner-take-all) or `tv` (DTAM, initialised by winner-take-all).

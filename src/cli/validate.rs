@@ -105,8 +105,9 @@ impl MemoryLimit {
     }
 }
 
-/// Feature channels and the network's block-1 stride of a feature kind (`(3, 1)` for RGB), reading
-/// a weights file's header and tensors now so that a bad file is reported before any work.
+/// Feature channels and the network's block-1 stride of a feature kind (`(3, 1)` for RGB, `(128, 1)`
+/// for dense SIFT, `(1, 1)` for 7x7 patches), reading a weights file's header and tensors now so that a bad file is reported
+/// before any work.
 ///
 /// # Errors
 /// Weight-file errors naming the file.
@@ -114,9 +115,37 @@ pub fn feature_channels(kind: &crate::mapping::FeatureKind) -> Result<(usize, us
     use crate::mapping::FeatureKind;
     let w = match kind {
         FeatureKind::Rgb => return Ok((3, 1)),
-        FeatureKind::Learned(path) => crate::mapping::features::load_weights(path.as_deref())?,
+        FeatureKind::Dsift => return Ok((crate::dsift::CHANNELS, 1)),
+        FeatureKind::Patch7 => return Ok((1, 1)),
+        FeatureKind::Learned(path) | FeatureKind::B1(path) => {
+            crate::mapping::features::load_weights(path.as_deref())?
+        }
     };
     Ok((w.config.channels, w.config.b1_stride))
+}
+
+/// Feature channels of a kind and the bytes its extraction holds at its peak for one `height x
+/// width` (level-0) frame beside the cost volume (SPEC.md §11.2, §14.3): nothing for RGB, one
+/// network forward ([`crate::memory::network_forward_bytes`]) for learned and block-1 features, the
+/// dense-SIFT planes and its level-0 descriptors ([`crate::dsift::extraction_bytes`]) for dense SIFT.
+///
+/// # Errors
+/// Weight-file errors naming the file.
+pub fn feature_memory(
+    kind: &crate::mapping::FeatureKind,
+    height: usize,
+    width: usize,
+) -> Result<(usize, u64)> {
+    use crate::mapping::FeatureKind;
+    let (channels, stride) = feature_channels(kind)?;
+    let bytes = match kind {
+        FeatureKind::Rgb | FeatureKind::Patch7 => 0,
+        FeatureKind::Dsift => crate::dsift::extraction_bytes(height, width),
+        FeatureKind::Learned(_) | FeatureKind::B1(_) => {
+            crate::memory::network_forward_bytes(height, width, channels, stride)
+        }
+    };
+    Ok((channels, bytes))
 }
 
 /// Everything a keyframe reconstruction can check before it starts (SPEC.md §14.1): frame size,
@@ -148,7 +177,6 @@ pub fn mapping_preflight(
         c.keyframe = k;
         c.live_frames(seq.len()).map_err(|e| flag("keyframe", e.to_string()))?;
     }
-    let level = crate::mapping::FeatureExtractor::network_level()?;
     // The largest keyframe camera bounds every volume.
     let key_camera = keyframes
         .iter()
@@ -156,20 +184,20 @@ pub fn mapping_preflight(
         .map(|&k| seq.frame_camera(k))
         .max_by_key(|c| c.width * c.height)
         .unwrap_or(seq.camera);
-    let grid = key_camera.at_level(level);
+    // The volume lives on the output grid, level `--level` (SPEC.md §11.1).
+    let grid = key_camera.at_level(cfg.level);
     for kind in kinds {
-        let (channels, stride) = feature_channels(kind)?;
-        let mut bytes = crate::memory::cost_volume_bytes(grid.height, grid.width, cfg.bins, channels);
-        if !matches!(kind, crate::mapping::FeatureKind::Rgb) {
-            let net =
-                crate::memory::network_forward_bytes(key_camera.height, key_camera.width, channels, stride);
-            bytes = bytes.saturating_add(net);
-        }
+        let (channels, extraction) = feature_memory(kind, key_camera.height, key_camera.width)?;
+        let bytes = crate::memory::cost_volume_bytes(grid.height, grid.width, cfg.bins, channels)
+            .saturating_add(extraction);
         let what = format!(
-            "the {}x{}x{} cost volume with {channels} feature channels",
-            grid.height, grid.width, cfg.bins
+            "the {}x{}x{} cost volume with {channels} feature channels ({})",
+            grid.height,
+            grid.width,
+            cfg.bins,
+            kind.name()
         );
-        crate::memory::check(cfg.max_memory_mb, &what, bytes, "use fewer --bins")?;
+        crate::memory::check(cfg.max_memory_mb, &what, bytes, "use fewer --bins or a coarser --level")?;
     }
     Ok(())
 }

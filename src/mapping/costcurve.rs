@@ -109,18 +109,11 @@ pub fn cost_curves(
             pixels.iter().map(|&p| grid_pixel(p, ex.level(), (camera.width, camera.height))).collect();
         // The default per-frame truncation (SPEC.md §9.13): the curves the mapper sees.
         let truncation = crate::mapping::Truncation::DEFAULT.of(kind);
-        let mut builder = backend.cost_volume(
-            &backend.upload_owned(ex.extract(&key.rgb)?.data)?,
-            camera,
-            bins,
-            truncation,
-        )?;
+        let mut builder = ex.volume(ex.extract(&key.rgb)?.data, camera, bins, truncation)?;
         for (i, &n) in order[..last].iter().enumerate() {
             let live = seq.load_frame_rgb(n)?;
-            builder.add_frame(
-                &backend.upload_owned(ex.extract(&live.rgb)?.data)?,
-                &relative_pose(&key.pose, &live.pose),
-            )?;
+            builder
+                .add_frame(&ex.upload(ex.extract(&live.rgb)?.data)?, &relative_pose(&key.pose, &live.pose))?;
             if !counts.contains(&(i + 1)) {
                 continue;
             }

@@ -3,7 +3,7 @@
 //! Winner-take-all and TV of one feature kind come from the same cost volume.
 
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::eval::DepthMetrics;
@@ -24,30 +24,79 @@ pub enum Method {
     LearnedWta,
     /// Learned features, DTAM Huber-TV.
     LearnedTv,
+    /// Block-1 features alone (SPEC.md §9a.1), winner-take-all.
+    B1Wta,
+    /// Block-1 features alone, DTAM Huber-TV.
+    B1Tv,
+    /// Dense SIFT (SPEC.md §9a.2), winner-take-all.
+    DsiftWta,
+    /// Dense SIFT, DTAM Huber-TV.
+    DsiftTv,
+    /// Affine-warped 7x7 patches (SPEC.md §9a.5), winner-take-all.
+    Patch7Wta,
+    /// Affine-warped 7x7 patches, DTAM Huber-TV.
+    Patch7Tv,
 }
 
 impl Method {
-    /// The four methods in table order.
+    /// The paper's four methods in table order (the default of `eval --methods`, and `demo`).
     pub const ALL: [Method; 4] = [Method::RgbWta, Method::RgbTv, Method::LearnedWta, Method::LearnedTv];
 
-    /// `rgb-wta`, `rgb-tv`, `learned-wta` or `learned-tv`.
+    /// Every method: the paper's four, then the per-pixel descriptor baselines (SPEC.md §9a).
+    pub const EVERY: [Method; 10] = [
+        Method::RgbWta,
+        Method::RgbTv,
+        Method::LearnedWta,
+        Method::LearnedTv,
+        Method::B1Wta,
+        Method::B1Tv,
+        Method::DsiftWta,
+        Method::DsiftTv,
+        Method::Patch7Wta,
+        Method::Patch7Tv,
+    ];
+
+    /// `FEATURES-wta` or `FEATURES-tv`, FEATURES one of `rgb`, `learned`, `b1`, `dsift`, `patch7`.
     pub fn name(self) -> &'static str {
         match self {
             Method::RgbWta => "rgb-wta",
             Method::RgbTv => "rgb-tv",
             Method::LearnedWta => "learned-wta",
             Method::LearnedTv => "learned-tv",
+            Method::B1Wta => "b1-wta",
+            Method::B1Tv => "b1-tv",
+            Method::DsiftWta => "dsift-wta",
+            Method::DsiftTv => "dsift-tv",
+            Method::Patch7Wta => "patch7-wta",
+            Method::Patch7Tv => "patch7-tv",
         }
     }
 
-    /// Whether it uses the learned features.
+    /// The feature kind it matches, network kinds with `weights` (`None`: the shipped ones).
+    pub fn features(self, weights: Option<&Path>) -> FeatureKind {
+        let w = weights.map(Path::to_path_buf);
+        match self {
+            Method::RgbWta | Method::RgbTv => FeatureKind::Rgb,
+            Method::LearnedWta | Method::LearnedTv => FeatureKind::Learned(w),
+            Method::B1Wta | Method::B1Tv => FeatureKind::B1(w),
+            Method::DsiftWta | Method::DsiftTv => FeatureKind::Dsift,
+            Method::Patch7Wta | Method::Patch7Tv => FeatureKind::Patch7,
+        }
+    }
+
+    /// The feature kind's short name (`rgb`, `learned`, `b1`, `dsift`, `patch7`).
+    pub fn feature_name(self) -> &'static str {
+        self.features(None).name()
+    }
+
+    /// Whether it uses the learned (aggregated) features.
     pub fn learned(self) -> bool {
         matches!(self, Method::LearnedWta | Method::LearnedTv)
     }
 
     /// Whether it runs DTAM.
     pub fn tv(self) -> bool {
-        matches!(self, Method::RgbTv | Method::LearnedTv)
+        matches!(self, Method::RgbTv | Method::LearnedTv | Method::B1Tv | Method::DsiftTv | Method::Patch7Tv)
     }
 }
 
@@ -55,11 +104,9 @@ impl std::str::FromStr for Method {
     type Err = Error;
 
     fn from_str(s: &str) -> Result<Self> {
-        Method::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| {
-            Error::invalid_argument(
-                "--methods",
-                format!("{s:?}: expected rgb-wta, rgb-tv, learned-wta or learned-tv"),
-            )
+        Method::EVERY.into_iter().find(|m| m.name() == s).ok_or_else(|| {
+            let names: Vec<&str> = Method::EVERY.iter().map(|m| m.name()).collect();
+            Error::invalid_argument("--methods", format!("{s:?}: expected one of {}", names.join(", ")))
         })
     }
 }
@@ -103,7 +150,7 @@ pub struct EvalTable {
 /// Settings [`evaluate`] adds to a base [`KeyframeConfig`].
 #[derive(Clone, Debug, Default)]
 pub struct EvalOptions {
-    /// Weights of the learned features (`None`: the shipped ones).
+    /// Weights of the learned and block-1 features (`None`: the shipped ones).
     pub weights: Option<PathBuf>,
     /// `λ` for the learned features' DTAM (`None`: the base config's).
     pub lambda_learned: Option<f64>,
@@ -149,14 +196,13 @@ pub fn evaluate(
     let mut sweep_per_kf: Vec<(Method, f64, DepthMetrics)> = Vec::new();
     let mut conf_per_kf: Vec<(Method, f32, DepthMetrics)> = Vec::new();
     let mut timing_sums: Vec<StageTimings> = vec![StageTimings::default(); methods.len()];
-    for learned in [false, true] {
-        let wanted: Vec<usize> = (0..methods.len()).filter(|&i| methods[i].learned() == learned).collect();
-        if wanted.is_empty() {
-            continue;
-        }
+    // One volume per keyframe and feature kind, kinds in this order.
+    for kind in ["rgb", "learned", "b1", "dsift", "patch7"] {
+        let wanted: Vec<usize> = (0..methods.len()).filter(|&i| methods[i].feature_name() == kind).collect();
+        let Some(&first) = wanted.first() else { continue };
         let mut cfg = base.clone();
-        cfg.features = if learned { FeatureKind::Learned(options.weights.clone()) } else { FeatureKind::Rgb };
-        if learned {
+        cfg.features = methods[first].features(options.weights.as_deref());
+        if methods[first].learned() {
             if let Some(l) = options.lambda_learned {
                 cfg.dtam.lambda = l;
             }

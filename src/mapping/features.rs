@@ -1,22 +1,26 @@
-//! What fills the cost volume: raw RGB (the DTAM baseline) or the learned features, on one common
+//! What fills the cost volume: raw RGB (the DTAM baseline), the learned features, or one of the
+//! baselines of the paper's feature comparison (block 1 of the network alone, dense SIFT, and the
+//! grey image whose affine-warped 7x7 patches the patch volume compares; SPEC.md §9a), on one common
 //! output grid of pyramid level `L` (0 = the input resolution, the default; SPEC.md §11.1).
-//! RGB is tent-downsampled `L` times (SPEC.md §2.1). The learned network outputs its features at
-//! its own level `L_n` (1 with block-1 stride 2, 0 with block-1 stride 1, SPEC.md §8): when
-//! `L < L_n` they are bilinearly upsampled on the integer-centre grid of SPEC.md §2.1 (output pixel
-//! `i` sits at network pixel `i / 2^(L_n - L)`, clamped to the last network pixel), when `L > L_n`
-//! tent-downsampled. Both kinds are matched and evaluated on the same pixels with the level-`L`
-//! intrinsics of SPEC.md §2.6.
+//! RGB and dense SIFT are computed at level 0 and tent-downsampled `L` times (SPEC.md §2.1). The
+//! network outputs its features (and block 1 its output) at its own level `L_n` (1 with block-1
+//! stride 2, 0 with block-1 stride 1, SPEC.md §8): when `L < L_n` they are bilinearly upsampled on the
+//! integer-centre grid of SPEC.md §2.1 (output pixel `i` sits at network pixel `i / 2^(L_n - L)`,
+//! clamped to the last network pixel), when `L > L_n` tent-downsampled. Every kind is matched and
+//! evaluated on the same pixels with the level-`L` intrinsics of SPEC.md §2.6.
 
 use std::path::{Path, PathBuf};
 
 use ndarray::{Array3, ArrayView3};
 use rayon::prelude::*;
 
-use crate::backend::Backend;
+use crate::backend::{Backend, Tensor, VolumeBuilder};
+use crate::costvolume::patch::{PatchImpl, PatchVolume};
+use crate::dsift::{dense_sift, DsiftImpl, DsiftParams};
 use crate::error::{Error, Result};
-use crate::geometry::PinholeCamera;
+use crate::geometry::{InverseDepthBins, PinholeCamera};
 use crate::image::sample::axis;
-use crate::image::{sample_bilinear, RgbImage};
+use crate::image::{sample_bilinear, to_gray, RgbImage};
 use crate::nn::{downsample2x, FeatureNet, NetworkWeights};
 use std::sync::Arc;
 
@@ -46,24 +50,67 @@ pub enum FeatureKind {
     Rgb,
     /// The learned network: the shipped weights (`None`) or a safetensors file.
     Learned(Option<PathBuf>),
+    /// Block 1's output of the network alone (the paper's "B1 only" baseline, SPEC.md §9a.1): the
+    /// shipped weights (`None`) or a safetensors file.
+    B1(Option<PathBuf>),
+    /// Dense SIFT, 128 channels (SPEC.md §9a.2).
+    Dsift,
+    /// 7x7 grey patches, affine-warped per hypothesis before matching (SPEC.md §9a.5): the features
+    /// are the grey image (1 channel) and the patch volume compares patches of it.
+    Patch7,
 }
 
 impl std::str::FromStr for FeatureKind {
     type Err = Error;
 
-    /// `rgb`, `learned`, or `learned=PATH`.
+    /// `rgb`, `learned`, `learned=PATH`, `b1`, `b1=PATH`, `dsift` or `patch7`.
     fn from_str(s: &str) -> Result<Self> {
+        let weights = |p: &str| (!p.is_empty()).then(|| PathBuf::from(p));
         match s {
-            "rgb" => Ok(FeatureKind::Rgb),
-            "learned" => Ok(FeatureKind::Learned(None)),
-            _ => match s.strip_prefix("learned=") {
-                Some(p) if !p.is_empty() => Ok(FeatureKind::Learned(Some(PathBuf::from(p)))),
-                _ => Err(Error::invalid_argument(
-                    "--features",
-                    format!("{s:?}: expected rgb, learned or learned=WEIGHTS"),
-                )),
-            },
+            "rgb" => return Ok(FeatureKind::Rgb),
+            "learned" => return Ok(FeatureKind::Learned(None)),
+            "b1" => return Ok(FeatureKind::B1(None)),
+            "dsift" => return Ok(FeatureKind::Dsift),
+            "patch7" => return Ok(FeatureKind::Patch7),
+            _ => {}
         }
+        if let Some(p) = s.strip_prefix("learned=").and_then(weights) {
+            return Ok(FeatureKind::Learned(Some(p)));
+        }
+        if let Some(p) = s.strip_prefix("b1=").and_then(weights) {
+            return Ok(FeatureKind::B1(Some(p)));
+        }
+        Err(Error::invalid_argument(
+            "--features",
+            format!("{s:?}: expected rgb, learned, learned=WEIGHTS, b1, b1=WEIGHTS, dsift or patch7"),
+        ))
+    }
+}
+
+impl FeatureKind {
+    /// The short name used in tables, folder names and messages: `rgb`, `learned`, `b1`, `dsift` or
+    /// `patch7`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            FeatureKind::Rgb => "rgb",
+            FeatureKind::Learned(_) => "learned",
+            FeatureKind::B1(_) => "b1",
+            FeatureKind::Dsift => "dsift",
+            FeatureKind::Patch7 => "patch7",
+        }
+    }
+
+    /// The weights file of a network kind (`None`: the shipped weights, or not a network kind).
+    pub fn weights(&self) -> Option<&Path> {
+        match self {
+            FeatureKind::Learned(p) | FeatureKind::B1(p) => p.as_deref(),
+            FeatureKind::Rgb | FeatureKind::Dsift | FeatureKind::Patch7 => None,
+        }
+    }
+
+    /// Whether the features come from the network (learned, block 1).
+    pub fn uses_network(&self) -> bool {
+        matches!(self, FeatureKind::Learned(_) | FeatureKind::B1(_))
     }
 }
 
@@ -87,22 +134,24 @@ pub struct FeatureExtractor {
 }
 
 impl FeatureExtractor {
-    /// Load the network if needed. Features are produced on the level-`level` grid (RGB
-    /// tent-downsampled; learned features resampled from the network's own level, see the module
-    /// documentation).
+    /// Load the network if needed. Features are produced on the level-`level` grid (RGB and dense
+    /// SIFT tent-downsampled from level 0; network features resampled from the network's own level,
+    /// see the module documentation).
     ///
     /// # Errors
     /// Weight-file errors naming the file.
     pub fn new(kind: FeatureKind, level: u32, backend: Arc<dyn Backend>) -> Result<Self> {
         let net = match &kind {
-            FeatureKind::Rgb => None,
-            FeatureKind::Learned(path) => Some(FeatureNet::new(load_weights(path.as_deref())?)?),
+            FeatureKind::Learned(path) | FeatureKind::B1(path) => {
+                Some(FeatureNet::new(load_weights(path.as_deref())?)?)
+            }
+            FeatureKind::Rgb | FeatureKind::Dsift | FeatureKind::Patch7 => None,
         };
         let net_level = net.as_ref().map(Self::output_level);
         Ok(Self { kind, backend, net, level, net_level })
     }
 
-    /// The level the network computes its features at (`None` for RGB).
+    /// The level the network computes its features at (`None` for RGB and dense SIFT).
     pub fn network_output_level(&self) -> Option<u32> {
         self.net_level
     }
@@ -124,11 +173,18 @@ impl FeatureExtractor {
         &self.kind
     }
 
-    /// A short name for tables: `rgb` or `learned`.
+    /// A short name for tables: `rgb`, `learned`, `b1`, `dsift` or `patch7`.
     pub fn name(&self) -> &'static str {
-        match self.kind {
-            FeatureKind::Rgb => "rgb",
-            FeatureKind::Learned(_) => "learned",
+        self.kind.name()
+    }
+
+    /// Channels of the feature maps it produces.
+    pub fn channels(&self) -> usize {
+        match (&self.kind, &self.net) {
+            (FeatureKind::Dsift, _) => crate::dsift::CHANNELS,
+            (FeatureKind::Patch7, _) => 1,
+            (_, Some(net)) => net.config().channels,
+            _ => crate::nn::config::IMAGE_CHANNELS,
         }
     }
 
@@ -150,7 +206,10 @@ impl FeatureExtractor {
         let (h0, w0, _) = rgb.dim();
         let data = match (&self.net, self.net_level) {
             (Some(net), Some(nl)) => {
-                let f = net.features(rgb.view(), self.backend.as_ref())?;
+                let f = match self.kind {
+                    FeatureKind::B1(_) => net.block1(rgb.view(), self.backend.as_ref())?,
+                    _ => net.features(rgb.view(), self.backend.as_ref())?,
+                };
                 match self.level.cmp(&nl) {
                     std::cmp::Ordering::Equal => f,
                     std::cmp::Ordering::Greater => downsample_to(f.view(), self.level - nl)?,
@@ -160,9 +219,60 @@ impl FeatureExtractor {
                     }
                 }
             }
+            _ if self.kind == FeatureKind::Dsift => {
+                let d = dense_sift(rgb.view(), &DsiftParams::DEFAULT, DsiftImpl::Fast)?;
+                if self.level == 0 {
+                    d
+                } else {
+                    downsample_to(d.view(), self.level)?
+                }
+            }
+            _ if self.kind == FeatureKind::Patch7 => {
+                let grey = to_gray(&downsample_to(rgb.view(), self.level)?);
+                grey.insert_axis(ndarray::Axis(2))
+            }
             _ => downsample_to(rgb.view(), self.level)?,
         };
         Ok(FeatureMap { data, level: self.level })
+    }
+
+    /// A volume for a keyframe's features from [`FeatureExtractor::extract`]: the backend's cost
+    /// volume (SPEC.md §9), or for [`FeatureKind::Patch7`] the patch volume (SPEC.md §9a.5, CPU).
+    ///
+    /// # Errors
+    /// As the backend's `cost_volume` or [`PatchVolume::new`]; [`Error::Unsupported`] for
+    /// [`FeatureKind::Patch7`] on a backend other than the CPU.
+    pub fn volume(
+        &self,
+        reference: Array3<f32>,
+        camera: PinholeCamera,
+        bins: InverseDepthBins,
+        truncation: f32,
+    ) -> Result<Box<dyn VolumeBuilder>> {
+        if self.kind == FeatureKind::Patch7 {
+            // No silent fallback (STYLE §7): the patch kernel exists on the CPU only.
+            if self.backend.name() != "cpu" {
+                return Err(Error::Unsupported {
+                    backend: self.backend.name().into(),
+                    what: "the patch7 cost volume (SPEC.md §9a.5) runs on the CPU only: use --backend cpu"
+                        .into(),
+                });
+            }
+            return Ok(Box::new(PatchVolume::new(reference, camera, bins, truncation, PatchImpl::Fast)?));
+        }
+        self.backend.cost_volume(&self.backend.upload_owned(reference)?, camera, bins, truncation)
+    }
+
+    /// Features from [`FeatureExtractor::extract`] where [`FeatureExtractor::volume`]'s builder reads
+    /// them: uploaded to the backend, or on the host for [`FeatureKind::Patch7`].
+    ///
+    /// # Errors
+    /// The backend's upload errors.
+    pub fn upload(&self, features: Array3<f32>) -> Result<Tensor> {
+        if self.kind == FeatureKind::Patch7 {
+            return Ok(Tensor::host(features));
+        }
+        self.backend.upload_owned(features)
     }
 }
 

@@ -57,19 +57,41 @@ pub struct Truncation {
     pub rgb: f32,
     /// `τ` for learned features (any weights), L1 over their channels.
     pub learned: f32,
+    /// `τ` for block-1 features (any weights), L1 over their channels (SPEC.md §9a.1).
+    pub b1: f32,
+    /// `τ` for dense SIFT, L1 over its 128 channels in the descriptor's units (SPEC.md §9a.2).
+    pub dsift: f32,
+    /// `τ` for 7x7 patches, L1 of the mean-removed patches in grey levels (SPEC.md §9a.5).
+    pub patch7: f32,
 }
 
 impl Truncation {
-    /// The defaults (none for either kind), chosen on validation and training scenes (SPEC.md §9.13).
-    pub const DEFAULT: Self = Self { rgb: DEFAULT_TRUNCATION_RGB, learned: DEFAULT_TRUNCATION_LEARNED };
-    /// No truncation for either kind.
-    pub const NONE: Self = Self { rgb: NO_TRUNCATION, learned: NO_TRUNCATION };
+    /// The defaults (none for every kind), chosen on validation and training scenes (SPEC.md §9.13,
+    /// §9a.3).
+    pub const DEFAULT: Self = Self {
+        rgb: DEFAULT_TRUNCATION_RGB,
+        learned: DEFAULT_TRUNCATION_LEARNED,
+        b1: DEFAULT_TRUNCATION_B1,
+        dsift: DEFAULT_TRUNCATION_DSIFT,
+        patch7: DEFAULT_TRUNCATION_PATCH7,
+    };
+    /// No truncation for any kind.
+    pub const NONE: Self = Self {
+        rgb: NO_TRUNCATION,
+        learned: NO_TRUNCATION,
+        b1: NO_TRUNCATION,
+        dsift: NO_TRUNCATION,
+        patch7: NO_TRUNCATION,
+    };
 
     /// `τ` for `kind`.
     pub fn of(&self, kind: &FeatureKind) -> f32 {
         match kind {
             FeatureKind::Rgb => self.rgb,
             FeatureKind::Learned(_) => self.learned,
+            FeatureKind::B1(_) => self.b1,
+            FeatureKind::Dsift => self.dsift,
+            FeatureKind::Patch7 => self.patch7,
         }
     }
 }
@@ -79,6 +101,12 @@ pub const DEFAULT_TRUNCATION_RGB: f32 = NO_TRUNCATION;
 /// Default learned-feature truncation: none (SPEC.md §9.13: it lowered δ on the real validation
 /// scene).
 pub const DEFAULT_TRUNCATION_LEARNED: f32 = NO_TRUNCATION;
+/// Default block-1 truncation: none, as for the learned features (SPEC.md §9a.3).
+pub const DEFAULT_TRUNCATION_B1: f32 = NO_TRUNCATION;
+/// Default dense-SIFT truncation: none (SPEC.md §9a.3).
+pub const DEFAULT_TRUNCATION_DSIFT: f32 = NO_TRUNCATION;
+/// Default 7x7-patch truncation: none (SPEC.md §9a.3).
+pub const DEFAULT_TRUNCATION_PATCH7: f32 = NO_TRUNCATION;
 
 /// Everything [`reconstruct`] needs.
 #[derive(Clone, Debug)]
@@ -198,6 +226,9 @@ impl KeyframeConfig {
         }
         check_truncation("truncate-rgb", self.truncation.rgb)?;
         check_truncation("truncate-learned", self.truncation.learned)?;
+        check_truncation("truncate-b1", self.truncation.b1)?;
+        check_truncation("truncate-dsift", self.truncation.dsift)?;
+        check_truncation("truncate-patch7", self.truncation.patch7)?;
         if let Some(l) = self.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
             return Err(Error::invalid_argument("lambda-sweep", format!("λ = {l}: must be positive")));
         }
@@ -279,7 +310,7 @@ pub struct KeyframeResult {
     pub keyframe: usize,
     /// Indices of the live frames used.
     pub live_frames: Vec<usize>,
-    /// Feature name (`rgb` or `learned`).
+    /// Feature name (`rgb`, `learned`, `b1`, `dsift` or `patch7`).
     pub features: &'static str,
     /// Pyramid level of the grid.
     pub level: u32,
@@ -428,7 +459,7 @@ pub fn reconstruct(
     progress(Stage::Keyframe, 1, 1);
 
     let truncation = cfg.truncation.of(&cfg.features);
-    let mut cv = backend.cost_volume(&backend.upload_owned(key_features)?, camera, bins, truncation)?;
+    let mut cv = extractor.volume(key_features, camera, bins, truncation)?;
     // Frames are decoded a few at a time in parallel (decoding is exact, so this changes no bits)
     // and added in window order.
     let batch = rayon::current_num_threads().clamp(1, 8);
@@ -450,7 +481,7 @@ pub fn reconstruct(
         timings.features += t.elapsed().as_secs_f64();
         let t = Instant::now();
         cv.add_frame_seen_by(
-            &backend.upload_owned(f)?,
+            &extractor.upload(f)?,
             &frame.camera.at_level(level),
             &relative_pose(&key.pose, &frame.pose),
         )?;

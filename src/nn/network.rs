@@ -380,13 +380,26 @@ fn run_blocks<E: Executor>(
     weights: &NetworkWeights,
     image: ArrayView3<f32>,
 ) -> Result<Vec<E::Map>> {
+    run_first_blocks(exec, weights, image, weights.config.blocks)
+}
+
+/// The first `count` blocks of the encoder (`1..=blocks`), uncropped. The input is padded to the
+/// whole network's multiple (SPEC.md §8.2) whatever `count` is, so block `k`'s output has the bits
+/// of the full pass's; the image pyramid stops at the last level these blocks read.
+fn run_first_blocks<E: Executor>(
+    exec: &mut E,
+    weights: &NetworkWeights,
+    image: ArrayView3<f32>,
+    count: usize,
+) -> Result<Vec<E::Map>> {
     weights.validate()?;
     let config = &weights.config;
+    let count = count.clamp(1, config.blocks);
     // Block k > 0 needs the image at block k-1's level; the deepest is the next-to-last block's.
-    let max_level = if config.blocks > 1 { config.block_level(config.blocks - 2) } else { 0 };
+    let max_level = if count > 1 { config.block_level(count - 2) } else { 0 };
     let pyramid = exec.pyramid(config, image, max_level)?;
-    let mut outs: Vec<E::Map> = Vec::with_capacity(config.blocks);
-    for (k, block) in weights.blocks.iter().enumerate() {
+    let mut outs: Vec<E::Map> = Vec::with_capacity(count);
+    for (k, block) in weights.blocks.iter().take(count).enumerate() {
         let (stride, act) = (config.block_stride(k), Activation::Relu);
         let x1 = match outs.last() {
             None => exec.conv(&pyramid[0], &block.conv1, stride, act)?,
@@ -459,6 +472,25 @@ pub fn run_features<E: Executor>(
     let (h, w, _) = image.dim();
     let [h0, w0, _] = weights.config.output_shapes(h, w)[0];
     Ok(exec.crop(a, h0, w0))
+}
+
+/// Block 1's output alone, `run_network(..).blocks[0]` (the same bits): the paper's "B1 only"
+/// baseline (§3.1: "one can choose to remove Blocks B2-B5 and simply use features from Block B1").
+/// Only the first block runs; the input is padded as for the whole network (SPEC.md §8.2), then the
+/// output is cropped to `config.output_shapes(h, w)[0]`.
+///
+/// # Errors
+/// As [`run_network`].
+pub fn run_block1<E: Executor>(
+    exec: &mut E,
+    weights: &NetworkWeights,
+    image: ArrayView3<f32>,
+) -> Result<E::Map> {
+    let mut outs = run_first_blocks(exec, weights, image, 1)?;
+    let Some(out) = outs.pop() else { unreachable!("one block was run") };
+    let (h, w, _) = image.dim();
+    let [h0, w0, _] = weights.config.output_shapes(h, w)[0];
+    Ok(exec.crop(out, h0, w0))
 }
 
 /// `t`'s host array: moved out when it is on the host, else downloaded from `backend`.
@@ -546,6 +578,17 @@ impl FeatureNet {
     /// As [`FeatureNet::forward`].
     pub fn features_tensor(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<Tensor> {
         self.with_arena(backend, |exec| run_features(exec, &self.weights, image))
+    }
+
+    /// Block 1's output alone (`forward(..).blocks[0]`, the same bits) as a host map, without
+    /// running the coarser blocks or the decoder: `[ceil(H / 2^l), ceil(W / 2^l), channels]` with
+    /// `l = config.block_level(0)` (SPEC.md §9a.1).
+    ///
+    /// # Errors
+    /// As [`FeatureNet::forward`].
+    pub fn block1(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<Array3<f32>> {
+        let t = self.with_arena(backend, |exec| run_block1(exec, &self.weights, image))?;
+        to_host(t, backend)
     }
 
     /// Runs `pass` on a [`PooledExecutor`] whose arena starts with the last pass's leftovers (a

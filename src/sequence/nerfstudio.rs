@@ -92,6 +92,15 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             }
         };
         let cam = frame_camera(top, f, &rgb).map_err(at)?;
+        let (iw, ih) = read_dimensions(&rgb)?;
+        if (iw, ih) != (cam.pinhole.width, cam.pinhole.height) {
+            return Err(at(format!(
+                "w x h = {}x{}, but {} is {iw}x{ih}",
+                cam.pinhole.width,
+                cam.pinhole.height,
+                rgb.display()
+            )));
+        }
         match &camera {
             None => camera = Some((cam, i)),
             Some((c, j)) if *c != cam => {

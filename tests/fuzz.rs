@@ -204,8 +204,9 @@ struct Target {
     read: Box<dyn Fn() -> Result<()>>,
 }
 
-/// Run one input through a target; `Err(why)` on a contract violation.
-fn run_case(t: &Target, input: &[u8]) -> std::result::Result<(), String> {
+/// Run one input through a target: `Ok(rejected)` (whether the reader returned an error) or
+/// `Err(why)` on a contract violation.
+fn run_case(t: &Target, input: &[u8]) -> std::result::Result<bool, String> {
     std::fs::write(&t.file, input).map_err(|e| e.to_string())?;
     LIVE.with(|l| l.set(0));
     PEAK.with(|p| p.set(0));
@@ -220,7 +221,7 @@ fn run_case(t: &Target, input: &[u8]) -> std::result::Result<(), String> {
     if peak > CASE_CAP {
         return Err(format!("allocated {peak} bytes at once"));
     }
-    if let Err(e) = r {
+    if let Err(e) = &r {
         let msg = e.to_string();
         let fname = t.file.file_name().unwrap().to_string_lossy();
         let root = t.file.parent().unwrap().to_string_lossy();
@@ -228,7 +229,7 @@ fn run_case(t: &Target, input: &[u8]) -> std::result::Result<(), String> {
             return Err(format!("error names no file: {msg}"));
         }
     }
-    Ok(())
+    Ok(r.is_err())
 }
 
 fn cases() -> usize {
@@ -237,7 +238,8 @@ fn cases() -> usize {
 
 fn fuzz(t: &Target) {
     let base: u64 = std::env::var("DENSEFEAT_FUZZ_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(13);
-    run_case(t, &t.seed).unwrap_or_else(|e| panic!("{}: the valid seed fails: {e}", t.name));
+    let rejected = run_case(t, &t.seed).unwrap_or_else(|e| panic!("{}: the valid seed fails: {e}", t.name));
+    assert!(!rejected, "{}: the valid seed is rejected: {:?}", t.name, (t.read)().err());
     let n = cases();
     let start = Instant::now();
     let mut errors = 0usize;
@@ -245,14 +247,17 @@ fn fuzz(t: &Target) {
         CASE.store(i as u64, Ordering::SeqCst);
         let mut rng = Rng(base ^ (i as u64).wrapping_mul(0x2545_F491_4F6C_DD1D) ^ hash(t.name));
         let input = mutate(&t.seed, &mut rng, t.text);
-        if let Err(why) = run_case(t, &input) {
+        let rejected = run_case(t, &input).unwrap_or_else(|why| {
             let keep = std::env::temp_dir().join(format!("densefeat-fuzz-{}-{i}.bin", t.name));
             let _ = std::fs::write(&keep, &input);
             panic!("{} case {i} (seed {base}): {why}; input kept at {}", t.name, keep.display());
-        }
+        });
         // Count errors to show the mutations reach the parsers' checks.
-        if (t.read)().is_err() {
+        if rejected {
             errors += 1;
+            if errors == 1 && std::env::var_os("DENSEFEAT_FUZZ_KEEP").is_some() {
+                keep_in_corpus(t, &input, &format!("seed{base}-case{i}-rejected.bin"));
+            }
         }
     }
     eprintln!(
@@ -263,12 +268,24 @@ fn fuzz(t: &Target) {
     std::fs::write(&t.file, &t.seed).unwrap();
 }
 
+/// `DENSEFEAT_FUZZ_KEEP=1`: the first input a target rejects goes into its committed corpus
+/// (`tests/fuzz/<target>/`), so that `fuzz_regressions_replay` has one for every target.
+fn keep_in_corpus(t: &Target, input: &[u8], file: &str) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fuzz").join(t.name);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join(file), input).unwrap();
+}
+
 fn hash(s: &str) -> u64 {
     s.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3))
 }
 
+#[path = "common/record3d.rs"]
+mod record3d_fixture;
 #[path = "fuzz/setup.rs"]
 mod setup;
+#[path = "fuzz/setup_formats.rs"]
+mod setup_formats;
 use setup::targets;
 
 macro_rules! fuzz_test {
@@ -276,8 +293,9 @@ macro_rules! fuzz_test {
         #[test]
         fn $name() {
             let dir = tempfile::tempdir().unwrap();
-            let t = targets(dir.path()).into_iter().find(|t| t.name == stringify!($name)).unwrap();
-            fuzz(&t);
+            let mut t = targets(dir.path(), &|n| n == stringify!($name));
+            assert_eq!(t.len(), 1, "target {} is not built exactly once", stringify!($name));
+            fuzz(&t.remove(0));
         }
     };
 }
@@ -293,20 +311,40 @@ fuzz_test!(camera_file);
 fuzz_test!(stereo_calib);
 fuzz_test!(pfm);
 fuzz_test!(safetensors);
+// Issue 34: every sequence reader and the PLY reader.
+fuzz_test!(colmap_cameras_txt);
+fuzz_test!(colmap_images_txt);
+fuzz_test!(colmap_points3d_txt);
+fuzz_test!(colmap_cameras_bin);
+fuzz_test!(colmap_images_bin);
+fuzz_test!(colmap_points3d_bin);
+fuzz_test!(transforms_json);
+fuzz_test!(sevenscenes_pose);
+fuzz_test!(record3d_metadata);
+fuzz_test!(exr_depth);
+fuzz_test!(ply_mesh);
 
-/// Every committed regression input (`tests/fuzz/<target>/*`) goes through its target.
+/// Every committed input (`tests/fuzz/<target>/*`: at least one per target, rejected mutations and
+/// any input that once failed) goes through its target and must keep the contract.
 #[test]
 fn fuzz_regressions_replay() {
     let dir = tempfile::tempdir().unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fuzz");
-    let mut n = 0;
-    for t in targets(dir.path()) {
-        let Ok(rd) = std::fs::read_dir(root.join(t.name)) else { continue };
-        for e in rd.flatten() {
-            let input = std::fs::read(e.path()).unwrap();
-            run_case(&t, &input).unwrap_or_else(|why| panic!("{}: {why}", e.path().display()));
+    let (mut n, mut empty) = (0, Vec::new());
+    for t in targets(dir.path(), &|_| true) {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(root.join(t.name))
+            .map(|rd| rd.flatten().map(|e| e.path()).collect())
+            .unwrap_or_default();
+        files.sort();
+        if files.is_empty() {
+            empty.push(t.name);
+        }
+        for f in &files {
+            let input = std::fs::read(f).unwrap();
+            run_case(&t, &input).unwrap_or_else(|why| panic!("{}: {why}", f.display()));
             n += 1;
         }
     }
-    eprintln!("replayed {n} regression inputs");
+    eprintln!("replayed {n} committed inputs");
+    assert!(empty.is_empty(), "targets without a committed input in tests/fuzz/<target>/: {empty:?}");
 }

@@ -73,7 +73,8 @@ pub fn run(args: FeaturesArgs) -> Result<()> {
     let weights = load_weights(args.weights.as_deref())?;
     let config = &weights.config;
     let bytes = crate::memory::network_forward_bytes(h, w, config.channels, config.b1_stride);
-    args.memory.check(&format!("the network on a {w}x{h} image"), bytes, "use a smaller image")?;
+    let what = format!("the network on {} ({w}x{h} pixels, from its header)", args.image.display());
+    args.memory.check(&what, bytes, "use a smaller image")?;
     if args.viz.as_ref() == Some(&args.out) {
         return Err(flag("viz", "is the same file as --out"));
     }

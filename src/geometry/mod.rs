@@ -14,7 +14,7 @@ pub use camera::{Camera, PinholeCamera};
 pub use distortion::RadTan;
 pub use invdepth::InverseDepthBins;
 pub use pose::{
-    pose_from_matrix, pose_from_tum, pose_to_matrix, relative_pose, slerp_pose, Pose,
+    pose_from_matrix, pose_from_opengl, pose_from_tum, pose_to_matrix, relative_pose, slerp_pose, Pose,
     QUATERNION_NORM_TOLERANCE, ROTATION_TOLERANCE,
 };
 pub use warp::{warp_pixel, Warp, WarpedPixel};

@@ -71,6 +71,14 @@ pub fn pose_from_tum(t: [f64; 3], q_xyzw: [f64; 4]) -> Result<Pose, String> {
     Ok(Isometry3::from_parts(Translation3::new(t[0], t[1], t[2]), UnitQuaternion::from_quaternion(q)))
 }
 
+/// A camera-to-world pose whose camera axes are OpenGL's (x right, y up, looking along -z: ARKit,
+/// Record3D, nerfstudio) in ours (x right, y down, looking along +z): the camera's y and z axes are
+/// negated, `T_wc = T_wc_gl diag(1, -1, -1, 1)`, a half turn about the camera's x axis (SPEC.md §2.3).
+pub fn pose_from_opengl(t_wc_gl: &Pose) -> Pose {
+    // The half turn about x as an exact quaternion (w = 0, x = 1).
+    t_wc_gl * UnitQuaternion::new_unchecked(Quaternion::new(0.0, 1.0, 0.0, 0.0))
+}
+
 /// Interpolate between two poses: translation linearly, rotation by slerp, `s ∈ [0, 1]`.
 pub fn slerp_pose(a: &Pose, b: &Pose, s: f64) -> Pose {
     let t = a.translation.vector.lerp(&b.translation.vector, s);

@@ -4,10 +4,12 @@
 //! (row-major, channel fastest, "HWC"); a depth map is `[H, W]` `f32` metres with `0` meaning
 //! "no measurement". Feature maps use the same channels-last layout `[H, W, C]`.
 
+mod depth_exr;
 mod io;
 pub(crate) mod sample;
 mod undistort;
 
+pub use depth_exr::{load_depth_exr, read_exr_dimensions, DEPTH_CHANNELS};
 pub use io::{load_depth_png, load_rgb, read_dimensions, save_depth_png_mm, save_rgb_png};
 pub use sample::{sample_bilinear, sample_nearest};
 pub use undistort::UndistortMap;

@@ -61,12 +61,16 @@ impl Staging {
     /// write its files into. Stale temporaries of killed runs beside and inside `out` are removed.
     ///
     /// # Errors
-    /// [`Error::Io`] naming the folder if it (or its parent) cannot be created or written, or if
-    /// `out` exists and is not a folder.
+    /// [`Error::Io`] naming the folder if it (or its parent) cannot be created or written, if `out`
+    /// exists and is not a folder, or if `out` or a folder in it is not writable (its old contents
+    /// could not be replaced; checked on the permission bits too, so the refusal holds for root).
     pub fn dir(&mut self, out: &Path) -> Result<PathBuf> {
         let target = self.resolve(out)?;
         if target.exists() && !target.is_dir() {
             return Err(Error::io(out, std::io::Error::other("exists and is not a folder")));
+        }
+        if target.is_dir() {
+            check_writable_tree(&target, out)?;
         }
         let parent = target.parent().map(Path::to_path_buf).unwrap_or_default();
         let name = file_name(&target, out)?;
@@ -77,7 +81,7 @@ impl Staging {
         }
         let stage = parent.join(format!(".{name}{TEMP_MARKER}stage-{}", std::process::id()));
         if stage.exists() {
-            std::fs::remove_dir_all(&stage).map_err(|e| Error::io(&stage, e))?;
+            remove_tree(&stage).map_err(|e| Error::io(&stage, e))?;
         }
         std::fs::create_dir(&stage).map_err(|e| Error::io(out, e))?;
         self.dirs.push(DirGroup { target, stage: stage.clone() });
@@ -179,7 +183,7 @@ impl Drop for Staging {
             return;
         }
         for g in &self.dirs {
-            let _ = std::fs::remove_dir_all(&g.stage);
+            let _ = remove_tree(&g.stage);
         }
         for f in &self.files {
             let _ = std::fs::remove_file(&f.temp);
@@ -222,9 +226,112 @@ fn commit_dir(g: &DirGroup) -> Result<()> {
         }
     }
     crate::io::hook("remove-old");
-    // The old folder now sits at the staging name; removing it is tidying, not part of the result.
-    let _ = std::fs::remove_dir_all(&g.stage);
+    // The old folder now sits at the staging name. The new outputs are in place, but a leftover
+    // beside them must not pass silently (the next run would carry on around it): say so.
+    remove_tree(&g.stage).map_err(|e| {
+        Error::io(
+            &g.stage,
+            std::io::Error::new(
+                e.kind(),
+                format!(
+                    "the new outputs are in {}, but its old contents could not be removed from here: {e}; \
+                     remove this folder by hand",
+                    g.target.display()
+                ),
+            ),
+        )
+    })
+}
+
+/// Refuse an output folder whose old contents could not be removed after the swap: the folder or
+/// any folder in it without write permission. The permission bits are read directly (no write bit
+/// at all is refused even for root, who `access(2)` would let through: a folder made read-only is a
+/// request to leave it alone), and `access(W_OK)` covers folders owned by someone else.
+/// `shown` is `dir` as the user named it, for the message.
+fn check_writable_tree(dir: &Path, shown: &Path) -> Result<()> {
+    let meta = std::fs::symlink_metadata(dir).map_err(|e| Error::io(shown, e))?;
+    if !meta.is_dir() {
+        return Ok(());
+    }
+    if meta.permissions().readonly() || !writable(dir) {
+        return Err(Error::io(
+            shown,
+            std::io::Error::new(
+                std::io::ErrorKind::PermissionDenied,
+                format!(
+                    "output folder is not writable{}: its old contents could not be replaced; make it \
+                     writable (chmod -R u+w) or choose another output folder (nothing was written)",
+                    mode_text(&meta)
+                ),
+            ),
+        ));
+    }
+    for entry in std::fs::read_dir(dir).map_err(|e| Error::io(shown, e))? {
+        let entry = entry.map_err(|e| Error::io(shown, e))?;
+        let name = entry.file_name();
+        if entry.file_type().is_ok_and(|t| t.is_dir()) && !is_disposable(&name.to_string_lossy()) {
+            check_writable_tree(&entry.path(), &shown.join(&name))?;
+        }
+    }
     Ok(())
+}
+
+#[cfg(unix)]
+fn mode_text(meta: &std::fs::Metadata) -> String {
+    use std::os::unix::fs::PermissionsExt;
+    format!(" (mode {:04o})", meta.permissions().mode() & 0o7777)
+}
+
+#[cfg(not(unix))]
+fn mode_text(_meta: &std::fs::Metadata) -> String {
+    String::new()
+}
+
+#[cfg(unix)]
+fn writable(dir: &Path) -> bool {
+    use std::os::unix::ffi::OsStrExt;
+    let Ok(c) = std::ffi::CString::new(dir.as_os_str().as_bytes()) else { return false };
+    // SAFETY: a valid NUL-terminated path; access(2) only reads it.
+    unsafe { libc::access(c.as_ptr(), libc::W_OK) == 0 }
+}
+
+#[cfg(not(unix))]
+fn writable(_dir: &Path) -> bool {
+    true
+}
+
+/// `remove_dir_all`, retried once after giving every folder inside its owner's write permission
+/// (a read-only folder cannot be emptied; ours, or a user's old outputs, may be one).
+fn remove_tree(p: &Path) -> std::io::Result<()> {
+    match std::fs::remove_dir_all(p) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(_) => {
+            make_dirs_writable(p);
+            std::fs::remove_dir_all(p)
+        }
+    }
+}
+
+fn make_dirs_writable(p: &Path) {
+    let Ok(meta) = std::fs::symlink_metadata(p) else { return };
+    if !meta.is_dir() {
+        return;
+    }
+    let mut perms = meta.permissions();
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        perms.set_mode(perms.mode() | 0o700);
+    }
+    #[cfg(not(unix))]
+    perms.set_readonly(false);
+    let _ = std::fs::set_permissions(p, perms);
+    if let Ok(rd) = std::fs::read_dir(p) {
+        for e in rd.flatten() {
+            make_dirs_writable(&e.path());
+        }
+    }
 }
 
 fn parked_name(target: &Path) -> PathBuf {
@@ -355,7 +462,7 @@ pub fn clean_stale(dir: &Path) -> usize {
         }
         let p = entry.path();
         let gone = match entry.file_type() {
-            Ok(t) if t.is_dir() => std::fs::remove_dir_all(&p).is_ok(),
+            Ok(t) if t.is_dir() => remove_tree(&p).is_ok(),
             _ => std::fs::remove_file(&p).is_ok(),
         };
         n += usize::from(gone);
@@ -377,7 +484,7 @@ fn recover_parked(parent: &Path, name: &str) {
         if !target.exists() {
             let _ = std::fs::rename(entry.path(), &target);
         } else {
-            let _ = std::fs::remove_dir_all(entry.path());
+            let _ = remove_tree(&entry.path());
         }
     }
 }

@@ -32,6 +32,9 @@ pub enum Format {
     Nerfstudio,
     /// 7-Scenes as distributed: `frame-XXXXXX.color.png`, `.depth.png`, `.pose.txt`.
     SevenScenes,
+    /// Record3D's "EXR + JPG" export: `metadata.json`, `rgb/<i>.jpg`, `depth/<i>.exr` (ARKit poses,
+    /// OpenGL camera axes, metres).
+    Record3d,
 }
 
 impl std::fmt::Display for Format {
@@ -43,6 +46,7 @@ impl std::fmt::Display for Format {
             Format::Colmap => "COLMAP sparse model",
             Format::Nerfstudio => "nerfstudio / instant-ngp transforms.json",
             Format::SevenScenes => "7-Scenes (native layout)",
+            Format::Record3d => "Record3D (EXR + JPG export)",
         })
     }
 }
@@ -85,6 +89,19 @@ pub enum DepthSource {
         /// The camera's height.
         height: usize,
     },
+    /// A single-channel OpenEXR depth map (Record3D), `f16` or `f32`, `z = value * metres_per_unit`;
+    /// non-finite or `<= 0` = no depth. Smaller than the colour images (phone depth), it is
+    /// upsampled to `width x height` as [`DepthSource::Png16Upsampled`] is (SPEC.md §4a).
+    Exr {
+        /// The file.
+        path: PathBuf,
+        /// Metres per stored unit (1: Record3D stores metres; [`Sequence::rescale`] changes it).
+        metres_per_unit: f64,
+        /// The camera's width.
+        width: usize,
+        /// The camera's height.
+        height: usize,
+    },
     /// A disparity map, converted with `z = focal_baseline / (d + doffs)` (`focal_baseline = f b`, in metres
     /// times pixels, or in baseline units when uncalibrated).
     Disparity {
@@ -105,6 +122,7 @@ impl DepthSource {
         match self {
             DepthSource::Png16 { path, .. }
             | DepthSource::Png16Upsampled { path, .. }
+            | DepthSource::Exr { path, .. }
             | DepthSource::Disparity { path, .. } => path,
         }
     }
@@ -240,9 +258,13 @@ impl Sequence {
             }
             for path in files {
                 if d_is_pfm(path)
-                    || matches!(&f.depth, Some(DepthSource::Png16Upsampled { path: p, .. }) if p == path)
+                    || matches!(
+                        &f.depth,
+                        Some(DepthSource::Png16Upsampled { path: p, .. } | DepthSource::Exr { path: p, .. })
+                            if p == path
+                    )
                 {
-                    continue; // PFM sizes are checked when loaded; upsampled depth by its reader
+                    continue; // PFM sizes are checked when loaded; upsampled and EXR depth by its reader
                 }
                 let (w, h) = image::read_dimensions(path)?;
                 if (w, h) != (k.width, k.height) {
@@ -343,7 +365,8 @@ impl Sequence {
             match &mut f.depth {
                 Some(
                     DepthSource::Png16 { metres_per_unit, .. }
-                    | DepthSource::Png16Upsampled { metres_per_unit, .. },
+                    | DepthSource::Png16Upsampled { metres_per_unit, .. }
+                    | DepthSource::Exr { metres_per_unit, .. },
                 ) => *metres_per_unit *= scale,
                 Some(DepthSource::Disparity { focal_baseline, .. }) => *focal_baseline *= scale,
                 None => {}
@@ -447,6 +470,13 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
             let d = image::load_depth_png(path, *metres_per_unit, None)?;
             Ok(upsample_nearest(&d, *width, *height))
         }
+        DepthSource::Exr { path, metres_per_unit, width, height } => {
+            // Depth is never larger than the colour image it is upsampled to.
+            let d = image::load_depth_exr(path, *width, *height)?;
+            let d =
+                if *metres_per_unit == 1.0 { d } else { d.mapv(|z| (f64::from(z) * metres_per_unit) as f32) };
+            Ok(upsample_nearest(&d, *width, *height))
+        }
         DepthSource::Disparity { path, encoding, focal_baseline, doffs } => {
             let d = disparity::load_disparity(path, *encoding)?;
             Ok(d.mapv(|v| {
@@ -482,6 +512,7 @@ mod dvmvs_write;
 pub mod inspect;
 mod nerfstudio;
 pub mod nerfstudio_write;
+mod record3d;
 mod sevenscenes;
 pub mod sevenscenes_write;
 mod stereo;

@@ -93,6 +93,15 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             }
         };
         let cam = frame_camera(top, f, &rgb).map_err(at)?;
+        let (iw, ih) = read_dimensions(&rgb)?;
+        if (iw, ih) != (cam.pinhole.width, cam.pinhole.height) {
+            return Err(at(format!(
+                "w x h = {}x{}, but {} is {iw}x{ih}",
+                cam.pinhole.width,
+                cam.pinhole.height,
+                rgb.display()
+            )));
+        }
         let camera_index = match cameras.iter().position(|c| *c == cam) {
             Some(k) => k,
             None => {

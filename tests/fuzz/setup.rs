@@ -10,7 +10,7 @@ use densefeat::synth::{write_sequence, SceneConfig};
 
 use super::Target;
 
-fn copy_dir(from: &Path, to: &Path) {
+pub fn copy_dir(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();
     for e in std::fs::read_dir(from).unwrap().flatten() {
         if e.file_type().unwrap().is_dir() {
@@ -21,7 +21,7 @@ fn copy_dir(from: &Path, to: &Path) {
     }
 }
 
-fn target(
+pub fn target(
     name: &'static str,
     file: &Path,
     text: bool,
@@ -31,8 +31,8 @@ fn target(
     Target { name, file: file.to_path_buf(), seed, text, read: Box::new(read) }
 }
 
-/// All targets, their files under `dir`.
-pub fn targets(dir: &Path) -> Vec<Target> {
+/// The targets whose name `want` accepts, their files under `dir`.
+pub fn targets(dir: &Path, want: &dyn Fn(&str) -> bool) -> Vec<Target> {
     let base = dir.join("base");
     let cfg = SceneConfig { seed: 3, width: 16, height: 12, frames: 3, ..SceneConfig::default() };
     write_sequence(&cfg, &base).unwrap();
@@ -41,20 +41,31 @@ pub fn targets(dir: &Path) -> Vec<Target> {
     let png = dir.join("colour.png");
     std::fs::copy(base.join("images/00000.png"), &png).unwrap();
     let p = png.clone();
-    out.push(target("png_colour", &png, false, move || load_rgb(&p).map(drop)));
+    if want("png_colour") {
+        out.push(target("png_colour", &png, false, move || load_rgb(&p).map(drop)));
+    }
 
     let depth = dir.join("depth.png");
     std::fs::copy(base.join("depth/00000.png"), &depth).unwrap();
     let p = depth.clone();
-    out.push(target("png_depth", &depth, false, move || load_depth_png(&p, 0.001, Some(65535)).map(drop)));
+    if want("png_depth") {
+        out.push(target("png_depth", &depth, false, move || {
+            load_depth_png(&p, 0.001, Some(65535)).map(drop)
+        }));
+    }
 
     let jpg = dir.join("colour.jpg");
     let rgb = image::open(&png).unwrap().to_rgb8();
     rgb.save_with_format(&jpg, image::ImageFormat::Jpeg).unwrap();
     let p = jpg.clone();
-    out.push(target("jpeg", &jpg, false, move || load_rgb(&p).map(drop)));
+    if want("jpeg") {
+        out.push(target("jpeg", &jpg, false, move || load_rgb(&p).map(drop)));
+    }
 
     for (name, file) in [("dvmvs_poses", "poses.txt"), ("dvmvs_k", "K.txt")] {
+        if !want(name) {
+            continue;
+        }
         let seq = dir.join(name);
         copy_dir(&base, &seq);
         let s = seq.clone();
@@ -86,9 +97,13 @@ pub fn targets(dir: &Path) -> Vec<Target> {
     let tum2 = dir.join("tum2");
     copy_dir(&tum, &tum2);
     let s = tum.clone();
-    out.push(target("tum_groundtruth", &tum.join("groundtruth.txt"), true, move || open(&s).map(drop)));
+    if want("tum_groundtruth") {
+        out.push(target("tum_groundtruth", &tum.join("groundtruth.txt"), true, move || open(&s).map(drop)));
+    }
     let s = tum2.clone();
-    out.push(target("tum_rgb_list", &tum2.join("rgb.txt"), true, move || open(&s).map(drop)));
+    if want("tum_rgb_list") {
+        out.push(target("tum_rgb_list", &tum2.join("rgb.txt"), true, move || open(&s).map(drop)));
+    }
 
     let cam = dir.join("camera.txt");
     std::fs::write(
@@ -97,7 +112,9 @@ pub fn targets(dir: &Path) -> Vec<Target> {
     )
     .unwrap();
     let p = cam.clone();
-    out.push(target("camera_file", &cam, true, move || read_camera_file(&p, (16, 12)).map(drop)));
+    if want("camera_file") {
+        out.push(target("camera_file", &cam, true, move || read_camera_file(&p, (16, 12)).map(drop)));
+    }
 
     let stereo = dir.join("stereo");
     std::fs::create_dir_all(&stereo).unwrap();
@@ -109,18 +126,25 @@ pub fn targets(dir: &Path) -> Vec<Target> {
     )
     .unwrap();
     let s = stereo.clone();
-    out.push(target("stereo_calib", &stereo.join("calib.txt"), true, move || open(&s).map(drop)));
+    if want("stereo_calib") {
+        out.push(target("stereo_calib", &stereo.join("calib.txt"), true, move || open(&s).map(drop)));
+    }
 
     let pfm = dir.join("disp.pfm");
     let d = ndarray::Array2::from_shape_fn((6, 8), |(y, x)| (x + 2 * y) as f32 + 0.5);
     densefeat::mapping::output::write_pfm(&pfm, d.view()).unwrap();
     let p = pfm.clone();
-    out.push(target("pfm", &pfm, false, move || read_pfm(&p).map(drop)));
+    if want("pfm") {
+        out.push(target("pfm", &pfm, false, move || read_pfm(&p).map(drop)));
+    }
 
     let st = dir.join("w.safetensors");
     let config = NetworkConfig { blocks: 2, channels: 4, b1_stride: 2, input_mean: [110.0; 3] };
     NetworkWeights::xavier_uniform(&config, 0).unwrap().save(&st).unwrap();
     let p = st.clone();
-    out.push(target("safetensors", &st, false, move || NetworkWeights::load(&p).map(drop)));
+    if want("safetensors") {
+        out.push(target("safetensors", &st, false, move || NetworkWeights::load(&p).map(drop)));
+    }
+    out.extend(super::setup_formats::targets(dir, &base, want));
     out
 }

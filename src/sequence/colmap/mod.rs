@@ -20,6 +20,7 @@ use super::depth_range::depth_range_of;
 use super::text::{list_colour_images, stem};
 use super::{Format, FrameInfo, OpenOptions, Sequence, WARNING_NOTE};
 use crate::error::{Error, Result};
+use crate::image::read_dimensions;
 use model::{observed_depths, RawCamera, RawImage, RawPoint};
 
 /// Sub-folders searched for the model, in order.
@@ -81,6 +82,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
         let later = if w[0].loc.order() > w[1].loc.order() { w[0] } else { w[1] };
         return Err(later.loc.error(&img_path, format!("image name {:?} is registered twice", later.name)));
     }
+    let raw_of: HashMap<u32, &RawCamera> = cameras.iter().map(|c| (c.id, c)).collect();
     let mut frames = Vec::with_capacity(sorted.len());
     let mut without_range = 0;
     for im in sorted {
@@ -89,6 +91,24 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             return Err(im.loc.error(
                 &img_path,
                 format!("image {} names {:?}, but {} does not exist", im.id, im.name, rgb.display()),
+            ));
+        }
+        // The size a camera claims is checked here, so the error points at the camera's line or
+        // record (a wrong size is a camera error, not an image error).
+        let k = &raw_cameras[camera_of[&im.camera_id]].pinhole;
+        let (w, h) = read_dimensions(&rgb)?;
+        if (w, h) != (k.width, k.height) {
+            let c = raw_of[&im.camera_id];
+            return Err(c.loc.error(
+                &cam_path,
+                format!(
+                    "camera {} is {}x{}, but image {} is {w}x{h} ({})",
+                    c.id,
+                    k.width,
+                    k.height,
+                    im.id,
+                    rgb.display()
+                ),
             ));
         }
         let t_cw = im.t_cw(&img_path)?;

@@ -360,7 +360,12 @@ impl fmt::Display for Summary {
         writeln!(f, "sequence     {}", self.root.display())?;
         writeln!(f, "format       {}", self.format)?;
         if self.sizes.len() > 1 {
-            let sizes: Vec<String> = self.sizes.iter().map(|((w, h), n)| format!("{w}x{h} x{n}")).collect();
+            // The four commonest sizes, then how many more.
+            let mut sizes: Vec<String> =
+                self.sizes.iter().take(4).map(|((w, h), n)| format!("{w}x{h} x{n}")).collect();
+            if self.sizes.len() > 4 {
+                sizes.push(format!("{} more", self.sizes.len() - 4));
+            }
             writeln!(f, "frames       {} ({} sizes: {})", self.frames, self.sizes.len(), sizes.join(", "))?;
         } else {
             writeln!(f, "frames       {} ({}x{})", self.frames, k.width, k.height)?;

@@ -291,3 +291,26 @@ fn slope_falls_back_at_grazing_views_and_without_normals() {
     assert!(q.qx.iter().all(|&v| v == 0.0), "a fronto-parallel normal predicts a zero slope");
     assert!(SlopeField::new(n.slice(s![..10, .., ..]), &cam).is_err(), "the grid must match");
 }
+
+#[test]
+fn normal_prior_without_normals_is_refused_naming_the_missing_predictor() {
+    use densefeat::mapping::normals::NormalsSource;
+    use densefeat::mapping::{reconstruct, KeyframeConfig, Regularizer};
+    assert_eq!("normals".parse::<Regularizer>().unwrap(), Regularizer::Normals);
+    let e = "smooth".parse::<Regularizer>().unwrap_err().to_string();
+    assert!(e.contains("--regularizer") && e.contains("normals"), "{e}");
+    assert_eq!("gt".parse::<NormalsSource>().unwrap(), NormalsSource::GroundTruth);
+    let e = "/no/such/normals".parse::<NormalsSource>().unwrap_err().to_string();
+    assert!(e.contains("--normals") && e.contains("/no/such/normals"), "{e}");
+    let seq = densefeat::sequence::open(concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1"))
+        .unwrap();
+    let mut cfg = KeyframeConfig::new(2, 0.5, 10.0);
+    cfg.regularizer = Regularizer::Normals;
+    let e = reconstruct(&seq, &cfg, |_, _, _| ()).unwrap_err().to_string();
+    assert!(e.contains("--normals") && e.contains("not shipped yet"), "{e}");
+    // A folder without the keyframe's file: the error names both candidate files.
+    let dir = tempfile::tempdir().unwrap();
+    cfg.normals = Some(NormalsSource::Dir(dir.path().to_path_buf()));
+    let e = reconstruct(&seq, &cfg, |_, _, _| ()).unwrap_err().to_string();
+    assert!(e.contains("00002.npy"), "{e}");
+}

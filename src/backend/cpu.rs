@@ -326,6 +326,18 @@ impl Backend for CpuBackend {
     ) -> Result<(DtamResult, DtamReport)> {
         crate::dtam::solve(costs, bins, grey, init, params)
     }
+
+    fn dtam_solve_normals(
+        &self,
+        costs: ArrayView3<f32>,
+        bins: &InverseDepthBins,
+        grey: ArrayView2<f32>,
+        init: ArrayView2<f32>,
+        slope: &crate::dtam::SlopeField,
+        params: &DtamParams,
+    ) -> Result<(DtamResult, DtamReport)> {
+        crate::dtam::solve_normals(costs, bins, grey, init, slope, params)
+    }
 }
 
 /// [`CostVolume`] as a [`VolumeBuilder`].

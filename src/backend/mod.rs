@@ -235,6 +235,26 @@ pub trait Backend: Send + Sync + Debug {
         init: ArrayView2<f32>,
         params: &DtamParams,
     ) -> Result<(DtamResult, DtamReport)>;
+    /// DTAM with the surface-normal prior (SPEC.md §10.2) for the slope field `slope`.
+    ///
+    /// # Errors
+    /// Bad parameters or shapes; [`Error::Unsupported`] on every backend but the CPU (not ported).
+    fn dtam_solve_normals(
+        &self,
+        costs: ArrayView3<f32>,
+        bins: &InverseDepthBins,
+        grey: ArrayView2<f32>,
+        init: ArrayView2<f32>,
+        slope: &crate::dtam::SlopeField,
+        params: &DtamParams,
+    ) -> Result<(DtamResult, DtamReport)> {
+        let _ = (costs, bins, grey, init, slope, params);
+        Err(Error::Unsupported {
+            backend: self.name().into(),
+            what: "the surface-normal prior (--regularizer normals) runs on the CPU only; use --backend cpu"
+                .into(),
+        })
+    }
 }
 
 /// A cost volume being accumulated by a backend, one live frame at a time.

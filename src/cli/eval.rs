@@ -121,7 +121,9 @@ fn preflight(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<()>
             kinds.push(kind);
         }
     }
-    let cfg = args.mapping.config(seq, keyframes[0], FeatureKind::Rgb, Regularizer::Tv)?;
+    let regularizer =
+        if args.methods.iter().any(|m| m.normals()) { Regularizer::TvAndNormals } else { Regularizer::Tv };
+    let cfg = args.mapping.config(seq, keyframes[0], FeatureKind::Rgb, regularizer)?;
     mapping_preflight(seq, &cfg, keyframes, &kinds, "eval")
 }
 

@@ -14,6 +14,7 @@ use crate::error::{Error, Result};
 use crate::mapping::keyframe::{
     KeyframeConfig, Regularizer, Stage, DEFAULT_BINS, DEFAULT_MAX_MEMORY_MB, DEFAULT_MIN_EVIDENCE,
 };
+use crate::mapping::normals::NormalsSource;
 use crate::mapping::output::DEFAULT_MIN_CONFIDENCE;
 use crate::mapping::photometric::PhotometricMode;
 use crate::mapping::{FeatureKind, KeyframeResult, Truncation};
@@ -47,6 +48,12 @@ pub struct MappingArgs {
     /// metrics are reported at this threshold and at full coverage.
     #[arg(long, default_value_t = DEFAULT_MIN_CONFIDENCE)]
     pub min_confidence: f32,
+    /// Normals of the surface-normal prior (`--regularizer normals`, eval's `-normals` methods,
+    /// SPEC.md §10.2): `gt` (from the keyframe's ground-truth depth) or a folder of `NNNNN.npy`
+    /// (keyframe index) or `<frame name>.npy` files, `[H, W, 3]` f32 camera-frame unit normals at
+    /// the input resolution. The built-in predictor (`learned`) is not shipped yet.
+    #[arg(long)]
+    pub normals: Option<NormalsSource>,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1).
     #[arg(long, default_value_t = MAPPING_DEFAULTS.lambda)]
     pub lambda: f64,
@@ -203,6 +210,7 @@ impl MappingArgs {
             far: depth_range.1,
             bins: self.bins,
             regularizer,
+            normals: self.normals.clone(),
             dtam: DtamParams {
                 lambda: self.lambda,
                 epsilon: self.epsilon,

@@ -25,7 +25,8 @@ pub struct ReconstructArgs {
     /// of the network alone), `dsift` (dense SIFT) or `patch7` (affine-warped 7x7 patches), SPEC.md §9a.
     #[arg(long, default_value = "rgb")]
     pub features: FeatureKind,
-    /// `none` (winner-take-all) or `tv` (DTAM, initialised by winner-take-all).
+    /// `none` (winner-take-all), `tv` (DTAM, initialised by winner-take-all) or `normals` (DTAM with
+    /// the surface-normal prior, SPEC.md §10.2; needs `--normals`).
     #[arg(long, default_value = "tv")]
     pub regularizer: Regularizer,
     /// Mapping flags.
@@ -57,12 +58,18 @@ pub fn run(args: ReconstructArgs) -> Result<()> {
         if let Some(tv) = &result.tv {
             println!("  tv:  {}", metrics_line(&result.metrics(tv)?));
         }
+        if let Some(n) = &result.normals {
+            println!("  normals: {}", metrics_line(&result.metrics(n)?));
+        }
         let c = args.mapping.min_confidence;
         if c > 0.0 {
             println!("metrics at confidence >= {c}:");
             println!("  wta: {}", metrics_line(&result.metrics_at(&result.wta, c)?));
             if let Some(tv) = &result.tv {
                 println!("  tv:  {}", metrics_line(&result.metrics_at(tv, c)?));
+            }
+            if let Some(n) = &result.normals {
+                println!("  normals: {}", metrics_line(&result.metrics_at(n, c)?));
             }
         }
     }

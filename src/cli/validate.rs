@@ -169,8 +169,11 @@ pub fn mapping_preflight(
     }
     InverseDepthBins::from_depth_range(cfg.near, cfg.far, cfg.bins)
         .map_err(|e| flag("depth-range", format!("{},{}: {e}", cfg.near, cfg.far)))?;
-    if cfg.regularizer == Regularizer::Tv {
+    if cfg.regularizer != Regularizer::None {
         cfg.dtam.validate()?;
+    }
+    if cfg.regularizer.normals() {
+        normals_preflight(seq, cfg, keyframes)?;
     }
     for &k in keyframes {
         let mut c = cfg.clone();
@@ -198,6 +201,42 @@ pub fn mapping_preflight(
             kind.name()
         );
         crate::memory::check(cfg.max_memory_mb, &what, bytes, "use fewer --bins or a coarser --level")?;
+    }
+    Ok(())
+}
+
+/// Before any heavy work: the normal prior has a source (`--normals`), runs on the CPU, and every
+/// keyframe has its normals (a ground-truth depth for `gt`, a file in `DIR`; SPEC.md §10.2).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] naming `--normals` / `--backend`.
+fn normals_preflight(
+    seq: &Sequence,
+    cfg: &crate::mapping::KeyframeConfig,
+    keyframes: &[usize],
+) -> Result<()> {
+    use crate::mapping::normals::{normals_file, NormalsSource};
+    let Some(source) = &cfg.normals else {
+        return Err(flag(
+            "normals",
+            "missing: the normal prior needs --normals gt or --normals DIR (the built-in normal \
+             predictor, --normals learned, is not shipped yet)",
+        ));
+    };
+    if cfg.backend.name() != "cpu" {
+        return Err(flag("backend", "the surface-normal prior runs on the CPU only: use --backend cpu"));
+    }
+    for &k in keyframes {
+        match source {
+            NormalsSource::GroundTruth => {
+                if seq.frames.get(k).is_some_and(|f| f.depth.is_none()) {
+                    return Err(flag("normals", format!("gt: keyframe {k} has no ground-truth depth")));
+                }
+            }
+            NormalsSource::Dir(dir) => {
+                normals_file(dir, seq, k)?;
+            }
+        }
     }
     Ok(())
 }

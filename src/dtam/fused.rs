@@ -14,7 +14,7 @@
 use ndarray::{Array2, ArrayView3};
 use rayon::prelude::*;
 
-use super::huber_tv::regulariser_row;
+use super::huber_tv::{regulariser_row, slope_regulariser_row};
 use super::search::{for_each_group, GroupSink, SearchParams, SearchRow, LANES, UNSEEN};
 use super::{Dispatch, HuberTv};
 use crate::dtam::search::{exhaustive_search_reference, CostRange};
@@ -45,6 +45,8 @@ struct Row<'a> {
     d: &'a [f32],
     below: Option<&'a [f32]>,
     g: &'a [f32],
+    /// The normal prior's slope rows (`q_x`, `q_y`), if it is on.
+    slope: Option<(&'a [f32], &'a [f32])>,
     eps: f64,
 }
 
@@ -99,6 +101,7 @@ pub fn search_with_energy(
                 d: &d[y * w..][..w],
                 below: (y + 1 < h).then(|| &d[(y + 1) * w..][..w]),
                 g: &g[y * w..][..w],
+                slope: tv.slope_rows(y),
                 eps,
             };
             fused_row(&row, &p, a_row, avx512)
@@ -145,7 +148,11 @@ fn fused_row_any<const AVX512: bool>(row: &Row, p: &SearchParams, a: &mut [f32])
     let Terms { a, coupling, data, .. } = sink;
     // `rms_gap`'s row sum.
     let gap = d.iter().zip(a.iter()).map(|(&d, &a)| (f64::from(d) - f64::from(a)).powi(2)).sum();
-    RowSums { regulariser: regulariser_row(d, row.below, row.g, row.eps), coupling, data, gap }
+    let regulariser = match row.slope {
+        Some((sx, sy)) => slope_regulariser_row(d, row.below, row.g, sx, sy, row.eps),
+        None => regulariser_row(d, row.below, row.g, row.eps),
+    };
+    RowSums { regulariser, coupling, data, gap }
 }
 
 /// Writes `a` and adds `total_energy`'s per-pixel coupling and data terms while the group's curves

@@ -27,7 +27,14 @@
 use ndarray::{Array2, ArrayView2, Zip};
 use rayon::prelude::*;
 
+use super::normal_prior::{step_size, SlopeField};
 use super::Dispatch;
+
+#[path = "normal_steps.rs"]
+mod normal_steps;
+
+pub(crate) use normal_steps::slope_regulariser_row;
+use normal_steps::Slope;
 
 /// Primal and dual step size `σ = τ = 1/√8`.
 pub const STEP: f64 = 0.353_553_390_593_273_8;
@@ -134,6 +141,8 @@ pub struct HuberTv {
     eps: f64,
     /// Scratch for [`HuberTv::steps_with`]: `(τ a) / θ` per pixel.
     a_term: Vec<f64>,
+    /// The normal prior's slope field (SPEC.md §10.2): `Some` replaces `∇` by `K_n = ∇ − q`.
+    slope: Option<Slope>,
 }
 
 impl HuberTv {
@@ -144,7 +153,37 @@ impl HuberTv {
     pub fn new(d0: Array2<f32>, g: Array2<f32>, eps: f64) -> Self {
         assert_eq!(d0.dim(), g.dim(), "edge weights must match the depth map");
         let zeros = Array2::zeros(d0.dim());
-        Self { d_bar: d0.clone(), d: d0, qx: zeros.clone(), qy: zeros, g, eps, a_term: Vec::new() }
+        Self {
+            d_bar: d0.clone(),
+            d: d0,
+            qx: zeros.clone(),
+            qy: zeros,
+            g,
+            eps,
+            a_term: Vec::new(),
+            slope: None,
+        }
+    }
+
+    /// [`HuberTv::new`] with the normal prior (SPEC.md §10.2): the regulariser becomes
+    /// `Σ ‖g (∇d − d q)‖_ε` for the slope field `q`, stepped with `σ = τ = 1/(√8 + Q)`.
+    ///
+    /// # Panics
+    /// If `g` or the field differ in shape from `d0` (callers validate shapes).
+    pub fn with_slope(d0: Array2<f32>, g: Array2<f32>, eps: f64, q: &SlopeField) -> Self {
+        assert_eq!(q.dim(), d0.dim(), "the slope field must match the depth map");
+        let mut tv = Self::new(d0, g, eps);
+        tv.slope = Some(Slope { sx: q.qx.clone(), sy: q.qy.clone(), step: step_size(q.max_norm) });
+        tv
+    }
+
+    /// The slope field's rows `y` (`q_x`, `q_y`), if the normal prior is on.
+    pub(crate) fn slope_rows(&self, y: usize) -> Option<(&[f32], &[f32])> {
+        let w = self.d.ncols();
+        self.slope.as_ref().map(|s| {
+            let (sx, sy) = (s.sx.as_slice().expect("contiguous"), s.sy.as_slice().expect("contiguous"));
+            (&sx[y * w..][..w], &sy[y * w..][..w])
+        })
     }
 
     /// The current primal `d`.
@@ -190,6 +229,11 @@ impl HuberTv {
         }
         let a = a.as_standard_layout();
         let a = a.as_slice().expect("standard layout is contiguous");
+        if self.slope.is_some() {
+            // The normal prior has one build (portable, row-parallel): `dispatch` changes nothing.
+            self.slope_steps(a, theta, n);
+            return;
+        }
         let avx512 = dispatch.use_avx512();
         let k = Coefficients::new(self.eps, theta);
         let mut a_term = std::mem::take(&mut self.a_term);
@@ -244,8 +288,16 @@ impl HuberTv {
     ///
     /// # Panics
     /// If `a` differs in shape from `d`.
+    ///
+    /// With the normal prior this is the prior's one step (its oracle is the f64
+    /// `normal_prior::Reference`, within a stated budget, not bit for bit).
     pub fn step_reference(&mut self, a: ArrayView2<f32>, theta: f64) {
         assert_eq!(a.dim(), self.d.dim(), "a must match d");
+        if self.slope.is_some() {
+            let a = a.as_standard_layout();
+            self.slope_steps(a.as_slice().expect("standard layout is contiguous"), theta, 1);
+            return;
+        }
         let (s, eps) = (STEP, self.eps);
         let (dual_scale, primal_scale) = (1.0 / (1.0 + s * eps), 1.0 / (1.0 + s / theta));
         let (d_bar, g) = (self.d_bar.view(), self.g.view());
@@ -294,10 +346,23 @@ impl HuberTv {
         self.qx.iter().zip(self.qy.iter()).map(|(x, y)| (x * x + y * y).sqrt()).fold(0.0, f32::max)
     }
 
-    /// `Σ ‖g ∇d‖_ε`, summed per row in f64, rows in order.
+    /// `Σ ‖g ∇d‖_ε` (with the normal prior `Σ ‖g (∇d − d q)‖_ε`), summed per row in f64, rows in
+    /// order.
     pub fn regulariser_energy(&self) -> f64 {
         let d = self.d.view();
         let (h, w) = d.dim();
+        if self.slope.is_some() {
+            let (ds, g) = (self.d.as_slice().expect("contiguous"), self.g.as_slice().expect("contiguous"));
+            let rows: Vec<f64> = (0..h)
+                .into_par_iter()
+                .map(|y| {
+                    let (sx, sy) = self.slope_rows(y).expect("slope is on");
+                    let below = (y + 1 < h).then(|| &ds[(y + 1) * w..][..w]);
+                    slope_regulariser_row(&ds[y * w..][..w], below, &g[y * w..][..w], sx, sy, self.eps)
+                })
+                .collect();
+            return rows.iter().sum();
+        }
         let rows: Vec<f64> = (0..h)
             .into_par_iter()
             .map(|y| {
@@ -323,7 +388,10 @@ impl HuberTv {
             for x in 0..w {
                 let diff = self.d[[y, x]] as f64 - a[[y, x]] as f64;
                 coupling += diff * diff / (2.0 * theta);
-                let kt = grad_adjoint(&gqx.view(), &gqy.view(), y, x);
+                let mut kt = grad_adjoint(&gqx.view(), &gqy.view(), y, x);
+                if let Some(s) = &self.slope {
+                    kt -= s.sx[[y, x]] as f64 * gqx[[y, x]] as f64 + s.sy[[y, x]] as f64 * gqy[[y, x]] as f64;
+                }
                 lin += kt * a[[y, x]] as f64;
                 kt2 += kt * kt;
                 let (qx, qy) = (self.qx[[y, x]] as f64, self.qy[[y, x]] as f64);

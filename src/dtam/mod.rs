@@ -35,6 +35,7 @@ mod bounds_avx512;
 mod edge;
 mod fused;
 pub mod huber_tv;
+pub mod normal_prior;
 pub mod search;
 
 use std::time::Instant;
@@ -48,6 +49,7 @@ use crate::geometry::InverseDepthBins;
 pub use edge::edge_weights;
 pub use fused::{search_with_energy, IterationMeasures};
 pub use huber_tv::{HuberTv, HuberTvReport};
+pub use normal_prior::SlopeField;
 pub use search::{exhaustive_search, exhaustive_search_reference, exhaustive_search_with, CostRange};
 
 /// Which build of the solver's row kernels to run. Both give the same bits; `Portable` exists to
@@ -290,7 +292,7 @@ pub fn solve_with(
     let costs = costs.as_standard_layout();
     let costs = costs.view();
     let range = CostRange::new(costs);
-    Ok(iterate(start, grey, init, params, bins, |n, tv, a| {
+    Ok(iterate(start, grey, init, params, bins, None, |n, tv, a| {
         let theta = params.theta(n);
         tv.steps_with(a.view(), theta, params.steps_per_search, dispatch);
         let m = search_with_energy(costs, &range, bins, tv, theta, params.lambda, a, dispatch);
@@ -316,7 +318,7 @@ pub fn solve_reference(
     check_inputs(costs, bins, grey, init, params)?;
     let start = Instant::now();
     let range = CostRange::new(costs);
-    Ok(iterate(start, grey, init, params, bins, |n, tv, a| {
+    Ok(iterate(start, grey, init, params, bins, None, |n, tv, a| {
         let theta = params.theta(n);
         for _ in 0..params.steps_per_search {
             tv.step_reference(a.view(), theta);
@@ -324,6 +326,39 @@ pub fn solve_reference(
         *a = exhaustive_search_reference(costs, &range, bins, tv.primal(), theta, params.lambda);
         let e = total_energy(tv, costs, bins, a.view(), theta, params.lambda);
         (e, rms_gap(tv.primal(), a.view()))
+    }))
+}
+
+/// DTAM with the surface-normal prior (SPEC.md §10.2): [`solve`] with the regulariser
+/// `Σ ‖g (∇d − d q)‖_ε` for the slope field `q` of the keyframe's normals
+/// ([`SlopeField::new`]), the same schedule, a-search, energy and stopping rule.
+///
+/// # Errors
+/// As [`solve`]; [`Error::InvalidArgument`] if the field's grid differs from the volume's.
+pub fn solve_normals(
+    costs: ArrayView3<f32>,
+    bins: &InverseDepthBins,
+    grey: ArrayView2<f32>,
+    init: ArrayView2<f32>,
+    slope: &SlopeField,
+    params: &DtamParams,
+) -> Result<(DtamResult, DtamReport)> {
+    check_inputs(costs, bins, grey, init, params)?;
+    if slope.dim() != grey.dim() {
+        return Err(Error::invalid_argument(
+            "normals",
+            format!("slope field {:?} does not match the image {:?}", slope.dim(), grey.dim()),
+        ));
+    }
+    let start = Instant::now();
+    let costs = costs.as_standard_layout();
+    let costs = costs.view();
+    let range = CostRange::new(costs);
+    Ok(iterate(start, grey, init, params, bins, Some(slope), |n, tv, a| {
+        let theta = params.theta(n);
+        tv.steps_with(a.view(), theta, params.steps_per_search, Dispatch::Auto);
+        let m = search_with_energy(costs, &range, bins, tv, theta, params.lambda, a, Dispatch::Auto);
+        (m.energy, m.gap)
     }))
 }
 
@@ -336,10 +371,14 @@ fn iterate(
     init: ArrayView2<f32>,
     params: &DtamParams,
     bins: &InverseDepthBins,
+    slope: Option<&SlopeField>,
     mut iteration: impl FnMut(usize, &mut HuberTv, &mut Array2<f32>) -> (f64, f64),
 ) -> (DtamResult, DtamReport) {
     let g = edge_weights(grey, params.alpha, params.beta);
-    let mut tv = HuberTv::new(init.to_owned(), g, params.epsilon);
+    let mut tv = match slope {
+        Some(q) => HuberTv::with_slope(init.to_owned(), g, params.epsilon, q),
+        None => HuberTv::new(init.to_owned(), g, params.epsilon),
+    };
     let mut a = init.to_owned();
     let mut history = History::new(params);
     for n in 0..params.max_iterations {

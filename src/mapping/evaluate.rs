@@ -32,6 +32,10 @@ pub enum Method {
     DsiftWta,
     /// Dense SIFT, DTAM Huber-TV.
     DsiftTv,
+    /// RGB, DTAM with the surface-normal prior (SPEC.md §10.2; needs `--normals`).
+    RgbNormals,
+    /// Learned features, DTAM with the surface-normal prior.
+    LearnedNormals,
     /// Affine-warped 7x7 patches (SPEC.md §9a.5), winner-take-all.
     Patch7Wta,
     /// Affine-warped 7x7 patches, DTAM Huber-TV.
@@ -43,7 +47,7 @@ impl Method {
     pub const ALL: [Method; 4] = [Method::RgbWta, Method::RgbTv, Method::LearnedWta, Method::LearnedTv];
 
     /// Every method: the paper's four, then the per-pixel descriptor baselines (SPEC.md §9a).
-    pub const EVERY: [Method; 10] = [
+    pub const EVERY: [Method; 12] = [
         Method::RgbWta,
         Method::RgbTv,
         Method::LearnedWta,
@@ -54,6 +58,8 @@ impl Method {
         Method::DsiftTv,
         Method::Patch7Wta,
         Method::Patch7Tv,
+        Method::RgbNormals,
+        Method::LearnedNormals,
     ];
 
     /// `FEATURES-wta` or `FEATURES-tv`, FEATURES one of `rgb`, `learned`, `b1`, `dsift`, `patch7`.
@@ -69,6 +75,8 @@ impl Method {
             Method::DsiftTv => "dsift-tv",
             Method::Patch7Wta => "patch7-wta",
             Method::Patch7Tv => "patch7-tv",
+            Method::RgbNormals => "rgb-normals",
+            Method::LearnedNormals => "learned-normals",
         }
     }
 
@@ -76,8 +84,8 @@ impl Method {
     pub fn features(self, weights: Option<&Path>) -> FeatureKind {
         let w = weights.map(Path::to_path_buf);
         match self {
-            Method::RgbWta | Method::RgbTv => FeatureKind::Rgb,
-            Method::LearnedWta | Method::LearnedTv => FeatureKind::Learned(w),
+            Method::RgbWta | Method::RgbTv | Method::RgbNormals => FeatureKind::Rgb,
+            Method::LearnedWta | Method::LearnedTv | Method::LearnedNormals => FeatureKind::Learned(w),
             Method::B1Wta | Method::B1Tv => FeatureKind::B1(w),
             Method::DsiftWta | Method::DsiftTv => FeatureKind::Dsift,
             Method::Patch7Wta | Method::Patch7Tv => FeatureKind::Patch7,
@@ -91,7 +99,12 @@ impl Method {
 
     /// Whether it uses the learned (aggregated) features.
     pub fn learned(self) -> bool {
-        matches!(self, Method::LearnedWta | Method::LearnedTv)
+        matches!(self, Method::LearnedWta | Method::LearnedTv | Method::LearnedNormals)
+    }
+
+    /// Whether it runs DTAM with the surface-normal prior.
+    pub fn normals(self) -> bool {
+        matches!(self, Method::RgbNormals | Method::LearnedNormals)
     }
 
     /// Whether it runs DTAM.
@@ -207,10 +220,16 @@ pub fn evaluate(
                 cfg.dtam.lambda = l;
             }
         }
-        cfg.regularizer =
-            if wanted.iter().any(|&i| methods[i].tv()) { Regularizer::Tv } else { Regularizer::None };
-        cfg.lambda_sweep =
-            if cfg.regularizer == Regularizer::Tv { options.lambda_sweep.clone() } else { Vec::new() };
+        let tv = wanted.iter().any(|&i| methods[i].tv());
+        let normals = wanted.iter().any(|&i| methods[i].normals());
+        cfg.regularizer = match (tv, normals) {
+            (true, true) => Regularizer::TvAndNormals,
+            (true, false) => Regularizer::Tv,
+            (false, true) => Regularizer::Normals,
+            (false, false) => Regularizer::None,
+        };
+        // The λ sweep is attributed to the TV methods only (SPEC.md §10.2).
+        cfg.lambda_sweep = if tv { options.lambda_sweep.clone() } else { Vec::new() };
         for (j, &k) in keyframes.iter().enumerate() {
             cfg.keyframe = k;
             if let Some(&(near, far)) = options.depth_ranges.get(j) {
@@ -219,7 +238,13 @@ pub fn evaluate(
             let result = reconstruct(seq, &cfg, |s, d, t| progress(k, s, d, t))?;
             for &i in &wanted {
                 let m = methods[i];
-                let estimate = if m.tv() { result.tv.as_ref().expect("TV was run") } else { &result.wta };
+                let estimate = if m.tv() {
+                    result.tv.as_ref().expect("TV was run")
+                } else if m.normals() {
+                    result.normals.as_ref().expect("the normal prior was run")
+                } else {
+                    &result.wta
+                };
                 per_keyframe.push((k, m, result.metrics(estimate)?));
                 per_keyframe_conf.push((m, result.metrics_at(estimate, options.min_confidence)?));
                 for &c in &options.confidence_sweep {
@@ -234,7 +259,7 @@ pub fn evaluate(
                     }
                 }
                 let mut t = result.timings;
-                if !m.tv() {
+                if !m.tv() && !m.normals() {
                     t.tv = 0.0;
                 }
                 add_timings(&mut timing_sums[i], &t);

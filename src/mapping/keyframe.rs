@@ -15,12 +15,14 @@ use serde::Serialize;
 
 use crate::backend::Backend;
 use crate::costvolume::{check_truncation, confidence_and_scale, filter_evidence, NO_TRUNCATION};
+use crate::dtam::SlopeField;
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
 use crate::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
 use crate::image::{to_gray, DepthMap, RgbImage};
 use crate::mapping::features::downsample_to;
+use crate::mapping::normals::{self, NormalsSource};
 use crate::mapping::photometric::{self, PhotometricFit, PhotometricMode};
 use crate::mapping::{FeatureExtractor, FeatureKind};
 use crate::sequence::Sequence;
@@ -32,17 +34,38 @@ pub enum Regularizer {
     None,
     /// Winner-take-all, then DTAM's Huber-TV solve initialised by it (SPEC.md §10).
     Tv,
+    /// Winner-take-all, then DTAM with the surface-normal prior (SPEC.md §10.2); needs
+    /// [`KeyframeConfig::normals`].
+    Normals,
+    /// Both solves on the same volume (what `eval` runs for `-tv` and `-normals` methods of one
+    /// feature kind; not a `--regularizer` value).
+    TvAndNormals,
+}
+
+impl Regularizer {
+    /// Whether the Huber-TV solve runs.
+    pub fn tv(self) -> bool {
+        matches!(self, Regularizer::Tv | Regularizer::TvAndNormals)
+    }
+
+    /// Whether the normal-prior solve runs.
+    pub fn normals(self) -> bool {
+        matches!(self, Regularizer::Normals | Regularizer::TvAndNormals)
+    }
 }
 
 impl std::str::FromStr for Regularizer {
     type Err = Error;
 
-    /// `none` or `tv`.
+    /// `none`, `tv` or `normals`.
     fn from_str(s: &str) -> Result<Self> {
         match s {
             "none" => Ok(Regularizer::None),
             "tv" => Ok(Regularizer::Tv),
-            _ => Err(Error::invalid_argument("--regularizer", format!("{s:?}: expected none or tv"))),
+            "normals" => Ok(Regularizer::Normals),
+            _ => {
+                Err(Error::invalid_argument("--regularizer", format!("{s:?}: expected none, tv or normals")))
+            }
         }
     }
 }
@@ -127,6 +150,8 @@ pub struct KeyframeConfig {
     pub bins: usize,
     /// Regulariser after winner-take-all.
     pub regularizer: Regularizer,
+    /// Where the normal prior's normals come from (`--normals`; needed by [`Regularizer::Normals`]).
+    pub normals: Option<NormalsSource>,
     /// DTAM parameters in the normalised units of [`DtamParams::normalised`] (used with
     /// [`Regularizer::Tv`]).
     pub dtam: DtamParams,
@@ -170,6 +195,7 @@ impl KeyframeConfig {
             far,
             bins: DEFAULT_BINS,
             regularizer: Regularizer::Tv,
+            normals: None,
             dtam: crate::dtam::MAPPING_DEFAULTS,
             max_memory_mb: DEFAULT_MAX_MEMORY_MB,
             level: 0,
@@ -212,8 +238,15 @@ impl KeyframeConfig {
         if self.bins < 2 {
             return Err(Error::invalid_argument("bins", format!("{}: need at least 2", self.bins)));
         }
-        if self.regularizer == Regularizer::Tv {
+        if self.regularizer != Regularizer::None {
             self.dtam.validate()?;
+        }
+        if self.regularizer.normals() && self.normals.is_none() {
+            return Err(Error::invalid_argument(
+                "--regularizer normals",
+                "needs --normals gt (from the keyframe's ground-truth depth) or --normals DIR (NNNNN.npy \
+                 normal maps): the built-in normal predictor (--normals learned) is not shipped yet",
+            ));
         }
         if !(0.0..=1.0).contains(&self.min_evidence) {
             return Err(Error::invalid_argument(
@@ -324,14 +357,19 @@ pub struct KeyframeResult {
     pub valid: Array2<bool>,
     /// Winner-take-all.
     pub wta: DepthEstimate,
-    /// DTAM's result, with [`Regularizer::Tv`].
+    /// DTAM's Huber-TV result, with [`Regularizer::Tv`] (or `TvAndNormals`).
     pub tv: Option<DepthEstimate>,
+    /// DTAM's result with the normal prior, with [`Regularizer::Normals`] (or `TvAndNormals`).
+    pub normals: Option<DepthEstimate>,
     /// Ground truth at level `L` (level-0 depth at pixels `2^L j`), if the keyframe has depth.
     pub gt_depth: Option<DepthMap>,
     /// Wall time per stage.
     pub timings: StageTimings,
-    /// DTAM's report, with [`Regularizer::Tv`].
+    /// DTAM's report: the Huber-TV solve's, else the normal-prior solve's.
     pub dtam: Option<DtamReport>,
+    /// The normal-prior solve's report and the pixels whose prior fell back to TV (no normal or
+    /// grazing; SPEC.md §10.2).
+    pub normals_dtam: Option<(DtamReport, usize)>,
     /// Per-pixel confidence in `[0, 1]` (SPEC.md §9.12).
     pub confidence: Array2<f32>,
     /// The cost scale `s` of the volume (SPEC.md §9.11); DTAM weights the data term by `1/(λ s)`.
@@ -349,7 +387,12 @@ pub struct KeyframeResult {
 impl KeyframeResult {
     /// The regularised estimate if there is one, else winner-take-all.
     pub fn best(&self) -> &DepthEstimate {
-        self.tv.as_ref().unwrap_or(&self.wta)
+        self.regularised().unwrap_or(&self.wta)
+    }
+
+    /// The normal-prior estimate if there is one, else the Huber-TV one.
+    pub fn regularised(&self) -> Option<&DepthEstimate> {
+        self.normals.as_ref().or(self.tv.as_ref())
     }
 
     /// Metrics of an estimate against the ground truth.
@@ -417,6 +460,15 @@ pub fn reconstruct(
     progress(Stage::Keyframe, 0, 1);
     let t = Instant::now();
     let key = seq.load_frame(cfg.keyframe)?;
+    // The normals before any heavy work: a bad file is reported at once.
+    let slope = match (&cfg.normals, cfg.regularizer.normals()) {
+        (Some(source), true) => {
+            let n =
+                normals::keyframe_normals(source, seq, cfg.keyframe, key.depth.as_ref(), &key_camera, level)?;
+            Some(SlopeField::new(n.view(), &camera)?)
+        }
+        _ => None,
+    };
     timings.load += t.elapsed().as_secs_f64();
     let t = Instant::now();
     let key_features = extractor.extract(&key.rgb)?.data;
@@ -503,28 +555,54 @@ pub fn reconstruct(
     let wta = DepthEstimate { inverse_depth: w.inverse_depth.clone(), depth: w.depth.clone() };
 
     let (mut tv, mut dtam, mut sweep) = (None, None, Vec::new());
-    if cfg.regularizer == Regularizer::Tv {
-        progress(Stage::Tv, 0, 1 + cfg.lambda_sweep.len());
+    let (mut normals_estimate, mut normals_dtam) = (None, None);
+    if cfg.regularizer != Regularizer::None {
+        let solves = usize::from(cfg.regularizer.tv()) + usize::from(cfg.regularizer.normals());
+        let total = solves + cfg.lambda_sweep.len();
+        progress(Stage::Tv, 0, total);
         let t = Instant::now();
         let grey = to_gray(&colour);
-        let run = |lambda: f64| -> Result<(DepthEstimate, DtamReport)> {
+        // One solve at `lambda`: Huber-TV, or the normal prior with `slope`.
+        let run = |lambda: f64, slope: Option<&SlopeField>| -> Result<(DepthEstimate, DtamReport)> {
             let params = DtamParams { lambda, ..cfg.dtam }.normalised(
                 scale,
                 camera.width,
                 bins.rho_max - bins.rho_min,
             );
-            let (res, report) =
-                backend.dtam_solve(costs.view(), &bins, grey.view(), w.inverse_depth.view(), &params)?;
+            let (res, report) = match slope {
+                None => {
+                    backend.dtam_solve(costs.view(), &bins, grey.view(), w.inverse_depth.view(), &params)?
+                }
+                Some(q) => backend.dtam_solve_normals(
+                    costs.view(),
+                    &bins,
+                    grey.view(),
+                    w.inverse_depth.view(),
+                    q,
+                    &params,
+                )?,
+            };
             Ok((tv_estimate(res, &w.valid), report))
         };
-        let (e, report) = run(cfg.dtam.lambda)?;
-        timings.tv = t.elapsed().as_secs_f64();
-        (tv, dtam) = (Some(e), Some(report));
-        for (i, &l) in cfg.lambda_sweep.iter().enumerate() {
-            progress(Stage::Tv, i + 1, 1 + cfg.lambda_sweep.len());
-            sweep.push((l, run(l)?.0));
+        if cfg.regularizer.tv() {
+            let (e, report) = run(cfg.dtam.lambda, None)?;
+            (tv, dtam) = (Some(e), Some(report));
         }
-        progress(Stage::Tv, 1 + cfg.lambda_sweep.len(), 1 + cfg.lambda_sweep.len());
+        if let Some(q) = slope.as_ref().filter(|_| cfg.regularizer.normals()) {
+            let (e, report) = run(cfg.dtam.lambda, Some(q))?;
+            if dtam.is_none() {
+                dtam = Some(report.clone());
+            }
+            (normals_estimate, normals_dtam) = (Some(e), Some((report, q.fallback)));
+        }
+        timings.tv = t.elapsed().as_secs_f64();
+        // The λ sweep runs the Huber-TV solve where it runs, else the normal prior.
+        let sweep_slope = if cfg.regularizer.tv() { None } else { slope.as_ref() };
+        for (i, &l) in cfg.lambda_sweep.iter().enumerate() {
+            progress(Stage::Tv, solves + i, total);
+            sweep.push((l, run(l, sweep_slope)?.0));
+        }
+        progress(Stage::Tv, total, total);
     }
 
     Ok(KeyframeResult {
@@ -538,9 +616,11 @@ pub fn reconstruct(
         valid: w.valid,
         wta,
         tv,
+        normals: normals_estimate,
         gt_depth,
         timings,
         dtam,
+        normals_dtam,
         confidence: conf,
         cost_scale: scale,
         sweep,

@@ -8,6 +8,7 @@ pub mod evaluate;
 pub mod features;
 pub mod keyframe;
 pub mod keyframe_select;
+pub mod normals;
 pub mod output;
 pub mod photometric;
 pub mod sequence_map;

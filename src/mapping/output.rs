@@ -50,6 +50,9 @@ pub fn write_outputs_with(result: &KeyframeResult, dir: &Path, min_confidence: f
     if let Some(tv) = &result.tv {
         full.push(("tv", tv));
     }
+    if let Some(n) = &result.normals {
+        full.push(("normals", n));
+    }
     let masked: Vec<DepthEstimate> = full.iter().map(|(_, e)| result.masked(e, min_confidence)).collect();
     let estimates: Vec<(&str, &DepthEstimate)> = full.iter().map(|(n, _)| *n).zip(masked.iter()).collect();
     write_npy_f32(&push(dir.join("confidence.npy")), result.confidence.view())?;
@@ -181,7 +184,7 @@ pub fn turbo(t: f64) -> [f32; 3] {
 /// picture of a keyframe so that they can be compared.
 pub fn colour_range(result: &KeyframeResult) -> (f64, f64) {
     let (lo, hi) = (1.0 / result.bins.rho_max, 1.0 / result.bins.rho_min);
-    let source = result.gt_depth.as_ref().unwrap_or(&result.tv.as_ref().unwrap_or(&result.wta).depth);
+    let source = result.gt_depth.as_ref().unwrap_or(&result.best().depth);
     let mut z: Vec<f32> = source.iter().copied().filter(|&v| is_valid_depth(v)).collect();
     if z.len() < 2 {
         return (lo, hi.min(lo * 100.0));

@@ -224,7 +224,7 @@ impl MapConfig {
         let c = self.keyframe_config(k);
         format!(
             "sequence={} keyframe={} window={},{} features={:?} near={} far={} bins={} regularizer={:?} \
-             dtam={:?} level={} min_evidence={} min_confidence={} backend={}",
+             normals={:?} dtam={:?} level={} min_evidence={} min_confidence={} backend={}",
             seq.root.canonicalize().unwrap_or(seq.root.clone()).display(),
             c.keyframe,
             c.past,
@@ -234,6 +234,7 @@ impl MapConfig {
             c.far,
             c.bins,
             c.regularizer,
+            c.normals,
             c.dtam,
             c.level,
             c.min_evidence,
@@ -250,10 +251,10 @@ pub fn keyframe_dir(out: &Path, index: usize) -> PathBuf {
 
 /// The estimate's file name in a keyframe folder.
 fn depth_file(cfg: &MapConfig) -> &'static str {
-    if cfg.keyframe.regularizer == Regularizer::Tv {
-        "depth_tv.pfm"
-    } else {
-        "depth_wta.pfm"
+    match cfg.keyframe.regularizer {
+        Regularizer::Tv => "depth_tv.pfm",
+        Regularizer::Normals | Regularizer::TvAndNormals => "depth_normals.pfm",
+        Regularizer::None => "depth_wta.pfm",
     }
 }
 

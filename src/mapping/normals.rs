@@ -1,0 +1,213 @@
+//! Where the normal prior's normals come from (SPEC.md §10.2, `--normals gt|DIR`): the keyframe's
+//! ground-truth depth, or a folder of `.npy` files. Both give camera-frame normals `[H, W, 3]` at
+//! level 0 (NaN where there is none), resampled to the mapper's level by nearest neighbour
+//! (level-`L` pixel `j` = level-0 pixel `2^L j`, SPEC.md §2.6).
+
+use std::path::{Path, PathBuf};
+
+use ndarray::{Array3, ArrayView3};
+
+use crate::error::{Error, Result};
+use crate::geometry::PinholeCamera;
+use crate::image::{is_valid_depth, DepthMap};
+use crate::sequence::Sequence;
+
+/// Half-width of the central differences of [`normals_from_depth`], level-0 pixels.
+pub const GT_STENCIL: usize = 2;
+
+/// How far a stored normal's norm may be from 1.
+pub const NORM_TOLERANCE: f32 = 1e-2;
+
+/// `--normals`: where the keyframe's normals come from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum NormalsSource {
+    /// From the keyframe's ground-truth depth ([`normals_from_depth`]): the upper bound.
+    GroundTruth,
+    /// `DIR/NNNNN.npy` (keyframe index, 5 digits) or `DIR/<frame name>.npy`: `[H, W, 3]` f32
+    /// camera-frame unit normals at level 0.
+    Dir(PathBuf),
+}
+
+impl std::str::FromStr for NormalsSource {
+    type Err = Error;
+
+    /// `gt`, or a folder that exists.
+    fn from_str(s: &str) -> Result<Self> {
+        if s == "gt" {
+            return Ok(Self::GroundTruth);
+        }
+        let p = PathBuf::from(s);
+        if !p.is_dir() {
+            return Err(Error::invalid_argument(
+                "--normals",
+                format!("{s:?}: expected gt or a folder of NNNNN.npy normal maps, and no such folder exists"),
+            ));
+        }
+        Ok(Self::Dir(p))
+    }
+}
+
+/// Camera-frame normals from a depth map (metres, `[H, W]`) seen by `camera`: back-project
+/// `X = z K⁻¹ũ`, take central differences of `X` over ±[`GT_STENCIL`] pixels along `x` and `y`
+/// (one-sided, from the pixel itself, where one neighbour is missing or outside), `n = ∂X/∂x ×
+/// ∂X/∂y` normalised and oriented towards the camera (`nᵀX < 0`). NaN where the pixel or both
+/// neighbours along an axis have no valid depth.
+pub fn normals_from_depth(depth: &DepthMap, camera: &PinholeCamera) -> Array3<f32> {
+    let (h, w) = depth.dim();
+    let point = |y: usize, x: usize| -> Option<[f64; 3]> {
+        let z = depth[[y, x]];
+        is_valid_depth(z).then(|| {
+            let z = z as f64;
+            [(x as f64 - camera.cx) / camera.fx * z, (y as f64 - camera.cy) / camera.fy * z, z]
+        })
+    };
+    let r = GT_STENCIL;
+    let mut out = Array3::from_elem((h, w, 3), f32::NAN);
+    for y in 0..h {
+        for x in 0..w {
+            let Some(c) = point(y, x) else { continue };
+            let diff = |a: Option<[f64; 3]>, b: Option<[f64; 3]>| match (a, b) {
+                (Some(a), Some(b)) => Some([a[0] - b[0], a[1] - b[1], a[2] - b[2]]),
+                (Some(a), None) => Some([a[0] - c[0], a[1] - c[1], a[2] - c[2]]),
+                (None, Some(b)) => Some([c[0] - b[0], c[1] - b[1], c[2] - b[2]]),
+                (None, None) => None,
+            };
+            let right = (x + r < w).then(|| point(y, x + r)).flatten();
+            let left = (x >= r).then(|| point(y, x - r)).flatten();
+            let down = (y + r < h).then(|| point(y + r, x)).flatten();
+            let up = (y >= r).then(|| point(y - r, x)).flatten();
+            let (Some(tx), Some(ty)) = (diff(right, left), diff(down, up)) else { continue };
+            let mut n =
+                [tx[1] * ty[2] - tx[2] * ty[1], tx[2] * ty[0] - tx[0] * ty[2], tx[0] * ty[1] - tx[1] * ty[0]];
+            let norm = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            if !(norm > 0.0 && norm.is_finite()) {
+                continue;
+            }
+            if n[0] * c[0] + n[1] * c[1] + n[2] * c[2] > 0.0 {
+                n = [-n[0], -n[1], -n[2]];
+            }
+            for k in 0..3 {
+                out[[y, x, k]] = (n[k] / norm) as f32;
+            }
+        }
+    }
+    out
+}
+
+/// Level-`level` normals: level-0 pixel `2^level j` (nearest, SPEC.md §2.6).
+pub fn normals_at_level(normals: ArrayView3<f32>, level: u32) -> Array3<f32> {
+    let (h, w, _) = normals.dim();
+    let s = 1usize << level;
+    Array3::from_shape_fn((h.div_ceil(s), w.div_ceil(s), 3), |(y, x, k)| normals[[y * s, x * s, k]])
+}
+
+/// The file `--normals DIR` holds for `keyframe`: `DIR/NNNNN.npy` if it exists, else
+/// `DIR/<frame name>.npy`.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] (flag `--normals`) naming both candidates when neither exists.
+pub fn normals_file(dir: &Path, seq: &Sequence, keyframe: usize) -> Result<PathBuf> {
+    let by_index = dir.join(format!("{keyframe:05}.npy"));
+    if by_index.is_file() {
+        return Ok(by_index);
+    }
+    let by_name = seq.frames.get(keyframe).map(|f| dir.join(format!("{}.npy", f.name)));
+    match by_name {
+        Some(p) if p.is_file() => Ok(p),
+        other => Err(Error::invalid_argument(
+            "--normals",
+            format!(
+                "no normals for keyframe {keyframe}: neither {} nor {} exists",
+                by_index.display(),
+                other.map_or("a file named after the frame".into(), |p| p.display().to_string())
+            ),
+        )),
+    }
+}
+
+/// Read a `[H, W, 3]` little-endian f32 C-order `.npy` of camera-frame unit normals and check it:
+/// the shape, every value finite, every vector's norm within [`NORM_TOLERANCE`] of 1 (or the zero
+/// vector: no normal, returned as NaN).
+///
+/// # Errors
+/// [`Error::BadFile`] naming `path` for anything else.
+pub fn read_normals(path: &Path, height: usize, width: usize) -> Result<Array3<f32>> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bad = |what: String| Error::bad_file(path, what);
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Err(bad("not a .npy file (no \\x93NUMPY magic)".into()));
+    }
+    let (hlen, start) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        2 | 3 if bytes.len() >= 12 => {
+            (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12)
+        }
+        v => return Err(bad(format!("unsupported .npy version {v}"))),
+    };
+    let header = bytes.get(start..start + hlen).ok_or_else(|| bad("truncated header".into()))?;
+    let header = String::from_utf8_lossy(header).replace(' ', "");
+    if !header.contains("'descr':'<f4'") {
+        return Err(bad(format!("need little-endian float32 ('<f4'), header {header:?}")));
+    }
+    if !header.contains("'fortran_order':False") {
+        return Err(bad("need C order (fortran_order False)".into()));
+    }
+    let want = format!("'shape':({height},{width},3)");
+    if !header.contains(&want) {
+        return Err(bad(format!(
+            "need shape ({height}, {width}, 3) (the keyframe at level 0), header {header:?}"
+        )));
+    }
+    let data = &bytes[start + hlen..];
+    if data.len() != height * width * 3 * 4 {
+        return Err(bad(format!("{} data bytes for shape ({height}, {width}, 3)", data.len())));
+    }
+    let values: Vec<f32> =
+        data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    let mut out = Array3::from_shape_vec((height, width, 3), values).expect("length checked");
+    for y in 0..height {
+        for x in 0..width {
+            let n = [out[[y, x, 0]], out[[y, x, 1]], out[[y, x, 2]]];
+            if n.iter().any(|v| !v.is_finite()) {
+                return Err(bad(format!("non-finite normal {n:?} at pixel ({x}, {y})")));
+            }
+            let norm = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            if norm == 0.0 {
+                out.slice_mut(ndarray::s![y, x, ..]).fill(f32::NAN);
+            } else if (norm - 1.0).abs() > NORM_TOLERANCE {
+                return Err(bad(format!("normal {n:?} at pixel ({x}, {y}) has norm {norm}, not 1")));
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The keyframe's normals at `level`.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] (flag `--normals`) for `gt` without ground-truth depth; the errors of
+/// [`normals_file`] and [`read_normals`].
+pub fn keyframe_normals(
+    source: &NormalsSource,
+    seq: &Sequence,
+    keyframe: usize,
+    depth: Option<&DepthMap>,
+    camera: &PinholeCamera,
+    level: u32,
+) -> Result<Array3<f32>> {
+    let level0 = match source {
+        NormalsSource::GroundTruth => {
+            let depth = depth.ok_or_else(|| {
+                Error::invalid_argument(
+                    "--normals",
+                    format!("gt: keyframe {keyframe} has no ground-truth depth to take normals from"),
+                )
+            })?;
+            normals_from_depth(depth, camera)
+        }
+        NormalsSource::Dir(dir) => {
+            read_normals(&normals_file(dir, seq, keyframe)?, camera.height, camera.width)?
+        }
+    };
+    Ok(normals_at_level(level0.view(), level))
+}

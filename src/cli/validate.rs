@@ -183,7 +183,6 @@ pub fn mapping_preflight(
     // The largest keyframe camera bounds every volume.
     let key_camera = keyframes
         .iter()
-        .filter(|&&k| k < seq.len())
         .map(|&k| seq.frame_camera(k))
         .max_by_key(|c| c.width * c.height)
         .unwrap_or(seq.camera);

@@ -452,7 +452,7 @@ pub fn reconstruct(
     let live = cfg.live_frames(seq.len())?;
     let level = cfg.level;
     // The keyframe's camera; each live frame is warped into its own (SPEC.md §9.1).
-    let key_camera = seq.frame_camera(cfg.keyframe.min(seq.len().saturating_sub(1)));
+    let key_camera = seq.frame_camera(cfg.keyframe); // in range: `live_frames` checked it
     let camera = key_camera.at_level(level);
     let backend = cfg.backend.as_ref();
     let extractor = FeatureExtractor::new(cfg.features.clone(), level, cfg.backend.clone())?;

@@ -15,7 +15,7 @@ use crate::nn::{FeatureNet, NetworkConfig, NetworkWeights};
 use crate::train::data::{DataConfig, DataSet, PairRule};
 use crate::train::loss::LossConfig;
 use crate::train::optim::OptimConfig;
-use crate::train::step::{pair_step, pair_step_timed, StepTimes, Supervision, TrainingPair};
+use crate::train::step::{batch_step, pair_step, pair_step_timed, StepTimes, Supervision, TrainingPair};
 use crate::train::trainer::{train, training_init, TrainConfig};
 
 /// Arguments of `densefeat train`.
@@ -263,6 +263,10 @@ pub struct BenchTrainArgs {
     /// Live frames per reference (as `densefeat train`).
     #[arg(long, default_value_t = 1)]
     pub live_frames: usize,
+    /// Pairs per optimiser step for the batch timing (as `densefeat train --batch`; the pairs of
+    /// a batch run at once). 0 skips it.
+    #[arg(long, default_value_t = 4)]
+    pub batch: usize,
     /// Also time the stages (forward with tape, each scale's loss, backward) in separate steps and
     /// print their medians.
     #[arg(long)]
@@ -380,6 +384,28 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
         }
         Ok((steps, fwds, stages))
     })?;
+    // The trainer's step: `batch` different pairs at once (SPEC.md §13.6).
+    let pairs = (0..args.batch).map(|b| data.train_pair(0, 1, b)).collect::<Result<Vec<_>>>()?;
+    let (ms_batch, ms_serial) = pool.install(|| -> Result<(Vec<f64>, Vec<f64>)> {
+        let (mut v, mut serial) = (Vec::new(), Vec::new());
+        if args.batch > 0 {
+            let run = || batch_step(&weights, args.batch, |b| Ok(pairs[b].clone()), &loss, &sup, &cpu);
+            run()?;
+            let mut g = weights.zeros_like();
+            for _ in 0..args.runs.max(1) {
+                let t = Instant::now();
+                run()?;
+                v.push(t.elapsed().as_secs_f64() * 1e3);
+                // The same pairs one after another (each using every thread), for comparison.
+                let t = Instant::now();
+                for p in &pairs {
+                    pair_step(&weights, p, &loss, &sup, &cpu, Some((&mut g, 1.0)))?;
+                }
+                serial.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+        }
+        Ok((v, serial))
+    })?;
     // The machine's SGEMM yardstick, measured right after (a loaded machine shows here).
     let sgemm = pool.install(|| crate::perf::gemm_gflops(256, 5));
     let median = |mut v: Vec<f64>| {
@@ -397,6 +423,16 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
     println!("  SGEMM indicator (256x256x256, {} threads): {sgemm:.1} GFLOP/s", args.threads);
     println!("  one pair (forward 2 images + loss at 6 scales + backward): {step:.1} ms median of {} -> {:.3} pairs/s", args.runs, 1e3 / step);
     println!("  of which network forward of both images: {fwd:.1} ms");
+    if !ms_batch.is_empty() {
+        let (b, serial) = (median(ms_batch), median(ms_serial));
+        println!(
+            "  one step of a batch of {} pairs (the pairs at once, as the trainer runs them): {b:.1} ms median of {} -> {:.3} pairs/s (the same pairs one after another: {serial:.1} ms -> {:.3} pairs/s)",
+            args.batch,
+            args.runs,
+            args.batch as f64 * 1e3 / b,
+            args.batch as f64 * 1e3 / serial
+        );
+    }
     println!(
         "  network forward+backward work {:.2} GFLOP per pair -> {:.1} GFLOP/s if the loss cost nothing",
         net_flops / 1e9,

@@ -165,6 +165,21 @@ impl NetworkWeights {
         convs.chain(self.deconvs.iter_mut()).collect()
     }
 
+    /// `self += other`, layer by layer (weights, then biases), elementwise. Shapes must match
+    /// (gradients of the same network).
+    ///
+    /// # Panics
+    /// If the two hold different layers.
+    pub fn add_assign(&mut self, other: &NetworkWeights) {
+        let theirs = other.layers();
+        let ours = self.layers_mut();
+        assert_eq!(ours.len(), theirs.len(), "add_assign of different networks");
+        for (a, b) in ours.into_iter().zip(theirs) {
+            a.weight += &b.weight;
+            a.bias += &b.bias;
+        }
+    }
+
     /// The same configuration and shapes with every value 0 (a gradient accumulator).
     pub fn zeros_like(&self) -> Self {
         let mut z = self.clone();

@@ -5,13 +5,14 @@
 use std::time::Instant;
 
 use ndarray::{Array2, Array3, ArrayView2, ArrayView3};
+use rayon::prelude::*;
 
 use crate::backend::CpuBackend;
 use crate::error::{Error, Result};
 use crate::geometry::{PinholeCamera, Pose, Warp};
 use crate::nn::{ForwardOutput, NetworkWeights};
 use crate::synth::rng::hash64;
-use crate::train::backprop::{backward, forward_with_tape};
+use crate::train::backprop::{backward, forward_with_tape, Tape};
 use crate::train::loss::{scale_loss_multi, LiveView, LossConfig, LossSums};
 
 /// A reference and a live frame, cropped, with the reference's ground-truth depth.
@@ -187,14 +188,17 @@ pub fn pair_step_timed(
     pair.validate()?;
     *times = StepTimes::default();
     let t = Instant::now();
-    let (out_r, tape_r) = forward_with_tape(weights, pair.ref_rgb.view(), cpu)?;
     // Live frames in order: the pair's own, then the further ones.
     let mut live_images = vec![(pair.live_rgb.view(), pair.live_camera, pair.t_lr)];
     live_images.extend(pair.more_lives.iter().map(|e| (e.rgb.view(), e.camera, e.t_lr)));
-    let mut live_out = Vec::with_capacity(live_images.len());
-    for (img, _, _) in &live_images {
-        live_out.push(forward_with_tape(weights, *img, cpu)?);
-    }
+    // Every image's forward at once (each is deterministic on its own, so the bits do not depend
+    // on how they interleave), reference first.
+    let images: Vec<ArrayView3<f32>> =
+        std::iter::once(pair.ref_rgb.view()).chain(live_images.iter().map(|(img, _, _)| *img)).collect();
+    let mut outs =
+        images.par_iter().map(|img| forward_with_tape(weights, *img, cpu)).collect::<Result<Vec<_>>>()?;
+    let live_out = outs.split_off(1);
+    let Some((out_r, tape_r)) = outs.pop() else { unreachable!("the reference's forward") };
     times.forward = ms(t);
     let n = weights.config.blocks;
     let n_live = live_images.len();
@@ -240,15 +244,63 @@ pub fn pair_step_timed(
     let t = Instant::now();
     if let Some((g, scale)) = grads {
         let scaled = |d: &Option<Array3<f32>>| d.as_ref().map(|a| a * scale);
-        let tapes = std::iter::once(&tape_r).chain(live_out.iter().map(|(_, tape)| tape));
-        for ((tape, db), df) in tapes.zip(&d_blocks).zip(&d_feat) {
-            let dr: Vec<Option<Array3<f32>>> = db.iter().map(scaled).collect();
-            let dfr = scaled(df);
-            backward(weights, tape, &views(&dr), dfr.as_ref().map(|a| a.view()), g)?;
+        let tapes: Vec<&Tape> =
+            std::iter::once(&tape_r).chain(live_out.iter().map(|(_, tape)| tape)).collect();
+        // Every image's backward at once, each into its own zeroed gradients, then added to `g`
+        // in image order: each parameter receives one `+=` per image, so the bits are those of
+        // running them one after another into `g`.
+        let per_image = tapes
+            .par_iter()
+            .zip(&d_blocks)
+            .zip(&d_feat)
+            .map(|((tape, db), df)| {
+                let dr: Vec<Option<Array3<f32>>> = db.iter().map(scaled).collect();
+                let dfr = scaled(df);
+                let mut gi = weights.zeros_like();
+                backward(weights, tape, &views(&dr), dfr.as_ref().map(|a| a.view()), &mut gi)?;
+                Ok(gi)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        for gi in &per_image {
+            g.add_assign(gi);
         }
     }
     times.backward = ms(t);
     Ok(result)
+}
+
+/// One optimiser step's gradients (SPEC.md §13.6): the `batch` pairs `pair(0..batch)` (made and
+/// run at once, each into its own gradients scaled by `1 / batch`), then the pairs' gradients
+/// added to zero in pair order. Every pair's gradients are deterministic on their own and the sum
+/// has a fixed order, so the result is bit-identical for any thread count.
+///
+/// # Errors
+/// The first error of `pair` or [`pair_step`], in pair order.
+pub fn batch_step(
+    weights: &NetworkWeights,
+    batch: usize,
+    pair: impl Fn(usize) -> Result<TrainingPair> + Sync,
+    loss: &LossConfig,
+    sup: &Supervision,
+    cpu: &CpuBackend,
+) -> Result<(Vec<PairLoss>, NetworkWeights)> {
+    let scale = 1.0 / batch as f32;
+    let per_pair = (0..batch)
+        .into_par_iter()
+        .map(|b| {
+            let p = pair(b)?;
+            let mut g = weights.zeros_like();
+            let l = pair_step(weights, &p, loss, sup, cpu, Some((&mut g, scale)))?;
+            Ok((l, g))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut grads = weights.zeros_like();
+    let mut losses = Vec::with_capacity(batch);
+    for (l, g) in per_pair {
+        grads.add_assign(&g);
+        losses.push(l);
+    }
+    Ok((losses, grads))
 }
 
 /// The map a scale supervises: block `k`'s output, or the aggregated features (`None`).

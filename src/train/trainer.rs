@@ -4,6 +4,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use rayon::prelude::*;
+
 use crate::backend::CpuBackend;
 use crate::error::{Error, Result};
 use crate::io::{write_atomic, Staging};
@@ -13,7 +15,7 @@ use crate::train::checkpoint::Checkpoint;
 use crate::train::data::{DataConfig, DataSet};
 use crate::train::loss::{LossConfig, LossSums};
 use crate::train::optim::{adam_step, AdamState, OptimConfig};
-use crate::train::step::{pair_step, PairLoss, Supervision, TrainingPair};
+use crate::train::step::{batch_step, pair_step, Supervision, TrainingPair};
 
 /// Everything a training run depends on.
 #[derive(Clone, Debug, PartialEq)]
@@ -94,8 +96,12 @@ pub fn validate(
     let mut agg = LossSums::default();
     // Validation evaluates every pixel (no sampling).
     let loss = LossConfig { sample_stride: 1, ..cfg.loss };
-    for (_, p) in pairs {
-        let l = pair_step(weights, p, &loss, &cfg.supervision, cpu, None)?;
+    // The pairs at once, their sums taken in pair order.
+    let per_pair = pairs
+        .par_iter()
+        .map(|(_, p)| pair_step(weights, p, &loss, &cfg.supervision, cpu, None))
+        .collect::<Result<Vec<_>>>()?;
+    for l in &per_pair {
         total += l.total(&cfg.supervision);
         agg.accumulate(&l.aggregated);
     }
@@ -325,19 +331,14 @@ pub fn train(
     while step < last {
         step += 1;
         let t0 = Instant::now();
-        let mut grads = weights.zeros_like();
-        let mut losses: Vec<PairLoss> = Vec::with_capacity(cfg.batch);
-        for b in 0..cfg.batch {
-            let pair = data.train_pair(cfg.seed, step, b)?;
-            losses.push(pair_step(
-                &weights,
-                &pair,
-                &cfg.loss,
-                &cfg.supervision,
-                &cpu,
-                Some((&mut grads, 1.0 / cfg.batch as f32)),
-            )?);
-        }
+        let (losses, grads) = batch_step(
+            &weights,
+            cfg.batch,
+            |b| data.train_pair(cfg.seed, step, b),
+            &cfg.loss,
+            &cfg.supervision,
+            &cpu,
+        )?;
         let lr = cfg.optim.lr_at(step, cfg.steps);
         let grad_norm = adam_step(&cfg.optim, &mut adam, &mut weights, &grads, lr);
         let loss = losses.iter().map(|l| l.total(&cfg.supervision)).sum::<f64>() / cfg.batch as f64;

@@ -10,13 +10,11 @@ use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
 use super::kernel::{self, LiveRows, LossKernel, Tap};
-use super::{
-    check_inputs, check_lives, multi_target, pixel_sampled, pixel_terms_with, ray_point, PixelScratch,
-};
+use super::taps::{self, PixelRay};
+use super::{check_inputs, check_lives, multi_target, pixel_sampled, pixel_terms_with, PixelScratch};
 use super::{LiveView, LossConfig, LossSums, MultiScaleLoss, ScaleLoss};
 use crate::error::Result;
 use crate::geometry::Warp;
-use crate::image::sample::axis;
 
 /// Most chunks the reference rows are split into (fixed, so results do not depend on threads).
 const CHUNKS: usize = 16;
@@ -33,10 +31,6 @@ struct PerLive {
     taps: Vec<Tap>,
     resid: Vec<f32>,
     e32: Vec<f32>,
-    /// Sample position of every hypothesis, and whether it is in front of the live camera.
-    u: Vec<f64>,
-    v: Vec<f64>,
-    front: Vec<bool>,
 }
 
 /// The loss of one scale and its gradients, f32 (SPEC.md §13.1, budget §13.3). Same contract as
@@ -149,14 +143,7 @@ pub fn scale_loss_multi_with(
             let mut sums = LossSums::default();
             let mut d_live: Vec<LiveRows> = dims.iter().map(|&(hl, wl)| LiveRows::new(hl, wl * c)).collect();
             let mut per_live: Vec<PerLive> = (0..n_live)
-                .map(|_| PerLive {
-                    taps: Vec::with_capacity(k),
-                    resid: vec![0.0; k * c],
-                    e32: vec![0.0; k],
-                    u: vec![0.0; k],
-                    v: vec![0.0; k],
-                    front: vec![false; k],
-                })
+                .map(|_| PerLive { taps: Vec::with_capacity(k), resid: vec![0.0; k * c], e32: vec![0.0; k] })
                 .collect();
             let mut coefs = vec![0.0f32; k];
             let mut energies = vec![0.0f64; k];
@@ -172,39 +159,8 @@ pub fn scale_loss_multi_with(
                     let f_u = &fr[(y * w + x) * c..][..c];
                     for (((live, pl), fl), &(hl, wl)) in lives.iter().zip(&mut per_live).zip(&fls).zip(&dims)
                     {
-                        let warp = live.warp;
-                        let p0 = ray_point(warp, x, y);
-                        // Every hypothesis's position first (elementwise over the bins, the
-                        // arithmetic of hypothesis_position), then the in-image taps.
-                        let t = warp.translation();
-                        let cam = warp.target();
-                        for (l, &rho) in rhos.iter().enumerate() {
-                            let px = p0[0] + rho * t.x;
-                            let py = p0[1] + rho * t.y;
-                            let pz = p0[2] + rho * t.z;
-                            pl.u[l] = cam.fx * px / pz + cam.cx;
-                            pl.v[l] = cam.fy * py / pz + cam.cy;
-                            pl.front[l] = pz > 0.0 && pz.is_finite();
-                        }
-                        pl.taps.clear();
-                        for l in 0..k {
-                            if !pl.front[l] {
-                                continue;
-                            }
-                            // bilinear_taps, without its flat indices (no integer divisions).
-                            let (Some((x0, x1, a)), Some((y0, y1, b))) =
-                                (axis(pl.u[l], wl), axis(pl.v[l], hl))
-                            else {
-                                continue;
-                            };
-                            let wt = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
-                            pl.taps.push(Tap {
-                                bin: l as u32,
-                                y: [y0 as u32, y1 as u32],
-                                xc: [x0 * c, x1 * c],
-                                w: wt.map(|v| v as f32),
-                            });
-                        }
+                        let ray = PixelRay::new(live.warp, x, y, wl, hl, c);
+                        taps::hypothesis_taps(avx512, &ray, &rhos, &mut pl.taps);
                         kernel::costs(avx512, f_u, fl, wl * c, &pl.taps, &mut pl.resid, &mut pl.e32);
                     }
                     // E_l = (Σ_n E_l^(n)) / N, in f64, live frames in order (m outside a frame).

@@ -18,9 +18,11 @@
 //! (samples and costs in f32, the per-pixel softmax and regression in f64, the same
 //! [`pixel_terms`]). Both return the gradients with respect to both feature maps.
 
+mod exp;
 mod fast;
 mod kernel;
 mod reference;
+mod taps;
 
 pub use fast::{scale_loss, scale_loss_multi, scale_loss_multi_with, scale_loss_with};
 pub use kernel::{uses_avx512, LossKernel};
@@ -273,15 +275,11 @@ pub fn pixel_terms_with(
             .iter()
             .enumerate()
             .fold((0, f64::INFINITY), |(bi, bv), (i, &e)| if e < bv { (i, e) } else { (bi, bv) });
-    // Runs of equal costs (the out-of-image bins, all `m`) share one exp.
+    // exp(E_min − E_l), elementwise (exp.rs), then their sum in bin order.
+    exp::exp_shifted(energies, e_min, grad);
     let mut sum = 0.0;
-    let (mut last_e, mut last_p) = (f64::NAN, 0.0);
-    for (g, &e) in grad.iter_mut().zip(energies) {
-        if e != last_e {
-            (last_e, last_p) = (e, (e_min - e).exp());
-        }
-        *g = last_p;
-        sum += *g;
+    for &g in grad.iter() {
+        sum += g;
     }
     // grad holds P for now.
     for g in grad.iter_mut() {

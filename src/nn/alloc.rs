@@ -124,3 +124,31 @@ mod tests {
         }
     }
 }
+
+thread_local! {
+    /// This thread's reusable buffer for [`with_scratch`].
+    static SCRATCH: std::cell::Cell<Vec<f32>> = const { std::cell::Cell::new(Vec::new()) };
+}
+
+/// Runs `f` on a buffer of `len` f32 that **`f` must overwrite entirely before reading** (im2col
+/// columns, GEMM outputs with β = 0): its initial contents are whatever a previous user left (NaN
+/// in debug builds, so a read before a write shows in the tests). The buffer is this thread's,
+/// kept between calls, so the large column buffers of the backward pass cost no allocation, page
+/// faults or zeroing per call. Re-entrant: a nested call on the same thread (rayon may run another
+/// job while `f` waits) gets a fresh buffer.
+pub fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [f32]) -> R) -> R {
+    let mut buf = SCRATCH.with(std::cell::Cell::take);
+    if buf.len() < len {
+        buf.resize(len, 0.0);
+    }
+    if cfg!(debug_assertions) {
+        buf[..len].fill(f32::NAN);
+    }
+    let r = f(&mut buf[..len]);
+    // Keep the larger of this buffer and one a nested call may have left.
+    SCRATCH.with(|c| {
+        let other = c.take();
+        c.set(if other.capacity() > buf.capacity() { other } else { buf });
+    });
+    r
+}

@@ -47,8 +47,9 @@ pub(crate) fn sgemm(a: MatRef, b: MatRef, beta: f32, c: &mut [f32]) {
         return;
     }
     if k == 0 {
+        // β = 0 overwrites (as matrixmultiply does below): `c` need not be initialised.
         for v in c.iter_mut() {
-            *v *= beta;
+            *v = if beta == 0.0 { 0.0 } else { *v * beta };
         }
         return;
     }

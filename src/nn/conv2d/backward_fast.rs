@@ -20,6 +20,7 @@ use super::backward::tap_target;
 use super::im2col::im2col_rows;
 use super::{conv2d, Conv2dImpl};
 use crate::error::Result;
+use crate::nn::alloc::with_scratch;
 use crate::nn::gemm::{rows_per_chunk, sgemm, sum_of_chunks, MatRef};
 use crate::nn::geometry::{Conv2dGeometry, CONV_KERNEL};
 use crate::nn::{expect_shape, Activation};
@@ -86,28 +87,30 @@ pub fn conv2d_backward_input_with(
     }
     let d_out = d_out.as_standard_layout();
     let Some(g) = d_out.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
-    let mut d_col = vec![0.0f32; h_out * w_out * k];
-    let block = rows_per_chunk(w_out, h_out, INPUT_BLOCK_PIXELS) * w_out;
-    d_col.par_chunks_mut(block * k).enumerate().for_each(|(b, out)| {
-        let m = out.len() / k;
-        let g_rows = &g[b * block * c_out..][..m * c_out];
-        sgemm(MatRef::row_major(g_rows, m, c_out), MatRef::row_major(&wm, c_out, k), 0.0, out);
-    });
     let mut d_in = Array3::zeros(geom.input_shape());
-    let Some(d_in_slice) = d_in.as_slice_mut() else { unreachable!("new arrays are contiguous") };
-    d_in_slice.par_chunks_mut(w * c_in).enumerate().for_each(|(iy, row)| {
-        for (ix, px) in row.chunks_exact_mut(c_in).enumerate() {
-            for ky in 0..CONV_KERNEL {
-                let Some(y) = tap_target(iy, ky, s, h_out) else { continue };
-                for kx in 0..CONV_KERNEL {
-                    let Some(x) = tap_target(ix, kx, s, w_out) else { continue };
-                    let src = &d_col[(y * w_out + x) * k + (ky * CONV_KERNEL + kx) * c_in..][..c_in];
-                    for (a, &v) in px.iter_mut().zip(src) {
-                        *a += v;
+    with_scratch(h_out * w_out * k, |d_col| {
+        let block = rows_per_chunk(w_out, h_out, INPUT_BLOCK_PIXELS) * w_out;
+        d_col.par_chunks_mut(block * k).enumerate().for_each(|(b, out)| {
+            let m = out.len() / k;
+            let g_rows = &g[b * block * c_out..][..m * c_out];
+            sgemm(MatRef::row_major(g_rows, m, c_out), MatRef::row_major(&wm, c_out, k), 0.0, out);
+        });
+        let d_col = &*d_col;
+        let Some(d_in_slice) = d_in.as_slice_mut() else { unreachable!("new arrays are contiguous") };
+        d_in_slice.par_chunks_mut(w * c_in).enumerate().for_each(|(iy, row)| {
+            for (ix, px) in row.chunks_exact_mut(c_in).enumerate() {
+                for ky in 0..CONV_KERNEL {
+                    let Some(y) = tap_target(iy, ky, s, h_out) else { continue };
+                    for kx in 0..CONV_KERNEL {
+                        let Some(x) = tap_target(ix, kx, s, w_out) else { continue };
+                        let src = &d_col[(y * w_out + x) * k + (ky * CONV_KERNEL + kx) * c_in..][..c_in];
+                        for (a, &v) in px.iter_mut().zip(src) {
+                            *a += v;
+                        }
                     }
                 }
             }
-        }
+        });
     });
     Ok(d_in)
 }
@@ -142,11 +145,12 @@ pub fn conv2d_backward_weight(
         let y0 = i * rpc;
         let rows = rpc.min(h_out - y0);
         let m = rows * w_out;
-        let mut cols = vec![0.0f32; m * k];
-        im2col_rows(geom, x_in, y0, rows, &mut cols);
         let g_rows = &g[y0 * w_out * c_out..][..m * c_out];
         let mut part = vec![0.0f32; k * c_out];
-        sgemm(MatRef::row_major(&cols, m, k).t(), MatRef::row_major(g_rows, m, c_out), 0.0, &mut part);
+        with_scratch(m * k, |cols| {
+            im2col_rows(geom, x_in, y0, rows, cols);
+            sgemm(MatRef::row_major(cols, m, k).t(), MatRef::row_major(g_rows, m, c_out), 0.0, &mut part);
+        });
         part
     });
     let d_w = Array4::from_shape_fn(geom.weight_shape(), |(o, c, ky, kx)| {

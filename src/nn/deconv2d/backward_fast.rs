@@ -16,6 +16,7 @@ use ndarray::{Array1, Array3, Array4, ArrayView3, ArrayView4};
 use rayon::prelude::*;
 
 use crate::error::Result;
+use crate::nn::alloc::with_scratch;
 use crate::nn::conv2d::backward_fast::bias_gradient;
 use crate::nn::expect_shape;
 use crate::nn::gemm::{rows_per_chunk, sgemm, sum_of_chunks, MatRef};
@@ -81,9 +82,10 @@ pub fn deconv2d_backward_input(
     let rpb = rows_per_chunk(w, h, INPUT_BLOCK_PIXELS);
     d_in_slice.par_chunks_mut(rpb * w * c_in).enumerate().for_each(|(b, out)| {
         let m = out.len() / c_in;
-        let mut cols = vec![0.0f32; m * k];
-        gradient_cols(geom, g, b * rpb, m / w, &mut cols);
-        sgemm(MatRef::row_major(&cols, m, k), MatRef::row_major(&w2, k, c_in), 0.0, out);
+        with_scratch(m * k, |cols| {
+            gradient_cols(geom, g, b * rpb, m / w, cols);
+            sgemm(MatRef::row_major(cols, m, k), MatRef::row_major(&w2, k, c_in), 0.0, out);
+        });
     });
     Ok(d_in)
 }
@@ -118,11 +120,12 @@ pub fn deconv2d_backward_weight(
         let iy0 = i * rpc;
         let rows = rpc.min(h - iy0);
         let m = rows * w;
-        let mut cols = vec![0.0f32; m * k];
-        gradient_cols(geom, g, iy0, rows, &mut cols);
         let x_rows = &x_in[iy0 * w * c_in..][..m * c_in];
         let mut part = vec![0.0f32; k * c_in];
-        sgemm(MatRef::row_major(&cols, m, k).t(), MatRef::row_major(x_rows, m, c_in), 0.0, &mut part);
+        with_scratch(m * k, |cols| {
+            gradient_cols(geom, g, iy0, rows, cols);
+            sgemm(MatRef::row_major(cols, m, k).t(), MatRef::row_major(x_rows, m, c_in), 0.0, &mut part);
+        });
         part
     });
     let d_w = Array4::from_shape_fn(geom.weight_shape(), |(ci, co, ky, kx)| {

@@ -218,6 +218,11 @@ mod avx512 {
         live: &mut LiveRows,
     ) {
         let c = d_u.len();
+        if c == 2 * LANES {
+            // SAFETY: as this function's.
+            unsafe { backward_32(taps, coefs, resid, d_u, live) };
+            return;
+        }
         for (j, tap) in taps.iter().enumerate() {
             let coef = coefs[j];
             if coef == 0.0 {
@@ -231,6 +236,51 @@ mod avx512 {
                 // SAFETY: as above.
                 unsafe { axpy(cw, r, &mut live.row_mut(y)[x..x + c]) };
             }
+        }
+    }
+
+    /// [`backward`] for 32 channels (the network's): the same operations in the same order, with
+    /// `d_u` held in two registers across the taps and each tap's two live rows looked up once.
+    #[target_feature(enable = "avx512f")]
+    unsafe fn backward_32(taps: &[Tap], coefs: &[f32], resid: &[f32], d_u: &mut [f32], live: &mut LiveRows) {
+        const C: usize = 2 * LANES;
+        assert!(d_u.len() == C && resid.len() >= taps.len() * C && coefs.len() >= taps.len());
+        // SAFETY: d_u holds 32 f32.
+        let (mut u0, mut u1) =
+            unsafe { (_mm512_loadu_ps(d_u.as_ptr()), _mm512_loadu_ps(d_u.as_ptr().add(LANES))) };
+        for (j, tap) in taps.iter().enumerate() {
+            let coef = coefs[j];
+            if coef == 0.0 {
+                continue;
+            }
+            let [x0, x1] = tap.xc;
+            assert!(x0.max(x1) + C <= live.row);
+            // Row pointers: a second row_mut may allocate another row, never move this one.
+            let p0 = live.row_mut(tap.y[0] as usize).as_mut_ptr();
+            let p1 = live.row_mut(tap.y[1] as usize).as_mut_ptr();
+            let corners = [(p0, x0), (p0, x1), (p1, x0), (p1, x1)];
+            // SAFETY: resid holds taps.len() · 32 values; every corner offset + 32 is within its
+            // row (asserted above); the corners are updated one after another, so two that share
+            // memory (a 1-row or 1-column map) see each other's writes, as in the portable order.
+            unsafe {
+                let r0 = _mm512_loadu_ps(resid.as_ptr().add(j * C));
+                let r1 = _mm512_loadu_ps(resid.as_ptr().add(j * C + LANES));
+                let cv = _mm512_set1_ps(coef);
+                u0 = _mm512_add_ps(u0, _mm512_mul_ps(cv, r0));
+                u1 = _mm512_add_ps(u1, _mm512_mul_ps(cv, r1));
+                for (t, (row, x)) in corners.into_iter().enumerate() {
+                    let cw = _mm512_set1_ps(-coef * tap.w[t]);
+                    let p = row.add(x);
+                    _mm512_storeu_ps(p, _mm512_add_ps(_mm512_loadu_ps(p), _mm512_mul_ps(cw, r0)));
+                    let p = p.add(LANES);
+                    _mm512_storeu_ps(p, _mm512_add_ps(_mm512_loadu_ps(p), _mm512_mul_ps(cw, r1)));
+                }
+            }
+        }
+        // SAFETY: d_u holds 32 f32.
+        unsafe {
+            _mm512_storeu_ps(d_u.as_mut_ptr(), u0);
+            _mm512_storeu_ps(d_u.as_mut_ptr().add(LANES), u1);
         }
     }
 

@@ -18,6 +18,7 @@ use rayon::prelude::*;
 use crate::error::Result;
 use crate::nn::alloc::with_scratch;
 use crate::nn::conv2d::backward_fast::bias_gradient;
+use crate::nn::conv2d::im2col::copy_run;
 use crate::nn::expect_shape;
 use crate::nn::gemm::{rows_per_chunk, sgemm, sum_of_chunks, MatRef};
 use crate::nn::geometry::{Deconv2dGeometry, DECONV_KERNEL, DECONV_PADDING, DECONV_STRIDE};
@@ -45,7 +46,7 @@ fn gradient_cols(geom: &Deconv2dGeometry, g: &[f32], iy0: usize, rows: usize, co
                     let ox = target(ix, kx, w_out);
                     let Some(dst) = taps.next() else { unreachable!("gradient_cols tap count") };
                     match (oy, ox) {
-                        (Some(oy), Some(ox)) => dst.copy_from_slice(&g[(oy * w_out + ox) * c_out..][..c_out]),
+                        (Some(oy), Some(ox)) => copy_run(dst, &g[(oy * w_out + ox) * c_out..][..c_out]),
                         _ => dst.fill(0.0),
                     }
                 }

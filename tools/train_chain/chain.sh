@@ -28,6 +28,20 @@ args_b1s2=(
   --val-every 250 --val-per-source 4 --ckpt-every 100
 )
 
+# Block-1 stride 1 (issue 30: the other stride, >= 60 000 pairs). The same data, crops, bins and
+# optimiser; the finest supervised level is 0 here, so --loss-sample-stride 4 evaluates as many
+# pixels per scale as b1s2's 2 does at level 1 (SPEC.md §13.1a). 15 000 steps x 4 = 60 000 pairs.
+# Start it once b1s2 has finished (the two would share the two cores).
+args_b1s1=(
+  --data $D/hololens_000 --data $D/tartanair_hospital --data $D/tsdffusion_desk_box
+  --val-data $D/sun3d_studyroom_f0935 --val-fraction 0
+  --synthetic-scenes 64 --synthetic-style real --synthetic-fraction 0.5 --synthetic-val-scenes 4
+  --b1-stride 1 --crop 256x192 --bins 256
+  --steps 15000 --batch 4 --lr 1e-3 --warmup 500 --weight-decay 1e-4 --clip-norm 5000
+  --loss-sample-stride 4 --seed 0 --init-seed 0
+  --val-every 250 --val-per-source 4 --ckpt-every 100
+)
+
 case "${1:-}" in
   start)
     var="args_${name}[@]"

@@ -7,9 +7,11 @@
 //! - Input gradient, stride 2: `D = G Wm` (`[pixels_out, c_out] x [c_out, 9 c_in]`, one sgemm per
 //!   block of output rows), then every input value gathers its (at most 9) entries of `D`, taps in
 //!   row-major order.
-//! - Weight gradient: `d_w = Σ_chunks colsᵀ G_chunk`, the im2col matrix of a fixed chunk of output
-//!   rows times that chunk's gradient (one sgemm each, in parallel), the partials added in chunk
-//!   order; the bias gradient sums the output pixels in row-major order.
+//! - Weight gradient: per fixed chunk of output rows (in parallel) a partial, the partials added in
+//!   chunk order. For 32 output channels the partial is [`super::weight_grad`]'s fused chains (one
+//!   FMA chain per weight over the chunk's pixels); otherwise `colsᵀ G_chunk`, the chunk's im2col
+//!   matrix times its gradient (one sgemm). The bias gradient sums the output pixels in row-major
+//!   order.
 //!
 //! Chunks are fixed by the geometry, so every result is bit-identical for any rayon thread count.
 
@@ -18,6 +20,7 @@ use rayon::prelude::*;
 
 use super::backward::tap_target;
 use super::im2col::im2col_rows;
+use super::weight_grad;
 use super::{conv2d, Conv2dImpl};
 use crate::error::Result;
 use crate::nn::alloc::with_scratch;
@@ -145,8 +148,12 @@ pub fn conv2d_backward_weight(
         let y0 = i * rpc;
         let rows = rpc.min(h_out - y0);
         let m = rows * w_out;
-        let g_rows = &g[y0 * w_out * c_out..][..m * c_out];
         let mut part = vec![0.0f32; k * c_out];
+        if weight_grad::supports(geom) {
+            weight_grad::chunk(geom, x_in, g, y0, rows, &mut part);
+            return part;
+        }
+        let g_rows = &g[y0 * w_out * c_out..][..m * c_out];
         with_scratch(m * k, |cols| {
             im2col_rows(geom, x_in, y0, rows, cols);
             sgemm(MatRef::row_major(cols, m, k).t(), MatRef::row_major(g_rows, m, c_out), 0.0, &mut part);

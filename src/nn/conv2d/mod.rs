@@ -40,6 +40,7 @@ pub(crate) mod direct_avx512;
 pub mod direct_concat;
 pub mod im2col;
 pub mod reference;
+mod weight_grad;
 pub mod winograd;
 
 use ndarray::{Array3, ArrayView1, ArrayView3, ArrayView4};

@@ -9,7 +9,9 @@ pub const NO_AVX512_ENV: &str = "DENSEFEAT_NO_AVX512";
 
 /// Whether the CPU has AVX-512F and [`NO_AVX512_ENV`] is not set (always `false` off x86-64).
 /// Every kernel with an AVX-512 path asks here (the cost volume, the direct convolution and
-/// transposed convolution, the training loss). The environment is read once per process.
+/// transposed convolution, the training loss and weight gradients, DTAM, the feature upsampling):
+/// no other AVX-512F probe exists in the crate (a test scans the source). The environment is read
+/// once per process.
 pub fn has_avx512f() -> bool {
     #[cfg(target_arch = "x86_64")]
     {

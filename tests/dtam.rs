@@ -569,3 +569,45 @@ fn shipped_weights_are_built_in_and_rgb_matches_their_grid() {
     assert!("learned=x.safetensors".parse::<FeatureKind>().is_ok());
     assert!("sift".parse::<FeatureKind>().is_err());
 }
+
+/// `DENSEFEAT_NO_AVX512` reaches every AVX-512 dispatch, DTAM's and the feature upsampling's
+/// included (issue 33): every AVX-512F probe in the library is `runtime::has_avx512f`, which the
+/// variable switches off. Checked in a child process of this test binary (the variable is read
+/// once per process) and on the source.
+#[test]
+fn no_avx512_env_switches_every_avx512_dispatch() {
+    use densefeat::runtime::{has_avx512f, NO_AVX512_ENV};
+    const NAME: &str = "no_avx512_env_switches_every_avx512_dispatch";
+    if std::env::var_os(NO_AVX512_ENV).is_some() {
+        assert!(!has_avx512f());
+        assert!(!densefeat::dtam::Dispatch::Auto.use_avx512());
+        return;
+    }
+    let out = std::process::Command::new(std::env::current_exe().unwrap())
+        .args([NAME, "--exact", "--test-threads", "1"])
+        .env(NO_AVX512_ENV, "1")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && stdout.contains("1 passed"), "child run: {stdout}");
+    // The source: no other AVX-512F probe.
+    let mut stack = vec![std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("src")];
+    let mut files = 0;
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+            } else if path.extension().is_some_and(|e| e == "rs") && !path.ends_with("runtime.rs") {
+                files += 1;
+                let text = std::fs::read_to_string(&path).unwrap();
+                assert!(
+                    !text.contains(&format!("is_x86_feature_detected!({:?})", "avx512f")),
+                    "{} probes AVX-512F itself; use runtime::has_avx512f",
+                    path.display()
+                );
+            }
+        }
+    }
+    assert!(files > 50, "read {files} source files");
+}

@@ -28,7 +28,7 @@ const BLOCK: usize = 16;
 
 /// Whether this CPU runs the kernel (AVX-512F, BW for the `u16` count update, VL, DQ).
 pub(super) fn available() -> bool {
-    is_x86_feature_detected!("avx512f")
+    crate::runtime::has_avx512f()
         && is_x86_feature_detected!("avx512bw")
         && is_x86_feature_detected!("avx512vl")
         && is_x86_feature_detected!("avx512dq")

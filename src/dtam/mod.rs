@@ -71,7 +71,7 @@ impl Dispatch {
             Dispatch::Auto => {
                 #[cfg(target_arch = "x86_64")]
                 {
-                    std::arch::is_x86_feature_detected!("avx512f")
+                    crate::runtime::has_avx512f()
                 }
                 #[cfg(not(target_arch = "x86_64"))]
                 {

@@ -321,7 +321,7 @@ pub fn upsample_to(x: ArrayView3<f32>, levels: u32, out_h: usize, out_w: usize) 
     let mut map = crate::nn::alloc::zeroed_map_aligned([out_h, out_w, c]);
     let Some(out) = map.as_slice_mut() else { unreachable!("a new map is standard layout") };
     #[cfg(target_arch = "x86_64")]
-    let avx512 = is_x86_feature_detected!("avx512f");
+    let avx512 = crate::runtime::has_avx512f();
     out.par_chunks_mut(out_w * c).enumerate().for_each(|(i, row)| {
         let (y0, y1, b) = corner(i, h);
         let rows = (&src[y0 * w * c..][..w * c], &src[y1 * w * c..][..w * c]);

@@ -8,7 +8,7 @@
 //!   block of output rows), then every input value gathers its (at most 9) entries of `D`, taps in
 //!   row-major order.
 //! - Weight gradient: per fixed chunk of output rows (in parallel) a partial, the partials added in
-//!   chunk order. For 32 output channels the partial is [`super::weight_grad`]'s fused chains (one
+//!   chunk order. For 32 output channels the partial is `weight_grad`'s fused chains (one
 //!   FMA chain per weight over the chunk's pixels); otherwise `colsᵀ G_chunk`, the chunk's im2col
 //!   matrix times its gradient (one sgemm). The bias gradient sums the output pixels in row-major
 //!   order.

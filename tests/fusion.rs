@@ -351,6 +351,17 @@ fn mesh_metrics_of_shifted_meshes() {
     assert_eq!((far.precision, far.recall, far.fscore), (0.0, 0.0, 0.0));
     let empty = mesh_metrics(&Mesh::default(), &mesh, 0.05);
     assert_eq!((empty.precision, empty.recall, empty.fscore), (0.0, 0.0, 0.0));
+    // The 2 / 5 / 10 cm scores: a 3 cm vertical shift moves the box's top and bottom out of 2 cm
+    // (its sides stay within it) and everything within 5 and 10 cm; the 5 cm entry is the main
+    // threshold's when that is 5 cm.
+    let mid = mesh_metrics(&shift(&mesh, 0.03), &mesh, 0.05);
+    let th: Vec<f64> = mid.standard.iter().map(|t| t.threshold).collect();
+    assert_eq!(th, vec![0.02, 0.05, 0.10]);
+    assert!(mid.standard[0].fscore > 0.1 && mid.standard[0].fscore < 0.9, "{mid:?}");
+    assert_eq!((mid.standard[1].fscore, mid.standard[2].fscore), (1.0, 1.0), "{mid:?}");
+    assert_eq!((mid.standard[1].precision, mid.standard[1].recall), (mid.precision, mid.recall));
+    let other = mesh_metrics(&shift(&mesh, 0.03), &mesh, 0.02);
+    assert_eq!((other.fscore, other.standard), (mid.standard[0].fscore, mid.standard));
 }
 
 // ---------------------------------------------------------------------------------------------

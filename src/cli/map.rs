@@ -171,6 +171,20 @@ pub fn run(args: MapArgs) -> Result<()> {
              recall {:.4}, F-score {:.4} at {} m",
             m.accuracy, m.completeness, m.precision, m.recall, m.fscore, m.threshold
         );
+        let at: Vec<String> = m
+            .standard
+            .iter()
+            .map(|t| {
+                format!(
+                    "{:.0} cm {:.4} (P {:.4}, R {:.4})",
+                    t.threshold * 100.0,
+                    t.fscore,
+                    t.precision,
+                    t.recall
+                )
+            })
+            .collect();
+        println!("F-score at {}", at.join(", "));
     }
     println!(
         "wrote mesh.ply, mesh.png, map.json (and mesh_gt.ply with ground truth) to {}",

@@ -31,6 +31,44 @@ pub struct MeshMetrics {
     pub predicted_points: usize,
     /// Ground-truth points.
     pub gt_points: usize,
+    /// Precision, recall and F-score at the thresholds the field reports, [`STANDARD_THRESHOLDS`]
+    /// (2, 5 and 10 cm), whatever `threshold` is.
+    pub standard: [ThresholdScores; 3],
+}
+
+/// The thresholds of [`MeshMetrics::standard`], metres (the 2 / 5 / 10 cm of the MVS and
+/// TSDF-fusion evaluations: Tanks and Temples, ScanNet's Atlas / NeuralRecon tables).
+pub const STANDARD_THRESHOLDS: [f64; 3] = [0.02, 0.05, 0.10];
+
+/// Precision, recall and F-score at one threshold.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ThresholdScores {
+    /// The threshold, metres.
+    pub threshold: f64,
+    /// Fraction of predicted points within `threshold` of the ground truth.
+    pub precision: f64,
+    /// Fraction of ground-truth points within `threshold` of the prediction.
+    pub recall: f64,
+    /// `2 precision recall / (precision + recall)` (0 when both are 0).
+    pub fscore: f64,
+}
+
+impl ThresholdScores {
+    /// The scores of the nearest distances `dp` (predicted to ground truth) and `dg` (ground
+    /// truth to predicted): fractions strictly below `threshold`, 0 for an empty side.
+    fn of(dp: &[f64], dg: &[f64], threshold: f64) -> Self {
+        let frac = |d: &[f64]| {
+            if d.is_empty() {
+                0.0
+            } else {
+                d.iter().filter(|&&x| x < threshold).count() as f64 / d.len() as f64
+            }
+        };
+        let (precision, recall) = (frac(dp), frac(dg));
+        let fscore =
+            if precision + recall > 0.0 { 2.0 * precision * recall / (precision + recall) } else { 0.0 };
+        ThresholdScores { threshold, precision, recall, fscore }
+    }
 }
 
 /// A static 3-d tree over points for exact nearest-neighbour distances.
@@ -127,15 +165,7 @@ pub fn mesh_metrics(predicted: &Mesh, gt: &Mesh, threshold: f64) -> MeshMetrics 
     let dp = nearest_distances(&p, &g);
     let dg = nearest_distances(&g, &p);
     let mean = |d: &[f64]| if d.is_empty() { f64::INFINITY } else { d.iter().sum::<f64>() / d.len() as f64 };
-    let frac = |d: &[f64]| {
-        if d.is_empty() {
-            0.0
-        } else {
-            d.iter().filter(|&&x| x < threshold).count() as f64 / d.len() as f64
-        }
-    };
-    let (precision, recall) = (frac(&dp), frac(&dg));
-    let fscore = if precision + recall > 0.0 { 2.0 * precision * recall / (precision + recall) } else { 0.0 };
+    let ThresholdScores { precision, recall, fscore, .. } = ThresholdScores::of(&dp, &dg, threshold);
     MeshMetrics {
         accuracy: mean(&dp),
         completeness: mean(&dg),
@@ -145,5 +175,6 @@ pub fn mesh_metrics(predicted: &Mesh, gt: &Mesh, threshold: f64) -> MeshMetrics 
         threshold,
         predicted_points: p.len(),
         gt_points: g.len(),
+        standard: STANDARD_THRESHOLDS.map(|t| ThresholdScores::of(&dp, &dg, t)),
     }
 }

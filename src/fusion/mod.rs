@@ -26,5 +26,5 @@ pub mod tsdf;
 
 pub use grid::{Aabb, VoxelGrid, BYTES_PER_VOXEL};
 pub use mesh::{extract_mesh, Mesh};
-pub use metrics::{mesh_metrics, MeshMetrics};
+pub use metrics::{mesh_metrics, MeshMetrics, ThresholdScores, STANDARD_THRESHOLDS};
 pub use tsdf::{DepthObservation, Tsdf};

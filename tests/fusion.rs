@@ -4,7 +4,7 @@ use densefeat::fusion::grid::{Aabb, VoxelGrid};
 use densefeat::fusion::metrics::{nearest_distances, KdTree};
 use densefeat::fusion::ply::{read_mesh_ply, write_mesh_ply};
 use densefeat::fusion::reference::integrate_reference;
-use densefeat::fusion::{extract_mesh, mesh_metrics, DepthObservation, Mesh, Tsdf};
+use densefeat::fusion::{extract_mesh, mesh_metrics, remove_small_components, DepthObservation, Mesh, Tsdf};
 use densefeat::geometry::{PinholeCamera, Pose};
 use densefeat::runtime::thread_pool;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
@@ -362,6 +362,42 @@ fn mesh_metrics_of_shifted_meshes() {
     assert_eq!((mid.standard[1].precision, mid.standard[1].recall), (mid.precision, mid.recall));
     let other = mesh_metrics(&shift(&mesh, 0.03), &mesh, 0.02);
     assert_eq!((other.fscore, other.standard), (mid.standard[0].fscore, mid.standard));
+}
+
+#[test]
+fn small_components_are_removed_and_the_rest_kept_in_order() {
+    let boxm = extract_mesh(&box_volume());
+    // The box, then a floating blob of two triangles (4 vertices) far from it, then a single
+    // triangle sharing no vertex with either.
+    let mut m = boxm.clone();
+    let base = m.vertices.len() as u32;
+    m.vertices.extend([[5.0, 5.0, 5.0], [5.1, 5.0, 5.0], [5.0, 5.1, 5.0], [5.1, 5.1, 5.0]]);
+    m.colours.extend([[1, 2, 3]; 4]);
+    m.triangles.extend([[base, base + 1, base + 2], [base + 1, base + 3, base + 2]]);
+    m.vertices.extend([[-5.0, 0.0, 0.0], [-5.1, 0.0, 0.0], [-5.0, 0.1, 0.0]]);
+    m.colours.extend([[9, 9, 9]; 3]);
+    m.triangles.push([base + 4, base + 5, base + 6]);
+    let box_triangles = boxm.triangles.len();
+    assert!(box_triangles > 100);
+    // Off (0 or 1), and a threshold no piece is below: unchanged.
+    for min in [0, 1] {
+        let (same, r) = remove_small_components(&m, min);
+        assert_eq!(
+            (same.vertices.len(), same.triangles.len(), r.removed_triangles),
+            (m.vertices.len(), m.triangles.len(), 0)
+        );
+    }
+    // Below 2 triangles: only the single triangle goes.
+    let (two, r) = remove_small_components(&m, 2);
+    assert_eq!((r.removed_components, r.removed_triangles), (1, 1));
+    assert_eq!(two.triangles.len(), box_triangles + 2);
+    // Below 3: both pieces go, and what is left is the box exactly (vertices, colours, triangles).
+    let (only_box, r) = remove_small_components(&m, 3);
+    assert_eq!((r.removed_components, r.removed_triangles), (2, 3));
+    assert_eq!(r.components, remove_small_components(&boxm, 0).1.components + 2);
+    assert_eq!(only_box.vertices, boxm.vertices);
+    assert_eq!(only_box.colours, boxm.colours);
+    assert_eq!(only_box.triangles, boxm.triangles);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -69,6 +69,10 @@ pub struct MapArgs {
     /// farther (no surface bridged across an occlusion edge); <= 1 turns it off.
     #[arg(long, default_value_t = 1.1)]
     pub edge_ratio: f64,
+    /// Remove connected pieces of the estimated mesh with fewer triangles than this (0 keeps
+    /// everything).
+    #[arg(long, default_value_t = 0)]
+    pub min_component: usize,
     /// Distance threshold of precision, recall and F-score, metres.
     #[arg(long, default_value_t = 0.05)]
     pub fscore_threshold: f64,
@@ -118,6 +122,7 @@ pub fn run(args: MapArgs) -> Result<()> {
         },
         consistency_neighbours: args.consistency_neighbours,
         edge_ratio: args.edge_ratio,
+        min_component_triangles: args.min_component,
     };
     let plan = cfg.plan(&seq)?;
     let keys: Vec<usize> = plan.keyframes.iter().map(|k| k.index).collect();

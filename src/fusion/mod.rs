@@ -15,6 +15,7 @@
 //! - [`metrics`]: accuracy, completeness, precision, recall and F-score between two meshes.
 //! - [`render`]: a z-buffer rasteriser for PNG pictures of a mesh.
 
+pub mod components;
 pub mod consistency;
 pub mod grid;
 pub mod mesh;
@@ -24,6 +25,7 @@ pub mod reference;
 pub mod render;
 pub mod tsdf;
 
+pub use components::{remove_small_components, ComponentReport};
 pub use grid::{Aabb, VoxelGrid, BYTES_PER_VOXEL};
 pub use mesh::{extract_mesh, Mesh};
 pub use metrics::{mesh_metrics, MeshMetrics, ThresholdScores, STANDARD_THRESHOLDS};

@@ -24,7 +24,10 @@ use crate::fusion::consistency::{filter_depth, ConsistencyRule, ViewDepth};
 use crate::fusion::grid::{voxel_count, Aabb, VoxelGrid, BYTES_PER_VOXEL};
 use crate::fusion::ply::write_mesh_ply;
 use crate::fusion::render::{render, tile, View};
-use crate::fusion::{extract_mesh, mesh_metrics, DepthObservation, Mesh, MeshMetrics, Tsdf};
+use crate::fusion::{
+    extract_mesh, mesh_metrics, remove_small_components, ComponentReport, DepthObservation, Mesh,
+    MeshMetrics, Tsdf,
+};
 use crate::image::{is_valid_depth, load_rgb, save_rgb_png, DepthMap, RgbImage};
 use crate::io::{write_atomic_with, Staging};
 use crate::sequence::disparity::read_pfm;
@@ -59,6 +62,9 @@ pub struct MapConfig {
     pub consistency_neighbours: usize,
     /// Depth-discontinuity rule before fusion: largest depth ratio to a 3x3 neighbour (<= 1: off).
     pub edge_ratio: f64,
+    /// Connected pieces of the estimated mesh with fewer triangles than this are removed
+    /// (SPEC.md §16.3a; 0 keeps everything).
+    pub min_component_triangles: usize,
 }
 
 /// One keyframe's plan.
@@ -100,6 +106,8 @@ pub struct MapSummary {
     pub metrics: Option<MeshMetrics>,
     /// Keyframe pixels with valid, confident depth before and after the filter of SPEC.md §16.10.
     pub fused_pixels: (usize, usize),
+    /// The small pieces removed from the estimated mesh (SPEC.md §16.3a).
+    pub components: ComponentReport,
 }
 
 /// Wall seconds per stage.
@@ -379,7 +387,7 @@ pub fn map_sequence(
     timings.fusion = t.elapsed().as_secs_f64();
     progress(n, n, "mesh");
     let t = Instant::now();
-    let mesh = extract_mesh(&est);
+    let (mesh, components) = remove_small_components(&extract_mesh(&est), cfg.min_component_triangles);
     let gt_mesh = gt_volume.as_ref().map(extract_mesh);
     timings.mesh = t.elapsed().as_secs_f64();
     let t = Instant::now();
@@ -405,6 +413,7 @@ pub fn map_sequence(
         mesh: (mesh.vertices.len(), mesh.triangles.len()),
         metrics,
         fused_pixels,
+        components,
     };
     let doc = map_json(seq, cfg, &summary, &grid, &mesh, gt_mesh.as_ref(), &est, gt_volume.as_ref());
     write_text(
@@ -533,6 +542,8 @@ fn map_json(
                 "edge_ratio": cfg.edge_ratio,
                 "fused_pixels_before_after": [s.fused_pixels.0, s.fused_pixels.1],
             },
+            "min_component_triangles": cfg.min_component_triangles,
+            "components": s.components,
             "grid": grid,
             "volume_bytes": grid.bytes() * if gt_volume.is_some() { 2 } else { 1 },
             "volume_bytes_bound": s.plan.fusion_bytes_bound,

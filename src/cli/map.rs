@@ -158,11 +158,13 @@ pub fn run(args: MapArgs) -> Result<()> {
     let s = result?;
     let t = &s.timings;
     let computed: Vec<f64> = t.keyframes.iter().map(|k| k.1).collect();
+    // (An empty f64 sum is -0.0: say 0 when nothing was computed.)
+    let mean = if computed.is_empty() { 0.0 } else { computed.iter().sum::<f64>() / computed.len() as f64 };
     println!(
         "keyframes: {} computed ({:.1} s each on average), {} reused; fusion {:.2} s, mesh {:.2} s, \
          metrics {:.2} s, writing {:.2} s",
         computed.len(),
-        computed.iter().sum::<f64>() / computed.len().max(1) as f64,
+        mean,
         s.resumed.len(),
         t.fusion,
         t.mesh,
@@ -170,6 +172,15 @@ pub fn run(args: MapArgs) -> Result<()> {
         t.write
     );
     println!("mesh: {} vertices, {} triangles", s.mesh.0, s.mesh.1);
+    if s.components.removed_components > 0 {
+        println!(
+            "removed {} of {} connected pieces ({} triangles) below --min-component {}",
+            s.components.removed_components,
+            s.components.components,
+            s.components.removed_triangles,
+            args.min_component
+        );
+    }
     if let Some(m) = &s.metrics {
         println!(
             "against the fused ground truth: accuracy {:.4} m, completeness {:.4} m, precision {:.4}, \

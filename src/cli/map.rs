@@ -6,6 +6,7 @@ use clap::Args;
 
 use crate::error::Result;
 use crate::fusion::consistency::ConsistencyRule;
+use crate::fusion::FusionWeight;
 use crate::mapping::keyframe::Regularizer;
 use crate::mapping::keyframe_select::KeyframeRule;
 use crate::mapping::sequence_map::{map_sequence, MapConfig};
@@ -69,6 +70,10 @@ pub struct MapArgs {
     /// farther (no surface bridged across an occlusion edge); <= 1 turns it off.
     #[arg(long, default_value_t = 1.1)]
     pub edge_ratio: f64,
+    /// Per-pixel fusion weight: `confidence`, `angle` (times the view angle's cosine) or
+    /// `angle-distance` (also over the squared depth).
+    #[arg(long, default_value = "angle-distance", value_parser = FusionWeight::parse)]
+    pub fusion_weight: FusionWeight,
     /// Remove connected pieces of the estimated mesh with fewer triangles than this (0 keeps
     /// everything).
     #[arg(long, default_value_t = 0)]
@@ -123,6 +128,7 @@ pub fn run(args: MapArgs) -> Result<()> {
         consistency_neighbours: args.consistency_neighbours,
         edge_ratio: args.edge_ratio,
         min_component_triangles: args.min_component,
+        fusion_weight: args.fusion_weight,
     };
     let plan = cfg.plan(&seq)?;
     let keys: Vec<usize> = plan.keyframes.iter().map(|k| k.index).collect();

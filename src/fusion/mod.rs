@@ -24,9 +24,11 @@ pub mod ply;
 pub mod reference;
 pub mod render;
 pub mod tsdf;
+pub mod weights;
 
 pub use components::{remove_small_components, ComponentReport};
 pub use grid::{Aabb, VoxelGrid, BYTES_PER_VOXEL};
 pub use mesh::{extract_mesh, Mesh};
 pub use metrics::{mesh_metrics, MeshMetrics, ThresholdScores, STANDARD_THRESHOLDS};
 pub use tsdf::{DepthObservation, Tsdf};
+pub use weights::{fusion_weights, FusionWeight};

@@ -25,8 +25,8 @@ use crate::fusion::grid::{voxel_count, Aabb, VoxelGrid, BYTES_PER_VOXEL};
 use crate::fusion::ply::write_mesh_ply;
 use crate::fusion::render::{render, tile, View};
 use crate::fusion::{
-    extract_mesh, mesh_metrics, remove_small_components, ComponentReport, DepthObservation, Mesh,
-    MeshMetrics, Tsdf,
+    extract_mesh, fusion_weights, mesh_metrics, remove_small_components, ComponentReport, DepthObservation,
+    FusionWeight, Mesh, MeshMetrics, Tsdf,
 };
 use crate::image::{is_valid_depth, load_rgb, save_rgb_png, DepthMap, RgbImage};
 use crate::io::{write_atomic_with, Staging};
@@ -65,6 +65,8 @@ pub struct MapConfig {
     /// Connected pieces of the estimated mesh with fewer triangles than this are removed
     /// (SPEC.md §16.3a; 0 keeps everything).
     pub min_component_triangles: usize,
+    /// Per-pixel fusion weight (SPEC.md §16.2a).
+    pub fusion_weight: FusionWeight,
 }
 
 /// One keyframe's plan.
@@ -366,9 +368,10 @@ pub fn map_sequence(
     let mut gt_volume = if has_gt { Some(Tsdf::new(grid, cfg.truncation)?) } else { None };
     for m in &maps {
         let capped = cap(&m.depth, cfg.max_fusion_depth);
+        let weights = fusion_weights(capped.view(), Some(m.confidence.view()), &m.camera, cfg.fusion_weight);
         est.integrate(&DepthObservation {
             depth: capped.view(),
-            weight: Some(m.confidence.view()),
+            weight: Some(weights.view()),
             colour: Some(m.colour.view()),
             camera: m.camera,
             pose: m.pose,
@@ -543,6 +546,7 @@ fn map_json(
                 "fused_pixels_before_after": [s.fused_pixels.0, s.fused_pixels.1],
             },
             "min_component_triangles": cfg.min_component_triangles,
+            "fusion_weight": cfg.fusion_weight,
             "components": s.components,
             "grid": grid,
             "volume_bytes": grid.bytes() * if gt_volume.is_some() { 2 } else { 1 },

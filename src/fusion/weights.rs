@@ -18,6 +18,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::geometry::PinholeCamera;
+use crate::image::is_valid_depth;
 
 /// Which factors enter the weight (module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Default)]
@@ -62,70 +63,51 @@ pub fn fusion_weights(
     rule: FusionWeight,
 ) -> Array2<f32> {
     let (h, w) = depth.dim();
-    let valid = |y: usize, x: usize| {
-        let d = depth[[y, x]];
-        d.is_finite() && d > 0.0
-    };
-    let point = |y: usize, x: usize| {
-        let d = f64::from(depth[[y, x]]);
-        [(x as f64 - camera.cx) / camera.fx * d, (y as f64 - camera.cy) / camera.fy * d, d]
-    };
     let mut out = Array2::<f32>::zeros((h, w));
     let Some(slice) = out.as_slice_mut() else { unreachable!("new arrays are contiguous") };
     slice.par_chunks_mut(w.max(1)).enumerate().for_each(|(y, row)| {
         for (x, o) in row.iter_mut().enumerate() {
-            if !valid(y, x) {
+            let d = depth[[y, x]];
+            if !is_valid_depth(d) {
                 continue;
             }
-            let c = f64::from(confidence.map_or(1.0, |c| c[[y, x]]));
-            let mut wgt = c;
+            let mut wgt = f64::from(confidence.map_or(1.0, |c| c[[y, x]]));
             if rule != FusionWeight::Confidence {
-                // Neighbour pairs along x and y: central where both exist, else one-sided.
-                let pair = |a: Option<(usize, usize)>, b: Option<(usize, usize)>| match (a, b) {
-                    (Some(a), Some(b)) if valid(a.0, a.1) && valid(b.0, b.1) => {
-                        Some((point(a.0, a.1), point(b.0, b.1)))
-                    }
-                    _ => None,
-                };
-                let here = Some((y, x));
-                let left = x.checked_sub(1).map(|l| (y, l));
-                let right = (x + 1 < w).then_some((y, x + 1));
-                let up = y.checked_sub(1).map(|u| (u, x));
-                let down = (y + 1 < h).then_some((y + 1, x));
-                let dx = pair(left, right).or_else(|| pair(here, right)).or_else(|| pair(left, here));
-                let dy = pair(up, down).or_else(|| pair(here, down)).or_else(|| pair(up, here));
-                let cos = match (dx, dy) {
-                    (Some((a, b)), Some((p, q))) => {
-                        let ex = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-                        let ey = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
-                        let n = [
-                            ex[1] * ey[2] - ex[2] * ey[1],
-                            ex[2] * ey[0] - ex[0] * ey[2],
-                            ex[0] * ey[1] - ex[1] * ey[0],
-                        ];
-                        let r = point(y, x);
-                        let (nn, rn) = (
-                            n.iter().map(|v| v * v).sum::<f64>().sqrt(),
-                            r.iter().map(|v| v * v).sum::<f64>().sqrt(),
-                        );
-                        if nn > 0.0 && rn > 0.0 {
-                            ((n[0] * r[0] + n[1] * r[1] + n[2] * r[2]) / (nn * rn)).abs()
-                        } else {
-                            1.0
-                        }
-                    }
-                    _ => 1.0,
-                };
-                wgt *= cos.max(MIN_COS);
-                if rule == FusionWeight::AngleDistance {
-                    let d = f64::from(depth[[y, x]]).max(MIN_DEPTH);
-                    wgt /= d * d;
-                }
+                wgt *= view_cosine(depth, camera, y, x).max(MIN_COS);
+            }
+            if rule == FusionWeight::AngleDistance {
+                let d = f64::from(d).max(MIN_DEPTH);
+                wgt /= d * d;
             }
             *o = wgt as f32;
         }
     });
     out
+}
+
+/// `|n · r̂|` at pixel `(y, x)` (valid depth), 1 where the normal is undefined (module docs).
+fn view_cosine(depth: ArrayView2<f32>, camera: &PinholeCamera, y: usize, x: usize) -> f64 {
+    let (h, w) = depth.dim();
+    let point = |(y, x): (usize, usize)| {
+        let d = depth[[y, x]];
+        is_valid_depth(d).then(|| camera.ray(x as f64, y as f64) * f64::from(d))
+    };
+    // The back-projected difference b − a, where both have depth.
+    let diff = |a: Option<(usize, usize)>, b: Option<(usize, usize)>| Some(point(b?)? - point(a?)?);
+    let here = Some((y, x));
+    let (left, right) = (x.checked_sub(1).map(|l| (y, l)), (x + 1 < w).then_some((y, x + 1)));
+    let (up, down) = (y.checked_sub(1).map(|u| (u, x)), (y + 1 < h).then_some((y + 1, x)));
+    // Central where both neighbours have depth, else one-sided.
+    let ex = diff(left, right).or_else(|| diff(here, right)).or_else(|| diff(left, here));
+    let ey = diff(up, down).or_else(|| diff(here, down)).or_else(|| diff(up, here));
+    let (Some(ex), Some(ey), Some(r)) = (ex, ey, point((y, x))) else { return 1.0 };
+    let n = ex.cross(&ey);
+    let (nn, rn) = (n.norm(), r.norm());
+    if nn > 0.0 && rn > 0.0 {
+        (n.dot(&r) / (nn * rn)).abs()
+    } else {
+        1.0
+    }
 }
 
 #[cfg(test)]

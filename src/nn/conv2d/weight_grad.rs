@@ -29,6 +29,11 @@ fn valid_columns(kx: usize, s: usize, w: usize, w_out: usize) -> std::ops::Range
     lo..hi.max(lo)
 }
 
+/// The output rows `y` whose tap row `s y + ky − 1` lies inside the input's `h` rows, with it.
+fn tap_rows(ys: std::ops::Range<usize>, ky: usize, s: usize, h: usize) -> Vec<(usize, usize)> {
+    ys.filter_map(|y| (s * y + ky).checked_sub(CONV_PADDING).filter(|&iy| iy < h).map(|iy| (y, iy))).collect()
+}
+
 /// The partial weight gradient of output rows `y0..y0 + rows` into `part` (`9 C_in · 32` values,
 /// overwritten). `x_in` is the `[h, w, C_in]` input, `g` the `[h_out, w_out, 32]` output gradient.
 ///
@@ -56,10 +61,7 @@ pub(crate) fn chunk(
             if cols.is_empty() {
                 continue;
             }
-            // Output rows whose tap row lies inside the input.
-            let ys: Vec<(usize, usize)> = (y0..y0 + rows)
-                .filter_map(|y| (s * y + ky).checked_sub(CONV_PADDING).filter(|&iy| iy < h).map(|iy| (y, iy)))
-                .collect();
+            let ys = tap_rows(y0..y0 + rows, ky, s, h);
             let tap = Tap { ys: &ys, cols: cols.clone(), s, kx, w, w_out, c_in };
             let out = &mut part[(ky * CONV_KERNEL + kx) * c_in * C_OUT..][..c_in * C_OUT];
             #[cfg(target_arch = "x86_64")]
@@ -143,13 +145,9 @@ mod simd {
             /// Channels `c0..c0 + n` (`n <= $cb`).
             #[target_feature(enable = $feat)]
             unsafe fn block(t: &Tap<'_>, x_in: &[f32], g: &[f32], out: &mut [f32], c0: usize, n: usize) {
+                // Every chain starts from 0 (`out` was zeroed, so this is its value).
+                // SAFETY: an all-zero vector register is 0.0 in every lane.
                 let mut acc: [[$v; NV]; $cb] = [[unsafe { std::mem::zeroed() }; NV]; $cb];
-                for (i, a) in acc.iter_mut().enumerate().take(n) {
-                    for (j, v) in a.iter_mut().enumerate() {
-                        // SAFETY: out holds n · 32 values.
-                        *v = unsafe { $load(out.as_ptr().add(i * C_OUT + j * $lanes)) };
-                    }
-                }
                 for &(y, iy) in t.ys {
                     for x in t.cols.clone() {
                         let (xo, go) = t.offsets(y, iy, x);
@@ -224,9 +222,7 @@ mod tests {
             let mut want = vec![0.0f32; 9 * c_in * C_OUT];
             for ky in 0..3 {
                 for kx in 0..3 {
-                    let ys: Vec<(usize, usize)> = (y0..y0 + rows)
-                        .filter_map(|y| (s * y + ky).checked_sub(1).filter(|&iy| iy < h).map(|iy| (y, iy)))
-                        .collect();
+                    let ys = tap_rows(y0..y0 + rows, ky, s, h);
                     let t = Tap {
                         ys: &ys,
                         cols: valid_columns(kx, s, w, geom.w_out()),

@@ -53,13 +53,15 @@ pub fn uses_avx512(kernel: LossKernel, c: usize) -> bool {
     }
 }
 
-/// The fixed lane reduction: halves added pairwise (8, 4, 2, 1).
+/// The fixed lane reduction: halves added pairwise (for 16 lanes 8, 4, 2, 1), any lane count that
+/// is a power of two. The f32 kernels' 16 lanes and `pixel_terms`' 8 f64 lanes share it.
 #[inline(always)]
-fn reduce(mut acc: [f32; LANES]) -> f32 {
-    let mut n = LANES / 2;
+pub(super) fn lane_tree<T: Copy + std::ops::AddAssign, const N: usize>(mut acc: [T; N]) -> T {
+    let mut n = N / 2;
     while n > 0 {
         for i in 0..n {
-            acc[i] += acc[i + n];
+            let v = acc[i + n];
+            acc[i] += v;
         }
         n /= 2;
     }
@@ -99,7 +101,7 @@ pub(super) fn costs(
             r[ch] = v;
             acc[ch % LANES] += v * v;
         }
-        energies[j] = reduce(acc);
+        energies[j] = lane_tree(acc);
     }
 }
 
@@ -167,7 +169,7 @@ pub(super) fn backward(
 
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
-    use super::{reduce, LiveRows, Tap, LANES};
+    use super::{lane_tree, LiveRows, Tap, LANES};
     use std::arch::x86_64::*;
 
     /// AVX-512 [`super::costs`]; `fu.len()` must be a multiple of 16.
@@ -204,7 +206,7 @@ mod avx512 {
             let mut lanes = [0.0f32; LANES];
             // SAFETY: `lanes` holds 16 f32.
             unsafe { _mm512_storeu_ps(lanes.as_mut_ptr(), acc) };
-            energies[j] = reduce(lanes);
+            energies[j] = lane_tree(lanes);
         }
     }
 

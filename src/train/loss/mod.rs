@@ -280,20 +280,8 @@ pub fn pixel_terms_with(
 /// Lanes of the per-pixel sums.
 const SUM_LANES: usize = 8;
 
-/// The fixed reduction of the lanes: halves added pairwise (4, 2, 1).
-#[inline(always)]
-fn lane_tree(mut a: [f64; SUM_LANES]) -> f64 {
-    let mut n = SUM_LANES / 2;
-    while n > 0 {
-        for i in 0..n {
-            a[i] += a[i + n];
-        }
-        n /= 2;
-    }
-    a[0]
-}
-
-/// `Σ_l f(x_l, y_l)` in [`SUM_LANES`] lanes (bins in order within a lane), then [`lane_tree`].
+/// `Σ_l f(x_l, y_l)` in [`SUM_LANES`] lanes (bins in order within a lane), then
+/// [`kernel::lane_tree`].
 #[inline(always)]
 fn lane_sum(x: &[f64], y: &[f64], f: impl Fn(f64, f64) -> f64) -> f64 {
     let mut acc = [0.0f64; SUM_LANES];
@@ -307,7 +295,7 @@ fn lane_sum(x: &[f64], y: &[f64], f: impl Fn(f64, f64) -> f64) -> f64 {
     for i in 0..xr.len() {
         acc[i] += f(xr[i], yr[i]);
     }
-    lane_tree(acc)
+    kernel::lane_tree(acc)
 }
 
 #[cfg(target_arch = "x86_64")]

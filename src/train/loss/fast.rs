@@ -3,13 +3,13 @@
 //! once (f64, as the reference), their costs and residuals in one pass over the live features
 //! ([`kernel::costs`]), and after [`pixel_terms`] the backward in one more ([`kernel::backward`]).
 //! Reference rows are split into a fixed number of chunks (independent of the thread count); each
-//! chunk scatters its live-feature gradient into its own lazily allocated live rows, and the rows
-//! are summed in chunk order, so the result is bit-identical for any thread count.
+//! chunk scatters its live-feature gradient into its own lazily allocated tiles of live rows, and
+//! the tiles are summed in chunk order, so the result is bit-identical for any thread count.
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
-use super::kernel::{self, LiveRows, LossKernel, Tap};
+use super::kernel::{self, LiveRows, LossKernel, Tap, TILE_PX};
 use super::taps::{self, PixelRay};
 use super::{check_inputs, check_lives, multi_target, pixel_sampled, pixel_terms_with, PixelScratch};
 use super::{LiveView, LossConfig, LossSums, MultiScaleLoss, ScaleLoss};
@@ -141,7 +141,7 @@ pub fn scale_loss_multi_with(
         .into_par_iter()
         .map(|(i, d_ref_rows)| {
             let mut sums = LossSums::default();
-            let mut d_live: Vec<LiveRows> = dims.iter().map(|&(hl, wl)| LiveRows::new(hl, wl * c)).collect();
+            let mut d_live: Vec<LiveRows> = dims.iter().map(|&(hl, wl)| LiveRows::new(hl, wl * c, c)).collect();
             let mut per_live: Vec<PerLive> = (0..n_live)
                 .map(|_| PerLive { taps: Vec::with_capacity(k), resid: vec![0.0; k * c], e32: vec![0.0; k] })
                 .collect();
@@ -211,20 +211,23 @@ pub fn scale_loss_multi_with(
             let row = wl * c;
             let mut d_live = Array3::<f32>::zeros((hl, wl, c));
             let Some(dl) = d_live.as_slice_mut() else { unreachable!("new arrays are contiguous") };
-            // Each live row: the chunks that touched it, summed in chunk order.
+            // Each live row, tile by tile: the chunks that touched the tile, summed in chunk order.
             dl.par_chunks_mut(row).enumerate().for_each(|(yl, out)| {
-                let mut first = true;
-                for o in &outs {
-                    let src = &o.d_live[li].rows[yl];
-                    if src.is_empty() {
-                        continue;
-                    }
-                    if first {
-                        out.copy_from_slice(src);
-                        first = false;
-                    } else {
-                        for (v, &g) in out.iter_mut().zip(src) {
-                            *v += g;
+                for (t, out) in out.chunks_mut(TILE_PX * c).enumerate() {
+                    let mut first = true;
+                    for o in &outs {
+                        let rows = &o.d_live[li];
+                        let src = &rows.tiles[yl * rows.per_row + t];
+                        if src.is_empty() {
+                            continue;
+                        }
+                        if first {
+                            out.copy_from_slice(src);
+                            first = false;
+                        } else {
+                            for (v, &g) in out.iter_mut().zip(src) {
+                                *v += g;
+                            }
                         }
                     }
                 }

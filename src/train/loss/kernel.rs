@@ -105,29 +105,43 @@ pub(super) fn costs(
     }
 }
 
-/// The live-map gradient of one chunk of reference rows: one lazily allocated buffer per live row
-/// (empty while untouched).
+/// Pixels per tile of [`LiveRows`].
+pub(super) const TILE_PX: usize = 16;
+
+/// The live-map gradient of one chunk of reference rows, in lazily allocated tiles of
+/// [`TILE_PX`] pixels of one live row (empty while untouched). An epipolar line touches a few
+/// pixels of most rows, so tiles keep a chunk's buffers (and the chunks' sum) near the pixels it
+/// touched instead of whole rows.
 pub(super) struct LiveRows {
     /// Row length `W' * C`.
     pub row: usize,
-    /// `rows[y]`: the gradient of live row `y`, or empty.
-    pub rows: Vec<Vec<f32>>,
+    /// Values per full tile (`TILE_PX * C`).
+    pub tile: usize,
+    /// Tiles per row (the last one may be shorter).
+    pub per_row: usize,
+    /// `tiles[y * per_row + t]`: the gradient of tile `t` of live row `y`, or empty.
+    pub tiles: Vec<Vec<f32>>,
 }
 
 impl LiveRows {
-    /// No row touched yet.
-    pub fn new(height: usize, row: usize) -> Self {
-        LiveRows { row, rows: vec![Vec::new(); height] }
+    /// No tile touched yet; `c` channels per pixel.
+    pub fn new(height: usize, row: usize, c: usize) -> Self {
+        let tile = TILE_PX * c;
+        let per_row = row.div_ceil(tile).max(1);
+        LiveRows { row, tile, per_row, tiles: vec![Vec::new(); height * per_row] }
     }
 
-    /// The row `y`, allocated (zero) on first use.
+    /// The `len` values at offset `x` of live row `y` (inside one pixel, so inside one tile), the
+    /// tile allocated (zero) on first use.
     #[inline(always)]
-    fn row_mut(&mut self, y: usize) -> &mut [f32] {
-        let r = &mut self.rows[y];
+    fn at_mut(&mut self, y: usize, x: usize, len: usize) -> &mut [f32] {
+        let t = x / self.tile;
+        let start = t * self.tile;
+        let r = &mut self.tiles[y * self.per_row + t];
         if r.is_empty() {
-            *r = vec![0.0; self.row];
+            *r = vec![0.0; self.tile.min(self.row - start)];
         }
-        r
+        &mut r[x - start..x - start + len]
     }
 }
 
@@ -160,7 +174,7 @@ pub(super) fn backward(
         }
         for (t, (y, x)) in tap.corners().into_iter().enumerate() {
             let cw = -coef * tap.w[t];
-            for (dv, &rv) in live.row_mut(y)[x..x + c].iter_mut().zip(r) {
+            for (dv, &rv) in live.at_mut(y, x, c).iter_mut().zip(r) {
                 *dv += cw * rv;
             }
         }
@@ -236,13 +250,13 @@ mod avx512 {
             for (t, (y, x)) in tap.corners().into_iter().enumerate() {
                 let cw = -coef * tap.w[t];
                 // SAFETY: as above.
-                unsafe { axpy(cw, r, &mut live.row_mut(y)[x..x + c]) };
+                unsafe { axpy(cw, r, live.at_mut(y, x, c)) };
             }
         }
     }
 
     /// [`backward`] for 32 channels (the network's): the same operations in the same order, with
-    /// `d_u` held in two registers across the taps and each tap's two live rows looked up once.
+    /// `d_u` held in two registers across the taps and each corner's tile looked up once.
     #[target_feature(enable = "avx512f")]
     unsafe fn backward_32(taps: &[Tap], coefs: &[f32], resid: &[f32], d_u: &mut [f32], live: &mut LiveRows) {
         const C: usize = 2 * LANES;
@@ -255,14 +269,11 @@ mod avx512 {
             if coef == 0.0 {
                 continue;
             }
-            let [x0, x1] = tap.xc;
-            assert!(x0.max(x1) + C <= live.row);
-            // Row pointers: a second row_mut may allocate another row, never move this one.
-            let p0 = live.row_mut(tap.y[0] as usize).as_mut_ptr();
-            let p1 = live.row_mut(tap.y[1] as usize).as_mut_ptr();
-            let corners = [(p0, x0), (p0, x1), (p1, x0), (p1, x1)];
-            // SAFETY: resid holds taps.len() · 32 values; every corner offset + 32 is within its
-            // row (asserted above); the corners are updated one after another, so two that share
+            // Each corner's 32 values, in its tile: looking one up may allocate another tile,
+            // never move this one.
+            let corners = tap.corners().map(|(y, x)| live.at_mut(y, x, C).as_mut_ptr());
+            // SAFETY: resid holds taps.len() · 32 values; every corner pointer has 32 values
+            // (`at_mut`'s slice); the corners are updated one after another, so two that share
             // memory (a 1-row or 1-column map) see each other's writes, as in the portable order.
             unsafe {
                 let r0 = _mm512_loadu_ps(resid.as_ptr().add(j * C));
@@ -270,9 +281,8 @@ mod avx512 {
                 let cv = _mm512_set1_ps(coef);
                 u0 = _mm512_add_ps(u0, _mm512_mul_ps(cv, r0));
                 u1 = _mm512_add_ps(u1, _mm512_mul_ps(cv, r1));
-                for (t, (row, x)) in corners.into_iter().enumerate() {
+                for (t, p) in corners.into_iter().enumerate() {
                     let cw = _mm512_set1_ps(-coef * tap.w[t]);
-                    let p = row.add(x);
                     _mm512_storeu_ps(p, _mm512_add_ps(_mm512_loadu_ps(p), _mm512_mul_ps(cw, r0)));
                     let p = p.add(LANES);
                     _mm512_storeu_ps(p, _mm512_add_ps(_mm512_loadu_ps(p), _mm512_mul_ps(cw, r1)));

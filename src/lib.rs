@@ -19,6 +19,7 @@
 //! - [`sequence`]: posed RGB-D sequences (TUM, ICL-NUIM, DeepVideoMVS / 7-Scenes, stereo pairs).
 //! - [`eval`]: depth metrics and the photometric warp check.
 //! - [`nn`]: the feature network (the paper's CNN), its kernels and PyTorch-compatible weights.
+//! - [`normals_net`]: the built-in surface-normal predictor (trunk + head) for the normal prior.
 //! - [`runtime`]: the CPU-feature probe, thread pools and the median every command shares.
 //! - [`perf`]: benchmark inputs, the SGEMM peak and CPU time for `densefeat bench` and `benches/`.
 //! - [`plot`]: line plots and grids of them as PNG (diagnostics such as cost curves).
@@ -53,6 +54,7 @@ pub mod io;
 pub mod mapping;
 pub mod memory;
 pub mod nn;
+pub mod normals_net;
 pub mod perf;
 pub mod plot;
 pub mod runtime;

@@ -108,6 +108,8 @@ fn every_subcommand_runs_with_only_its_required_flags() {
         (vec!["bench", "train"], Finishes),
         // 2000 steps by default: it must start (issue 30: it used to stop at once on --threads 0).
         (vec!["train", "--out", "train"], RunsFor(20)),
+        // The normal predictor's training (SPEC.md §13.11): 2000 steps by default, must start.
+        (vec!["train-normals", "--out", "train_normals"], RunsFor(20)),
     ];
     // The texture atlas is cut from the training scenes in ../shared/data (its default).
     if common::data_dir("hololens_000").is_some() && common::data_dir("tartanair_hospital").is_some() {

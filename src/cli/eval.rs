@@ -52,7 +52,8 @@ pub struct EvalArgs {
     /// (`confidence_sweep.csv`: coverage and accuracy against the threshold).
     #[arg(long, value_delimiter = ',')]
     pub confidence_sweep: Vec<f32>,
-    /// Output folder (table.csv, table.md, per_keyframe.csv, timings.md).
+    /// Output folder (table.csv, table.md, per_keyframe.csv, timings.md; normals_error.csv with
+    /// `--normals learned`).
     #[arg(long)]
     pub out: PathBuf,
 }
@@ -236,6 +237,13 @@ pub fn run_eval(
         );
     }
     write_text(&out.join("per_keyframe.csv"), &per)?;
+    if !table.normals_error.is_empty() {
+        let mut csv = String::from("keyframe,normals_mean_angle_deg,normals_median_angle_deg,pixels\n");
+        for (k, e) in &table.normals_error {
+            csv += &format!("{k},{},{},{}\n", e.mean_deg, e.median_deg, e.pixels);
+        }
+        write_text(&out.join("normals_error.csv"), &csv)?;
+    }
     Ok(table)
 }
 

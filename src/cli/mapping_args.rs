@@ -51,9 +51,14 @@ pub struct MappingArgs {
     /// Normals of the surface-normal prior (`--regularizer normals`, eval's `-normals` methods,
     /// SPEC.md §10.2): `gt` (from the keyframe's ground-truth depth) or a folder of `NNNNN.npy`
     /// (keyframe index) or `<frame name>.npy` files, `[H, W, 3]` f32 camera-frame unit normals at
-    /// the input resolution. The built-in predictor (`learned`) is not shipped yet.
+    /// the input resolution; or `learned`: the built-in predictor (SPEC.md §13.11) with
+    /// `--normal-weights FILE` (no trained predictor is shipped yet, so the flag is required).
     #[arg(long)]
     pub normals: Option<NormalsSource>,
+    /// Weights of the built-in normal predictor for `--normals learned` (a `normalnet.safetensors`
+    /// written by `densefeat train-normals`); default: the shipped file, once one ships.
+    #[arg(long)]
+    pub normal_weights: Option<std::path::PathBuf>,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1).
     #[arg(long, default_value_t = MAPPING_DEFAULTS.lambda)]
     pub lambda: f64,
@@ -187,12 +192,40 @@ impl MappingArgs {
         open_metric(path, self.scale)
     }
 
+    /// `--normals` with `--normal-weights` applied: `learned` takes the file; without `--normals`,
+    /// `learned` (the shipped predictor) once one ships, else none.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `--normal-weights` when it is given without
+    /// `--normals learned`, or names no file.
+    pub fn normals_source(&self) -> Result<Option<NormalsSource>> {
+        match (&self.normals, &self.normal_weights) {
+            (Some(NormalsSource::Learned(_)), Some(p)) => {
+                if !p.is_file() {
+                    return Err(Error::invalid_argument(
+                        "--normal-weights",
+                        format!("{}: no such file", p.display()),
+                    ));
+                }
+                Ok(Some(NormalsSource::Learned(Some(p.clone()))))
+            }
+            (_, Some(_)) => Err(Error::invalid_argument(
+                "--normal-weights",
+                "is the built-in predictor's weights: it needs --normals learned",
+            )),
+            (Some(n), None) => Ok(Some(n.clone())),
+            (None, None) => {
+                Ok(crate::normals_net::SHIPPED_NORMAL_WEIGHTS.map(|_| NormalsSource::Learned(None)))
+            }
+        }
+    }
+
     /// A configuration for `keyframe` of `seq` with these flags (`--depth-range auto` resolved at
     /// `keyframe`).
     ///
     /// # Errors
     /// `--backend` names a backend this build does not have; `--depth-range auto` cannot be
-    /// estimated at `keyframe`.
+    /// estimated at `keyframe`; [`MappingArgs::normals_source`]'s errors.
     pub fn config(
         &self,
         seq: &Sequence,
@@ -210,7 +243,7 @@ impl MappingArgs {
             far: depth_range.1,
             bins: self.bins,
             regularizer,
-            normals: self.normals.clone(),
+            normals: self.normals_source()?,
             dtam: DtamParams {
                 lambda: self.lambda,
                 epsilon: self.epsilon,

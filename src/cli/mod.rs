@@ -23,6 +23,7 @@ pub mod reconstruct;
 pub mod synth;
 pub mod texture_atlas;
 pub mod train;
+pub mod train_normals;
 pub mod validate;
 
 /// Dense monocular reconstruction with learned good features to match.
@@ -63,6 +64,8 @@ pub enum Command {
     Costcurve(costcurve::CostcurveArgs),
     /// Train the feature network with the paper's deeply supervised cost-volume loss.
     Train(train::TrainArgs),
+    /// Train the built-in surface-normal predictor (`--normals learned`) on frames with depth.
+    TrainNormals(train_normals::TrainNormalsArgs),
 }
 
 /// Parse the process arguments and run the subcommand.
@@ -73,6 +76,7 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Inspect(args) => inspect::run(args),
         Command::Train(args) => train::run(args),
+        Command::TrainNormals(args) => train_normals::run(args),
         Command::Synth(args) => synth::run(args),
         Command::SynthSheet(args) => synth::run_sheet(args),
         Command::TextureAtlas(args) => texture_atlas::run(args),

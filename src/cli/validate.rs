@@ -214,14 +214,18 @@ fn normals_preflight(
     cfg: &crate::mapping::KeyframeConfig,
     keyframes: &[usize],
 ) -> Result<()> {
-    use crate::mapping::normals::{normals_file, NormalsSource};
+    use crate::mapping::normals::{load_predictor, normals_file, NormalsSource};
     let Some(source) = &cfg.normals else {
         return Err(flag(
             "normals",
-            "missing: the normal prior needs --normals gt or --normals DIR (the built-in normal \
-             predictor, --normals learned, is not shipped yet)",
+            "missing: the normal prior needs --normals gt, --normals DIR or --normals learned \
+             --normal-weights FILE (a trained normal predictor is not shipped yet)",
         ));
     };
+    if let NormalsSource::Learned(weights) = source {
+        // The weights are read and checked before any heavy work.
+        load_predictor(weights.as_deref())?;
+    }
     if cfg.backend.name() != "cpu" {
         return Err(flag("backend", "the surface-normal prior runs on the CPU only: use --backend cpu"));
     }
@@ -235,6 +239,8 @@ fn normals_preflight(
             NormalsSource::Dir(dir) => {
                 normals_file(dir, seq, k)?;
             }
+            // Loaded once below.
+            NormalsSource::Learned(_) => {}
         }
     }
     Ok(())

@@ -158,6 +158,9 @@ pub struct EvalTable {
     pub min_confidence: f32,
     /// `(method, threshold, metrics averaged over keyframes)` for [`EvalOptions::confidence_sweep`].
     pub confidence_sweep: Vec<(Method, f32, DepthMetrics)>,
+    /// `(keyframe, error)`: the built-in normal predictor's angular error against the ground
+    /// truth's normals, per keyframe, when `--normals learned` ran (SPEC.md §13.11).
+    pub normals_error: Vec<(usize, crate::mapping::normals::NormalsError)>,
 }
 
 /// Settings [`evaluate`] adds to a base [`KeyframeConfig`].
@@ -205,6 +208,7 @@ pub fn evaluate(
         ));
     }
     let mut per_keyframe = Vec::new();
+    let mut normals_error = Vec::new();
     let mut per_keyframe_conf: Vec<(Method, DepthMetrics)> = Vec::new();
     let mut sweep_per_kf: Vec<(Method, f64, DepthMetrics)> = Vec::new();
     let mut conf_per_kf: Vec<(Method, f32, DepthMetrics)> = Vec::new();
@@ -236,6 +240,12 @@ pub fn evaluate(
                 (cfg.near, cfg.far) = (near, far);
             }
             let result = reconstruct(seq, &cfg, |s, d, t| progress(k, s, d, t))?;
+            if let Some(e) = result.normals_error {
+                // Every kind runs the same predictor on the same keyframe: recorded once.
+                if !normals_error.iter().any(|(kk, _)| *kk == k) {
+                    normals_error.push((k, e));
+                }
+            }
             for &i in &wanted {
                 let m = methods[i];
                 let estimate = if m.tv() {
@@ -307,7 +317,14 @@ pub fn evaluate(
             }
         }
     }
-    Ok(EvalTable { rows, per_keyframe, sweep, min_confidence: options.min_confidence, confidence_sweep })
+    Ok(EvalTable {
+        rows,
+        per_keyframe,
+        sweep,
+        min_confidence: options.min_confidence,
+        confidence_sweep,
+        normals_error,
+    })
 }
 
 fn add_timings(sum: &mut StageTimings, t: &StageTimings) {
@@ -367,6 +384,32 @@ impl EvalTable {
         for (name, m) in self.named_rows() {
             let _ = writeln!(s, "| {} |", cells(&name, &m).join(" | "));
         }
+        s.push_str(&self.normals_error_markdown());
+        s
+    }
+
+    /// The normal predictor's angular error per keyframe as Markdown (empty without
+    /// `--normals learned`): mean and median degrees, pixels, and the mean over keyframes.
+    pub fn normals_error_markdown(&self) -> String {
+        if self.normals_error.is_empty() {
+            return String::new();
+        }
+        let mut s = String::from(
+            "\nBuilt-in normal predictor (`--normals learned`) against the normals of the ground-truth depth (level 0):\n\n| keyframe | mean angular error (°) | median angular error (°) | pixels |\n|---|---|---|---|\n",
+        );
+        for (k, e) in &self.normals_error {
+            let _ = writeln!(s, "| {k} | {:.2} | {:.2} | {} |", e.mean_deg, e.median_deg, e.pixels);
+        }
+        let n = self.normals_error.len() as f64;
+        let mean = |f: fn(&crate::mapping::normals::NormalsError) -> f64| {
+            self.normals_error.iter().map(|(_, e)| f(e)).sum::<f64>() / n
+        };
+        let _ = writeln!(
+            s,
+            "| mean over keyframes | {:.2} | {:.2} | |",
+            mean(|e| e.mean_deg),
+            mean(|e| e.median_deg)
+        );
         s
     }
 

@@ -244,8 +244,9 @@ impl KeyframeConfig {
         if self.regularizer.normals() && self.normals.is_none() {
             return Err(Error::invalid_argument(
                 "--regularizer normals",
-                "needs --normals gt (from the keyframe's ground-truth depth) or --normals DIR (NNNNN.npy \
-                 normal maps): the built-in normal predictor (--normals learned) is not shipped yet",
+                "needs --normals gt (from the keyframe's ground-truth depth), --normals DIR (NNNNN.npy \
+                 normal maps) or --normals learned --normal-weights FILE (the built-in predictor; no \
+                 trained weights: those are not shipped yet)",
             ));
         }
         if !(0.0..=1.0).contains(&self.min_evidence) {
@@ -370,6 +371,9 @@ pub struct KeyframeResult {
     /// The normal-prior solve's report and the pixels whose prior fell back to TV (no normal or
     /// grazing; SPEC.md §10.2).
     pub normals_dtam: Option<(DtamReport, usize)>,
+    /// With `--normals learned` and ground-truth depth: the predicted normals' angular error
+    /// against [`normals::normals_from_depth`]'s at level 0 (SPEC.md §13.11).
+    pub normals_error: Option<normals::NormalsError>,
     /// Per-pixel confidence in `[0, 1]` (SPEC.md §9.12).
     pub confidence: Array2<f32>,
     /// The cost scale `s` of the volume (SPEC.md §9.11); DTAM weights the data term by `1/(λ s)`.
@@ -461,13 +465,25 @@ pub fn reconstruct(
     let t = Instant::now();
     let key = seq.load_frame(cfg.keyframe)?;
     // The normals before any heavy work: a bad file is reported at once.
-    let slope = match (&cfg.normals, cfg.regularizer.normals()) {
+    let (slope, normals_error) = match (&cfg.normals, cfg.regularizer.normals()) {
         (Some(source), true) => {
-            let n =
-                normals::keyframe_normals(source, seq, cfg.keyframe, key.depth.as_ref(), &key_camera, level)?;
-            Some(SlopeField::new(n.view(), &camera)?)
+            let n0 = normals::keyframe_normals_level0(
+                source,
+                seq,
+                cfg.keyframe,
+                key.rgb.view(),
+                key.depth.as_ref(),
+                &key_camera,
+            )?;
+            // The predictor's angular error against the ground truth's normals (SPEC.md §13.11).
+            let error = match (source, key.depth.as_ref()) {
+                (NormalsSource::Learned(_), Some(d)) => normals::normals_error(n0.view(), d, &key_camera),
+                _ => None,
+            };
+            let n = normals::normals_at_level(n0.view(), level);
+            (Some(SlopeField::new(n.view(), &camera)?), error)
         }
-        _ => None,
+        _ => (None, None),
     };
     timings.load += t.elapsed().as_secs_f64();
     let t = Instant::now();
@@ -621,6 +637,7 @@ pub fn reconstruct(
         timings,
         dtam,
         normals_dtam,
+        normals_error,
         confidence: conf,
         cost_scale: scale,
         sweep,

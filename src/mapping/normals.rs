@@ -1,7 +1,7 @@
-//! Where the normal prior's normals come from (SPEC.md §10.2, `--normals gt|DIR`): the keyframe's
-//! ground-truth depth, or a folder of `.npy` files. Both give camera-frame normals `[H, W, 3]` at
-//! level 0 (NaN where there is none), resampled to the mapper's level by nearest neighbour
-//! (level-`L` pixel `j` = level-0 pixel `2^L j`, SPEC.md §2.6).
+//! Where the normal prior's normals come from (SPEC.md §10.2, `--normals gt|DIR|learned`): the
+//! keyframe's ground-truth depth, a folder of `.npy` files, or the built-in predictor (§13.11). All
+//! give camera-frame normals `[H, W, 3]` at level 0 (NaN where there is none), resampled to the
+//! mapper's level by nearest neighbour (level-`L` pixel `j` = level-0 pixel `2^L j`, SPEC.md §2.6).
 
 use std::path::{Path, PathBuf};
 
@@ -10,6 +10,8 @@ use ndarray::{Array3, ArrayView3};
 use crate::error::{Error, Result};
 use crate::geometry::PinholeCamera;
 use crate::image::{is_valid_depth, DepthMap};
+use crate::normals_net::predict::{angular_errors, mean_and_median};
+use crate::normals_net::{NormalNet, NormalNetWeights, SHIPPED_NORMAL_WEIGHTS, SHIPPED_NORMAL_WEIGHTS_NAME};
 use crate::sequence::Sequence;
 
 /// Half-width of the central differences of [`normals_from_depth`], level-0 pixels.
@@ -26,21 +28,28 @@ pub enum NormalsSource {
     /// `DIR/NNNNN.npy` (keyframe index, 5 digits) or `DIR/<frame name>.npy`: `[H, W, 3]` f32
     /// camera-frame unit normals at level 0.
     Dir(PathBuf),
+    /// The built-in predictor (SPEC.md §13.11) with these weights (`--normal-weights`), or the
+    /// shipped ones (`None`).
+    Learned(Option<PathBuf>),
 }
 
 impl std::str::FromStr for NormalsSource {
     type Err = Error;
 
-    /// `gt`, or a folder that exists.
+    /// `gt`, `learned` (weights from `--normal-weights` or the shipped ones), or a folder that
+    /// exists.
     fn from_str(s: &str) -> Result<Self> {
         if s == "gt" {
             return Ok(Self::GroundTruth);
+        }
+        if s == "learned" {
+            return Ok(Self::Learned(None));
         }
         let p = PathBuf::from(s);
         if !p.is_dir() {
             return Err(Error::invalid_argument(
                 "--normals",
-                format!("{s:?}: expected gt or a folder of NNNNN.npy normal maps, and no such folder exists"),
+                format!("{s:?}: expected gt, learned or a folder of NNNNN.npy normal maps, and no such folder exists"),
             ));
         }
         Ok(Self::Dir(p))
@@ -182,20 +191,70 @@ pub fn read_normals(path: &Path, height: usize, width: usize) -> Result<Array3<f
     Ok(out)
 }
 
-/// The keyframe's normals at `level`.
+/// The normal predictor of `--normals learned`: the file `weights`, else the shipped one.
 ///
 /// # Errors
-/// [`Error::InvalidArgument`] (flag `--normals`) for `gt` without ground-truth depth; the errors of
-/// [`normals_file`] and [`read_normals`].
-pub fn keyframe_normals(
+/// [`Error::InvalidArgument`] (flag `--normals`) when no file is given and none is shipped; the
+/// file's load errors.
+pub fn load_predictor(weights: Option<&Path>) -> Result<NormalNetWeights> {
+    match (weights, SHIPPED_NORMAL_WEIGHTS) {
+        (Some(p), _) => NormalNetWeights::load(p),
+        (None, Some(bytes)) => {
+            NormalNetWeights::from_safetensors_bytes(bytes, Path::new(SHIPPED_NORMAL_WEIGHTS_NAME))
+        }
+        (None, None) => Err(Error::invalid_argument(
+            "--normals",
+            "learned: no trained normal predictor is shipped yet; give --normal-weights FILE (a \
+             normalnet.safetensors written by densefeat train-normals), or use --normals gt|DIR",
+        )),
+    }
+}
+
+/// How far predicted normals are from the ground truth's ([`normals_from_depth`]), over the pixels
+/// where both exist.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NormalsError {
+    /// Pixels compared.
+    pub pixels: usize,
+    /// Mean angular error, degrees.
+    pub mean_deg: f64,
+    /// Median angular error, degrees (the lower middle value for an even count).
+    pub median_deg: f64,
+}
+
+/// [`NormalsError`] of `predicted` (`[H, W, 3]`, level 0) against the normals of `depth`; `None`
+/// when no pixel has both.
+///
+/// # Panics
+/// If the shapes differ.
+pub fn normals_error(
+    predicted: ArrayView3<f32>,
+    depth: &DepthMap,
+    camera: &PinholeCamera,
+) -> Option<NormalsError> {
+    let gt = normals_from_depth(depth, camera);
+    let errors = angular_errors(predicted, gt.view());
+    mean_and_median(&errors).map(|(mean_deg, median_deg)| NormalsError {
+        pixels: errors.len(),
+        mean_deg,
+        median_deg,
+    })
+}
+
+/// The keyframe's normals at level 0 (`rgb` is its image, used by `learned`).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] (flag `--normals`) for `gt` without ground-truth depth or `learned`
+/// without weights; the errors of [`normals_file`], [`read_normals`] and [`load_predictor`].
+pub fn keyframe_normals_level0(
     source: &NormalsSource,
     seq: &Sequence,
     keyframe: usize,
+    rgb: ArrayView3<f32>,
     depth: Option<&DepthMap>,
     camera: &PinholeCamera,
-    level: u32,
 ) -> Result<Array3<f32>> {
-    let level0 = match source {
+    match source {
         NormalsSource::GroundTruth => {
             let depth = depth.ok_or_else(|| {
                 Error::invalid_argument(
@@ -203,11 +262,30 @@ pub fn keyframe_normals(
                     format!("gt: keyframe {keyframe} has no ground-truth depth to take normals from"),
                 )
             })?;
-            normals_from_depth(depth, camera)
+            Ok(normals_from_depth(depth, camera))
         }
         NormalsSource::Dir(dir) => {
-            read_normals(&normals_file(dir, seq, keyframe)?, camera.height, camera.width)?
+            read_normals(&normals_file(dir, seq, keyframe)?, camera.height, camera.width)
         }
-    };
+        NormalsSource::Learned(weights) => {
+            NormalNet::new(load_predictor(weights.as_deref())?)?.predict(rgb, camera)
+        }
+    }
+}
+
+/// The keyframe's normals at `level`: [`keyframe_normals_level0`], then [`normals_at_level`].
+///
+/// # Errors
+/// As [`keyframe_normals_level0`].
+pub fn keyframe_normals(
+    source: &NormalsSource,
+    seq: &Sequence,
+    keyframe: usize,
+    rgb: ArrayView3<f32>,
+    depth: Option<&DepthMap>,
+    camera: &PinholeCamera,
+    level: u32,
+) -> Result<Array3<f32>> {
+    let level0 = keyframe_normals_level0(source, seq, keyframe, rgb, depth, camera)?;
     Ok(normals_at_level(level0.view(), level))
 }

@@ -7,6 +7,7 @@ pub mod checkpoint;
 pub mod data;
 pub(crate) mod frame_cache;
 pub mod loss;
+pub mod normals;
 pub mod optim;
 pub mod step;
 pub mod trainer;

@@ -3,6 +3,7 @@
 //! schedule of linear warm-up then cosine decay.
 
 use crate::error::{Error, Result};
+use crate::nn::weights::LayerParams;
 use crate::nn::NetworkWeights;
 
 /// Optimiser hyper-parameters.
@@ -95,8 +96,13 @@ impl AdamState {
 
 /// The global L2 norm of a gradient, summed in f64 in layer order.
 pub fn grad_norm(g: &NetworkWeights) -> f64 {
+    grad_norm_layers(&g.layers())
+}
+
+/// [`grad_norm`] of any list of layers (weights then bias of each, in list order).
+pub fn grad_norm_layers(layers: &[&LayerParams]) -> f64 {
     let mut s = 0.0f64;
-    for l in g.layers() {
+    for l in layers {
         for &v in l.weight.iter().chain(l.bias.iter()) {
             s += f64::from(v) * f64::from(v);
         }
@@ -113,20 +119,49 @@ pub fn adam_step(
     grads: &NetworkWeights,
     lr: f64,
 ) -> f64 {
-    let norm = grad_norm(grads);
+    let layers = AdamLayers {
+        weights: weights.layers_mut(),
+        grads: grads.layers(),
+        m: state.m.layers_mut(),
+        v: state.v.layers_mut(),
+    };
+    adam_step_layers(cfg, &mut state.step, layers, lr)
+}
+
+/// The parameters, gradients and moments [`adam_step_layers`] updates, as parallel lists of layers
+/// (the same shapes at each index).
+pub struct AdamLayers<'a> {
+    /// Parameters, updated in place.
+    pub weights: Vec<&'a mut LayerParams>,
+    /// Their gradients.
+    pub grads: Vec<&'a LayerParams>,
+    /// First moments.
+    pub m: Vec<&'a mut LayerParams>,
+    /// Second moments.
+    pub v: Vec<&'a mut LayerParams>,
+}
+
+/// [`adam_step`] on any list of layers (a network with a head, SPEC.md §13.11): `step` is Adam's
+/// step count, incremented here. The same operations in the same order as [`adam_step`] on a
+/// network's layers. Returns the gradient norm before clipping.
+///
+/// # Panics
+/// If a weight, gradient or moment tensor is not contiguous, or the lists differ in length.
+pub fn adam_step_layers(cfg: &OptimConfig, step: &mut usize, layers: AdamLayers<'_>, lr: f64) -> f64 {
+    let AdamLayers { weights, grads, m, v } = layers;
+    assert!(
+        weights.len() == grads.len() && grads.len() == m.len() && m.len() == v.len(),
+        "adam_step_layers: lists of different lengths"
+    );
+    let norm = grad_norm_layers(&grads);
     let clip = if cfg.clip_norm > 0.0 && norm > cfg.clip_norm { (cfg.clip_norm / norm) as f32 } else { 1.0 };
-    state.step += 1;
-    let t = state.step as i32;
+    *step += 1;
+    let t = *step as i32;
     let bc1 = (1.0 - cfg.beta1.powi(t)) as f32;
     let bc2 = (1.0 - cfg.beta2.powi(t)) as f32;
     let (b1, b2, eps, lr32) = (cfg.beta1 as f32, cfg.beta2 as f32, cfg.eps as f32, lr as f32);
     let decay = (lr * cfg.weight_decay) as f32;
-    let layers = weights
-        .layers_mut()
-        .into_iter()
-        .zip(grads.layers())
-        .zip(state.m.layers_mut())
-        .zip(state.v.layers_mut());
+    let layers = weights.into_iter().zip(grads).zip(m).zip(v);
     for (((w, g), m), v) in layers {
         let tensors = [
             (

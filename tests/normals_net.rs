@@ -527,3 +527,42 @@ fn bad_flags_are_refused_naming_the_flag() {
     assert!(!ok && err.contains("featurenet_init_seed0") && err.contains("normalnet"), "{err}");
     assert!(!Path::new(out).exists());
 }
+
+#[test]
+fn eval_reports_the_predictors_angular_error_per_keyframe() {
+    let d = tempfile::tempdir().unwrap();
+    let weights = d.path().join("normalnet.safetensors");
+    NormalNetWeights::from_trunk(tiny_trunk(), HEAD_SEED).unwrap().save(&weights).unwrap();
+    let out = d.path().join("eval");
+    let seq = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");
+    let (ok, err) = densefeat(&[
+        "eval",
+        "--sequence",
+        seq,
+        "--keyframes",
+        "10:5:15",
+        "--methods",
+        "rgb-normals",
+        "--normals",
+        "learned",
+        "--normal-weights",
+        weights.to_str().unwrap(),
+        "--window",
+        "2,2",
+        "--level",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let table = std::fs::read_to_string(out.join("table.md")).unwrap();
+    assert!(table.contains("Built-in normal predictor") && table.contains("| 15 |"), "{table}");
+    let csv = std::fs::read_to_string(out.join("normals_error.csv")).unwrap();
+    let rows: Vec<Vec<f64>> =
+        csv.lines().skip(1).map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+    assert_eq!(rows.iter().map(|r| r[0]).collect::<Vec<_>>(), [10.0, 15.0], "{csv}");
+    for r in &rows {
+        // Mean and median angles in [0, 180]; every pixel of the 320x240 fixture has depth.
+        assert!((0.0..=180.0).contains(&r[1]) && (0.0..=180.0).contains(&r[2]) && r[3] > 50_000.0, "{csv}");
+    }
+}

@@ -61,6 +61,12 @@ pub fn run(args: ReconstructArgs) -> Result<()> {
         if let Some(n) = &result.normals {
             println!("  normals: {}", metrics_line(&result.metrics(n)?));
         }
+        if let Some(e) = &result.normals_error {
+            println!(
+                "  predicted normals (--normals learned) against the ground truth's: mean {:.2}°, median {:.2}° over {} pixels",
+                e.mean_deg, e.median_deg, e.pixels
+            );
+        }
         let c = args.mapping.min_confidence;
         if c > 0.0 {
             println!("metrics at confidence >= {c}:");

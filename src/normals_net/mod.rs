@@ -6,7 +6,7 @@
 //! - [`weights`]: the parameters, their initialisation and the file `normalnet.safetensors`.
 //! - [`head`]: the head, the angular loss and their backward passes (fast f32 and f64 reference).
 //! - [`predict`]: inference and upsampling to the input resolution; angular-error statistics.
-//! - [`file`]: the f32 safetensors writer and checked reader the files share.
+//! - [`file`](mod@file): the f32 safetensors writer and checked reader the files share.
 //!
 //! Training is [`crate::train::normals`].
 

@@ -2,18 +2,21 @@
 # λ per feature type, chosen on validation (issue 30 item 4, SPEC.md §13.10): `densefeat eval
 # --lambda-sweep` on validate.sh's ten validation scenes for RGB-TV and learned-TV with WEIGHTS,
 # every other flag at its default; prints the mean δ<1.25 and rms per (method, λ) and writes them
-# to docs/training/chain_NAME/lambda_sweep.csv.
+# to docs/training/chain_NAME/lambda_sweep_METHODS.csv.
 #
 #   tools/train_chain/lambda_sweep.sh NAME WEIGHTS [LAMBDAS]
+#
+# METHODS=rgb-tv (or learned-tv) limits it to one feature type (RGB does not depend on WEIGHTS);
+# the csv then gets that type's rows.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
 name=$1
 weights=$2
 lambdas=${3:-30,100,300,1000,3000}
-bin=target/release/densefeat
+bin=${BIN:-target/release/densefeat}
 [ -x "$bin" ] || cargo build --release
-root=runs/val/sweep_$name
+root=runs/val/sweep_${name}_${METHODS:-all}
 mkdir -p "$root"
 scenes=()
 for seed in 200000 200001 200002 200003 200004 200005; do scenes+=("runs/val/s$seed:20:10:20"); done
@@ -25,12 +28,12 @@ for sk in "${scenes[@]}"; do
   seq=${sk%%:*}; kfs=${sk#*:}; scene=$(basename "$seq")
   [ -d "$seq" ] || { echo "$seq missing: run tools/train_chain/validate.sh first" >&2; exit 1; }
   out=$root/$scene
-  nice -n 10 "$bin" eval --sequence "$seq" --keyframes "$kfs" --methods rgb-tv,learned-tv \
+  nice -n 10 "$bin" eval --sequence "$seq" --keyframes "$kfs" --methods "${METHODS:-rgb-tv,learned-tv}" \
     --weights "$weights" --lambda-sweep "$lambdas" --out "$out" > "$out.log" 2>&1
   awk -F, -v scene="$scene" 'NR > 1 && $1 !~ /@/ { print scene "," $0 }' "$out/lambda_sweep.csv" >> "$all"
 done
 mkdir -p "docs/training/chain_$name"
-python3 - "$all" "docs/training/chain_$name/lambda_sweep.csv" <<'PY'
+python3 - "$all" "docs/training/chain_$name/lambda_sweep_${METHODS:-all}.csv" <<'PY'
 import csv, sys
 from collections import defaultdict
 acc = defaultdict(list)

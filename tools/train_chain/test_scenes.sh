@@ -16,7 +16,7 @@ cd "$(dirname "$0")/../.."
 tag=$1
 weights=$2
 shift 2
-bin=target/release/densefeat
+bin=${BIN:-target/release/densefeat}
 [ -x "$bin" ] || cargo build --release
 root=runs/test/$tag
 mkdir -p "$root" runs/test/scenes

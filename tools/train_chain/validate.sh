@@ -16,7 +16,7 @@ name=${1:-b1s2}
 run=runs/chain_$name
 kept=docs/training/chain_$name
 weights=${2:-$run/weights.safetensors}
-bin=target/release/densefeat
+bin=${BIN:-target/release/densefeat}
 [ -x "$bin" ] || cargo build --release
 mkdir -p runs/val "$kept"
 snap=runs/val/snap_$name.safetensors

@@ -141,7 +141,8 @@ pub fn scale_loss_multi_with(
         .into_par_iter()
         .map(|(i, d_ref_rows)| {
             let mut sums = LossSums::default();
-            let mut d_live: Vec<LiveRows> = dims.iter().map(|&(hl, wl)| LiveRows::new(hl, wl * c, c)).collect();
+            let mut d_live: Vec<LiveRows> =
+                dims.iter().map(|&(hl, wl)| LiveRows::new(hl, wl * c, c)).collect();
             let mut per_live: Vec<PerLive> = (0..n_live)
                 .map(|_| PerLive { taps: Vec::with_capacity(k), resid: vec![0.0; k * c], e32: vec![0.0; k] })
                 .collect();

@@ -257,7 +257,8 @@ fn shipped_trained_weights_load_and_are_the_built_in_default() {
         .join("fixtures/weights/featurenet_trained_b1s2.safetensors");
     let w = NetworkWeights::load(&path).unwrap();
     assert_eq!((w.config.blocks, w.config.channels, w.config.b1_stride), (5, 32, 2));
-    assert!(w.provenance.starts_with("densefeat train: step 2400 of 2400"), "{}", w.provenance);
+    // The end of chain b1s2 (docs/training/README.md): 37 500 steps x 4 pairs.
+    assert!(w.provenance.starts_with("densefeat train: step 37500 of 37500"), "{}", w.provenance);
     assert_eq!(std::fs::read(&path).unwrap(), densefeat::mapping::features::SHIPPED_WEIGHTS);
     // Trained, not the initialisation.
     let init = densefeat::train::trainer::training_init(&w.config, 0).unwrap();

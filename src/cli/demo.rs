@@ -81,6 +81,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let out = staging.dir(&args.out)?;
     let table = run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &out, true, || EvalOptions {
         min_confidence: args.mapping.min_confidence,
+        lambda_per_kind: args.mapping.lambda.is_none(),
         ..EvalOptions::default()
     })?;
     staging.commit()?;

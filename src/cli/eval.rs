@@ -74,6 +74,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         run_eval(&seq, &args.mapping, &keyframes, &args.methods, &out, args.save_depth, || EvalOptions {
             weights: args.weights.clone(),
             lambda_learned: args.lambda_learned,
+            lambda_per_kind: args.mapping.lambda.is_none(),
             lambda_sweep: lambdas.clone(),
             min_confidence: args.mapping.min_confidence,
             confidence_sweep: args.confidence_sweep.clone(),

@@ -59,9 +59,10 @@ pub struct MappingArgs {
     /// written by `densefeat train-normals`); default: the shipped file, once one ships.
     #[arg(long)]
     pub normal_weights: Option<std::path::PathBuf>,
-    /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1).
-    #[arg(long, default_value_t = MAPPING_DEFAULTS.lambda)]
-    pub lambda: f64,
+    /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1);
+    /// default: per feature type, chosen on validation (SPEC §10.1a: rgb 300, learned 30, others 100).
+    #[arg(long)]
+    pub lambda: Option<f64>,
     /// Huber threshold ε, 1/m.
     #[arg(long, default_value_t = MAPPING_DEFAULTS.epsilon)]
     pub epsilon: f64,
@@ -234,6 +235,7 @@ impl MappingArgs {
         regularizer: Regularizer,
     ) -> Result<KeyframeConfig> {
         let depth_range = resolve_depth_range(self.depth_range, seq, keyframe)?;
+        let lambda = features.default_lambda();
         Ok(KeyframeConfig {
             keyframe,
             past: self.window.0,
@@ -245,7 +247,7 @@ impl MappingArgs {
             regularizer,
             normals: self.normals_source()?,
             dtam: DtamParams {
-                lambda: self.lambda,
+                lambda: self.lambda.unwrap_or(lambda),
                 epsilon: self.epsilon,
                 alpha: self.alpha,
                 beta: self.beta,

@@ -168,8 +168,12 @@ pub struct EvalTable {
 pub struct EvalOptions {
     /// Weights of the learned and block-1 features (`None`: the shipped ones).
     pub weights: Option<PathBuf>,
-    /// `λ` for the learned features' DTAM (`None`: the base config's).
+    /// `λ` for the learned features' DTAM (`None`: the base config's, or the kind's default with
+    /// [`EvalOptions::lambda_per_kind`]).
     pub lambda_learned: Option<f64>,
+    /// Each feature kind runs DTAM with its own default `λ` ([`FeatureKind::default_lambda`],
+    /// SPEC.md §10.1a) instead of the base config's (what `--lambda` left unset means).
+    pub lambda_per_kind: bool,
     /// Extra `λ` values at which every TV method also runs, on the same volumes.
     pub lambda_sweep: Vec<f64>,
     /// Confidence threshold of the masked metrics.
@@ -219,6 +223,9 @@ pub fn evaluate(
         let Some(&first) = wanted.first() else { continue };
         let mut cfg = base.clone();
         cfg.features = methods[first].features(options.weights.as_deref());
+        if options.lambda_per_kind {
+            cfg.dtam.lambda = cfg.features.default_lambda();
+        }
         if methods[first].learned() {
             if let Some(l) = options.lambda_learned {
                 cfg.dtam.lambda = l;

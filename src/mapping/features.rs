@@ -43,6 +43,12 @@ pub fn load_weights(path: Option<&Path>) -> Result<NetworkWeights> {
     }
 }
 
+/// DTAM's default `λ` for RGB (SPEC.md §10.1a; validation sweep of 2026-12-03).
+pub const LAMBDA_RGB: f64 = 300.0;
+
+/// DTAM's default `λ` for the learned features (SPEC.md §10.1a; validation sweep of 2026-12-03).
+pub const LAMBDA_LEARNED: f64 = 30.0;
+
 /// Which features to match.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum FeatureKind {
@@ -97,6 +103,19 @@ impl FeatureKind {
             FeatureKind::B1(_) => "b1",
             FeatureKind::Dsift => "dsift",
             FeatureKind::Patch7 => "patch7",
+        }
+    }
+
+    /// DTAM's default `λ` for this kind (SPEC.md §10.1a), chosen on the validation scenes by mean
+    /// δ<1.25 over λ ∈ {30, 100, 300, 1000, 3000}: RGB [`LAMBDA_RGB`], the learned features
+    /// [`LAMBDA_LEARNED`]; the other kinds were not swept and keep [`crate::dtam::MAPPING_DEFAULTS`]'s.
+    pub fn default_lambda(&self) -> f64 {
+        match self {
+            FeatureKind::Rgb => LAMBDA_RGB,
+            FeatureKind::Learned(_) => LAMBDA_LEARNED,
+            FeatureKind::B1(_) | FeatureKind::Dsift | FeatureKind::Patch7 => {
+                crate::dtam::MAPPING_DEFAULTS.lambda
+            }
         }
     }
 

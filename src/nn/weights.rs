@@ -6,7 +6,7 @@
 //! weights are `[c_out, c_in, 3, 3]`, transposed-convolution weights `[c_in, c_out, 5, 5]`, biases
 //! `[c_out]`, all f32 little-endian.
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::Path;
 
 use ndarray::{Array1, Array4};
@@ -247,28 +247,12 @@ impl NetworkWeights {
             .flat_map(|l| [l.weight.as_slice(), l.bias.as_slice()])
             .map(|s| s.ok_or_else(|| Error::invalid_argument("weights", "tensor is not contiguous")))
             .collect::<Result<_>>()?;
-        let mut header = serde_json::Map::new();
-        let meta: serde_json::Map<String, serde_json::Value> =
-            self.metadata().into_iter().map(|(k, v)| (k, serde_json::Value::String(v))).collect();
-        header.insert("__metadata__".to_string(), serde_json::Value::Object(meta));
-        let mut offset = 0usize;
-        for (spec, data) in specs.iter().zip(&tensors) {
-            let end = offset + 4 * data.len();
-            header.insert(
-                spec.name.clone(),
-                serde_json::json!({ "dtype": "F32", "shape": spec.shape, "data_offsets": [offset, end] }),
-            );
-            offset = end;
-        }
-        let mut json = serde_json::Value::Object(header).to_string().into_bytes();
-        json.resize(json.len().next_multiple_of(8), b' ');
-        let mut bytes = Vec::with_capacity(8 + json.len() + offset);
-        bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
-        bytes.extend_from_slice(&json);
-        for data in &tensors {
-            bytes.extend(data.iter().flat_map(|v| v.to_le_bytes()));
-        }
-        Ok(bytes)
+        let named: Vec<TensorOut<'_>> = specs
+            .iter()
+            .zip(&tensors)
+            .map(|(spec, data)| TensorOut { name: spec.name.clone(), shape: spec.shape.clone(), data })
+            .collect();
+        f32_safetensors_bytes(&self.metadata().into_iter().collect(), &named)
     }
 
     /// Saves the weights as safetensors (SPEC.md §8.4), atomically.
@@ -469,4 +453,53 @@ fn read_tensors(
     let deconvs = (1..config.blocks).map(|_| next()).collect::<Result<Vec<_>>>()?;
     let provenance = json["__metadata__"]["provenance"].as_str().unwrap_or_default().to_string();
     Ok(NetworkWeights { config: *config, blocks, deconvs, provenance })
+}
+
+/// One tensor to write: name, shape, values (row-major).
+pub struct TensorOut<'a> {
+    /// Name in the file.
+    pub name: String,
+    /// Shape.
+    pub shape: Vec<usize>,
+    /// Values, `shape.iter().product()` of them.
+    pub data: &'a [f32],
+}
+
+/// The bytes of an f32 safetensors file (SPEC.md §8.4's byte-reproducible layout: JSON header with
+/// keys sorted, `__metadata__` first, padded with spaces to a multiple of 8 bytes) holding `tensors` (in this order) and `metadata`.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] if a tensor's length disagrees with its shape.
+pub fn f32_safetensors_bytes(
+    metadata: &BTreeMap<String, String>,
+    tensors: &[TensorOut<'_>],
+) -> Result<Vec<u8>> {
+    let mut header = serde_json::Map::new();
+    let meta: serde_json::Map<String, serde_json::Value> =
+        metadata.iter().map(|(k, v)| (k.clone(), serde_json::Value::String(v.clone()))).collect();
+    header.insert("__metadata__".to_string(), serde_json::Value::Object(meta));
+    let mut offset = 0usize;
+    for t in tensors {
+        if t.shape.iter().product::<usize>() != t.data.len() {
+            return Err(Error::invalid_argument(
+                t.name.clone(),
+                format!("{} values for shape {:?}", t.data.len(), t.shape),
+            ));
+        }
+        let end = offset + 4 * t.data.len();
+        header.insert(
+            t.name.clone(),
+            serde_json::json!({ "dtype": "F32", "shape": t.shape, "data_offsets": [offset, end] }),
+        );
+        offset = end;
+    }
+    let mut json = serde_json::Value::Object(header).to_string().into_bytes();
+    json.resize(json.len().next_multiple_of(8), b' ');
+    let mut bytes = Vec::with_capacity(8 + json.len() + offset);
+    bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(&json);
+    for t in tensors {
+        bytes.extend(t.data.iter().flat_map(|v| v.to_le_bytes()));
+    }
+    Ok(bytes)
 }

@@ -4,7 +4,7 @@
 //! The writer is byte-reproducible as §8.4's: the header is JSON with keys sorted (`__metadata__`
 //! first), padded with spaces to a multiple of 8 bytes, tensor data in the order given.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::path::Path;
 
 use safetensors::{Dtype, SafeTensors};
@@ -12,50 +12,7 @@ use safetensors::{Dtype, SafeTensors};
 use crate::error::{Error, Result};
 use crate::nn::weights::MAX_HEADER_BYTES;
 
-/// One tensor to write: name, shape, values (row-major).
-pub struct TensorOut<'a> {
-    /// Name in the file.
-    pub name: String,
-    /// Shape.
-    pub shape: Vec<usize>,
-    /// Values, `shape.iter().product()` of them.
-    pub data: &'a [f32],
-}
-
-/// The bytes of a safetensors file holding `tensors` (in this order) and `metadata`.
-///
-/// # Errors
-/// [`Error::InvalidArgument`] if a tensor's length disagrees with its shape.
-pub fn to_bytes(metadata: &BTreeMap<String, String>, tensors: &[TensorOut<'_>]) -> Result<Vec<u8>> {
-    let mut header = serde_json::Map::new();
-    let meta: serde_json::Map<String, serde_json::Value> =
-        metadata.iter().map(|(k, v)| (k.clone(), serde_json::Value::String(v.clone()))).collect();
-    header.insert("__metadata__".to_string(), serde_json::Value::Object(meta));
-    let mut offset = 0usize;
-    for t in tensors {
-        if t.shape.iter().product::<usize>() != t.data.len() {
-            return Err(Error::invalid_argument(
-                t.name.clone(),
-                format!("{} values for shape {:?}", t.data.len(), t.shape),
-            ));
-        }
-        let end = offset + 4 * t.data.len();
-        header.insert(
-            t.name.clone(),
-            serde_json::json!({ "dtype": "F32", "shape": t.shape, "data_offsets": [offset, end] }),
-        );
-        offset = end;
-    }
-    let mut json = serde_json::Value::Object(header).to_string().into_bytes();
-    json.resize(json.len().next_multiple_of(8), b' ');
-    let mut bytes = Vec::with_capacity(8 + json.len() + offset);
-    bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
-    bytes.extend_from_slice(&json);
-    for t in tensors {
-        bytes.extend(t.data.iter().flat_map(|v| v.to_le_bytes()));
-    }
-    Ok(bytes)
-}
+pub use crate::nn::weights::{f32_safetensors_bytes as to_bytes, TensorOut};
 
 /// A parsed file: its metadata and a checked accessor for its tensors.
 pub struct TensorFile<'a> {

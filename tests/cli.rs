@@ -2,9 +2,8 @@
 //! summary; a Record3D export maps to a mesh without `--scale`; outputs that cannot be replaced are
 //! refused up front (issue 34).
 
-mod common;
-#[path = "common/record3d.rs"]
-mod record3d_fixture;
+use crate::common;
+use crate::common::record3d as record3d_fixture;
 
 use std::process::Command;
 

@@ -3,7 +3,7 @@
 //! real one, so defaults such as `fixtures/textures` or `../shared/data` resolve there and nothing
 //! in the repository is overwritten.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

@@ -583,8 +583,13 @@ fn no_avx512_env_switches_every_avx512_dispatch() {
         assert!(!densefeat::dtam::Dispatch::Auto.use_avx512());
         return;
     }
+    // The harness names a test by its module path inside the test crate (`dtam::NAME`).
+    let full = match module_path!().split_once("::") {
+        Some((_, module)) => format!("{module}::{NAME}"),
+        None => NAME.to_string(),
+    };
     let out = std::process::Command::new(std::env::current_exe().unwrap())
-        .args([NAME, "--exact", "--test-threads", "1"])
+        .args([full.as_str(), "--exact", "--test-threads", "1"])
         .env(NO_AVX512_ENV, "1")
         .output()
         .unwrap();

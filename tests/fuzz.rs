@@ -280,8 +280,6 @@ fn hash(s: &str) -> u64 {
     s.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3))
 }
 
-#[path = "common/record3d.rs"]
-mod record3d_fixture;
 #[path = "fuzz/setup.rs"]
 mod setup;
 #[path = "fuzz/setup_formats.rs"]

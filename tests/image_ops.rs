@@ -1,6 +1,6 @@
 //! Sampling, undistortion and depth-metric tests (SPEC.md §2.1, §2.7, §3).
 
-mod common;
+use crate::common;
 
 use approx::assert_relative_eq;
 use densefeat::eval::depth_metrics;

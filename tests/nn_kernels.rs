@@ -2,7 +2,7 @@
 //! §7.5 budget, bit-identical results for any thread count, and known answers pinning PyTorch's
 //! semantics.
 
-mod common;
+use crate::common;
 
 use common::{bits, lcg, thread_pool};
 use densefeat::nn::conv2d::{

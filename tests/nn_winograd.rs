@@ -2,7 +2,7 @@
 //! f64 reference, the same bits from every kernel and any thread count, F(2x2) exact where the
 //! arithmetic is exact.
 
-mod common;
+use crate::common;
 
 use common::{bits, lcg, thread_pool};
 use densefeat::nn::conv2d::{

@@ -2,11 +2,9 @@
 //! `common::data_dir`), plus a DeepVideoMVS writer -> reader round trip, and Record3D exports
 //! written by hand from a rendered scene (`readers/record3d.rs`).
 
-mod common;
+use crate::common;
 #[path = "readers/record3d.rs"]
 mod record3d;
-#[path = "common/record3d.rs"]
-mod record3d_fixture;
 
 use common::data_dir;
 use densefeat::eval::photometric_warp_check;

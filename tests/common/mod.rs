@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+pub mod record3d;
+
 use std::path::PathBuf;
 
 /// `../shared/data/<name>` relative to the crate, or `None` (after printing `SKIPPED`) when it is

@@ -61,7 +61,7 @@ pub fn targets(dir: &Path, base: &Path, want: &dyn Fn(&str) -> bool) -> Vec<Targ
     }
     if want("record3d_metadata") {
         let root = dir.join("record3d_metadata");
-        crate::record3d_fixture::write(&root, 16, 12, 3, 2);
+        crate::common::record3d::write(&root, 16, 12, 3, 2);
         let s = root.clone();
         out.push(target("record3d_metadata", &root.join("metadata.json"), true, move || open(&s).map(drop)));
     }
@@ -69,7 +69,7 @@ pub fn targets(dir: &Path, base: &Path, want: &dyn Fn(&str) -> bool) -> Vec<Targ
         // The EXR through the whole reader: the header checked when the sequence opens, the pixels
         // decoded and upsampled when the frame loads.
         let root = dir.join("record3d_exr");
-        crate::record3d_fixture::write(&root, 16, 12, 3, 2);
+        crate::common::record3d::write(&root, 16, 12, 3, 2);
         let s = root.clone();
         out.push(target("exr_depth", &root.join("depth/1.exr"), false, move || {
             open(&s).and_then(|q: Sequence| q.load_frame(1)).map(drop)

@@ -10,7 +10,7 @@ use densefeat::sequence::{inspect::Summary, open, Format};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use serde_json::Value;
 
-use crate::record3d_fixture::{self as fx, Record3dFixture};
+use crate::common::record3d::{self as fx, Record3dFixture};
 
 /// Camera and pose round trip: numbers are written in shortest round-trip form by serde_json; the
 /// quaternion conversions cost a few ulp.

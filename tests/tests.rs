@@ -1,0 +1,41 @@
+//! The integration tests, one binary (issue 33 item 5): one module per area, the shared furniture
+//! in `common`. The GPU parity suite is its own target (`tests/parity.rs`), built only with
+//! `--features gpu` in CI.
+
+mod common;
+
+mod cli;
+mod cli_defaults;
+mod costcurve;
+mod costvolume;
+mod dsift;
+mod dtam;
+mod dtam_normals;
+mod feature_baselines;
+mod features_cli;
+mod fusion;
+mod fusion_consistency;
+mod fuzz;
+mod geometry;
+mod image_ops;
+mod malformed;
+mod mapping;
+mod mapping_level0;
+mod network;
+mod nn_backward;
+mod nn_kernels;
+mod nn_winograd;
+mod nn_winograd_deconv;
+mod normals_net;
+mod patch_volume;
+mod photometric;
+mod plot;
+mod readers;
+mod reliability;
+mod synth;
+mod synth_real;
+mod train_backprop;
+mod train_loop;
+mod train_loss;
+mod warp;
+mod weights;

@@ -41,7 +41,6 @@
 #![deny(rustdoc::broken_intra_doc_links)]
 
 pub mod backend;
-pub mod cli;
 pub mod costvolume;
 pub mod dsift;
 pub mod dtam;
@@ -57,6 +56,7 @@ pub mod nn;
 pub mod normals_net;
 pub mod perf;
 pub mod plot;
+pub mod progress;
 pub mod runtime;
 pub mod sequence;
 pub mod synth;

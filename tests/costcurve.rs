@@ -4,7 +4,6 @@
 use std::path::Path;
 use std::process::Command;
 
-use densefeat::cli::costcurve::parse_pixels;
 use densefeat::geometry::InverseDepthBins;
 use densefeat::mapping::costcurve::{cost_curves, frame_order, grid_pixel, normalise};
 use densefeat::mapping::features::FeatureKind;
@@ -29,9 +28,6 @@ fn grid_pixel_rounds_and_clamps() {
     assert_eq!(grid_pixel((319, 239), 1, (160, 120)), (159, 119));
     assert_eq!(grid_pixel((5, 6), 0, (10, 10)), (5, 6));
     assert_eq!(grid_pixel((6, 5), 2, (10, 10)), (2, 1));
-    assert_eq!(parse_pixels("1,2; 3,4;").unwrap(), vec![(1, 2), (3, 4)]);
-    assert!(parse_pixels("1;2").is_err());
-    assert!(parse_pixels("").is_err());
 }
 
 #[test]

@@ -424,9 +424,13 @@ fn bench_costvolume_cli_runs() {
         "--threads",
         "1",
     ];
-    densefeat::cli::run(<densefeat::cli::Cli as clap::Parser>::try_parse_from(args).unwrap()).unwrap();
-    let bad = ["densefeat", "bench", "costvolume", "--runs", "3"];
-    assert!(densefeat::cli::run(<densefeat::cli::Cli as clap::Parser>::try_parse_from(bad).unwrap()).is_err());
+    let run = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_densefeat")).args(&args[1..]).output().unwrap()
+    };
+    let ok = run(&args);
+    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    let bad = run(&["densefeat", "bench", "costvolume", "--runs", "3"]);
+    assert!(!bad.status.success());
 }
 
 /// SPEC.md §9.13: a frame adds `min(l1, τ)`. Reference 0 against a live frame of constant 50 in

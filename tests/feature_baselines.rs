@@ -109,7 +109,7 @@ fn dsift_extractor_gives_level0_descriptors_downsampled_like_rgb() {
 fn memory_estimate_counts_128_channels_and_the_extraction() {
     // SPEC.md §11.2, §14.3: dense SIFT's features are H·W·128·4 bytes a frame (two of them in the
     // estimate) and its extraction holds 676 bytes a level-0 pixel.
-    use densefeat::cli::validate::feature_memory;
+    use densefeat::mapping::features::feature_memory;
     let (c, bytes) = feature_memory(&FeatureKind::Dsift, 240, 320).unwrap();
     assert_eq!((c, bytes), (128, 240 * 320 * 676));
     assert_eq!(densefeat::dsift::extraction_bytes(240, 320), 240 * 320 * (4 + 32 + 128 + 512));

@@ -431,7 +431,8 @@ fn run(
     stop: Option<usize>,
 ) -> NormalNetWeights {
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-    pool.install(|| train_normals(cfg, &tiny_trunk(), out, resume, stop, false)).unwrap()
+    pool.install(|| train_normals(cfg, &tiny_trunk(), out, resume, stop, &mut densefeat::progress::Silent))
+        .unwrap()
 }
 
 #[test]
@@ -459,7 +460,16 @@ fn training_is_thread_independent_and_resumes_exactly() {
     // Another configuration is refused, naming the file.
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     let e = pool
-        .install(|| train_normals(&tiny_cfg(5), &tiny_trunk(), &split, Some(&ckpt), None, false))
+        .install(|| {
+            train_normals(
+                &tiny_cfg(5),
+                &tiny_trunk(),
+                &split,
+                Some(&ckpt),
+                None,
+                &mut densefeat::progress::Silent,
+            )
+        })
         .unwrap_err()
         .to_string();
     assert!(e.contains("different configuration") && e.contains("ckpt2"), "{e}");

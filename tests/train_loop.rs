@@ -46,7 +46,7 @@ fn run(
     stop: Option<usize>,
 ) -> NetworkWeights {
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-    pool.install(|| train(cfg, out, resume, stop, false)).unwrap()
+    pool.install(|| train(cfg, out, resume, stop, &mut densefeat::progress::Silent)).unwrap()
 }
 
 fn bits(w: &NetworkWeights) -> Vec<u32> {
@@ -108,6 +108,47 @@ fn resuming_gives_exactly_the_uninterrupted_run() {
     assert_eq!(steps, vec![1, 2, 3, 4]);
 }
 
+/// What the trainer tells its [`densefeat::progress::Progress`] (the CLI draws its bar from this).
+#[derive(Default)]
+struct Recorded {
+    start: Option<(u64, u64)>,
+    positions: Vec<u64>,
+    lines: Vec<String>,
+    finished: bool,
+}
+
+impl densefeat::progress::Progress for Recorded {
+    fn start(&mut self, total: u64, position: u64) {
+        self.start = Some((total, position));
+    }
+    fn update(&mut self, position: u64, message: &str) {
+        assert!(message.starts_with("loss "), "{message}");
+        self.positions.push(position);
+    }
+    fn line(&mut self, line: &str) {
+        self.lines.push(line.to_string());
+    }
+    fn finish(&mut self) {
+        self.finished = true;
+    }
+}
+
+#[test]
+fn progress_hears_every_step_and_each_validation() {
+    let cfg = tiny();
+    let d = tempfile::tempdir().unwrap();
+    run(&cfg, d.path(), 1, None, Some(2));
+    let mut p = Recorded::default();
+    let ck = d.path().join("checkpoint.safetensors");
+    train(&cfg, d.path(), Some(&ck), None, &mut p).unwrap();
+    // Resumed at step 2 of 4: validation every 2 steps, so one line (step 4).
+    assert_eq!(p.start, Some((4, 2)));
+    assert_eq!(p.positions, vec![3, 4]);
+    assert_eq!(p.lines.len(), 1, "{:?}", p.lines);
+    assert!(p.lines[0].starts_with("step 4: train "), "{:?}", p.lines);
+    assert!(p.finished);
+}
+
 #[test]
 fn a_checkpoint_from_another_configuration_or_a_bad_file_is_refused() {
     let cfg = tiny();
@@ -115,7 +156,8 @@ fn a_checkpoint_from_another_configuration_or_a_bad_file_is_refused() {
     run(&cfg, d.path(), 2, None, Some(1));
     let ck = d.path().join("checkpoint.safetensors");
     let other = TrainConfig { seed: 99, ..tiny() };
-    let err = train(&other, d.path(), Some(&ck), None, false).unwrap_err().to_string();
+    let err =
+        train(&other, d.path(), Some(&ck), None, &mut densefeat::progress::Silent).unwrap_err().to_string();
     assert!(err.contains("checkpoint.safetensors") && err.contains("different configuration"), "{err}");
     // A weights file is not a checkpoint.
     let err = Checkpoint::load(&d.path().join("weights.safetensors")).unwrap_err().to_string();
@@ -221,7 +263,9 @@ fn init_weights_start_the_run_and_a_mismatch_is_refused() {
     other.save(&bad).unwrap();
     let cfg = TrainConfig { init_weights: Some(bad.clone()), ..tiny() };
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
-    let err = pool.install(|| train(&cfg, &d.path().join("bad"), None, Some(1), false)).expect_err("refused");
+    let err = pool
+        .install(|| train(&cfg, &d.path().join("bad"), None, Some(1), &mut densefeat::progress::Silent))
+        .expect_err("refused");
     assert!(err.to_string().contains("other.safetensors"), "{err}");
 }
 

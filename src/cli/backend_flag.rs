@@ -1,12 +1,12 @@
-//! `--backend`: which [`crate::backend::Backend`] runs the ops (SPEC.md §15). Resolved before any
+//! `--backend`: which [`densefeat::backend::Backend`] runs the ops (SPEC.md §15). Resolved before any
 //! work, so an unavailable backend is refused up front.
 
 use std::sync::Arc;
 
 use clap::Args;
 
-use crate::backend::{self, Backend};
-use crate::error::Result;
+use densefeat::backend::{self, Backend};
+use densefeat::error::Result;
 
 /// The `--backend` flag.
 #[derive(Debug, Clone, Args)]

@@ -6,8 +6,8 @@ use std::time::Instant;
 use clap::{Args, Subcommand};
 
 use crate::cli::synth::parse_size;
-use crate::error::{Error, Result};
-use crate::nn::{FeatureNet, NetworkConfig, NetworkWeights};
+use densefeat::error::{Error, Result};
+use densefeat::nn::{FeatureNet, NetworkConfig, NetworkWeights};
 
 /// Arguments of `densefeat bench`.
 #[derive(Debug, Clone, Args)]
@@ -83,18 +83,19 @@ const WARMUP: usize = 2;
 /// Fewest timed forward runs.
 const MIN_RUNS: usize = 20;
 
-pub(crate) use crate::runtime::thread_pool as pool;
+pub(crate) use densefeat::runtime::thread_pool as pool;
 
 pub(crate) fn median(mut v: Vec<f64>) -> f64 {
-    crate::runtime::median(&mut v)
+    densefeat::runtime::median(&mut v)
 }
 
 fn run_forward(args: &ForwardArgs) -> Result<()> {
     let backend = args.backend.resolve()?;
     let backend = backend.as_ref();
     let (w, h) = parse_size(&args.size)?;
-    let gemm = crate::memory::product(&[3, args.gemm_size as u64, args.gemm_size as u64, 4]);
-    let net = crate::memory::network_forward_bytes(h, w, NetworkConfig::default().channels, args.b1_stride);
+    let gemm = densefeat::memory::product(&[3, args.gemm_size as u64, args.gemm_size as u64, 4]);
+    let net =
+        densefeat::memory::network_forward_bytes(h, w, NetworkConfig::default().channels, args.b1_stride);
     let what = format!("the network on {w}x{h} and a {} GEMM", args.gemm_size);
     args.memory.check(&what, net.max(gemm), "use a smaller --size or --gemm-size")?;
     if args.runs < MIN_RUNS {
@@ -103,7 +104,7 @@ fn run_forward(args: &ForwardArgs) -> Result<()> {
     let config =
         NetworkConfig { b1_stride: args.b1_stride, input_mean: [128.0; 3], ..NetworkConfig::default() };
     let net = FeatureNet::new(NetworkWeights::xavier_uniform(&config, 0)?)?;
-    let image = crate::perf::pattern(h, w);
+    let image = densefeat::perf::pattern(h, w);
     let pool = pool(args.threads)?;
     let (ms, peak) = pool.install(|| -> Result<(f64, f64)> {
         for _ in 0..WARMUP {
@@ -115,7 +116,7 @@ fn run_forward(args: &ForwardArgs) -> Result<()> {
             std::hint::black_box(net.features(image.view(), backend)?);
             times.push(start.elapsed().as_secs_f64() * 1e3);
         }
-        Ok((median(times), crate::perf::gemm_gflops(args.gemm_size, 10)))
+        Ok((median(times), densefeat::perf::gemm_gflops(args.gemm_size, 10)))
     })?;
     let gflop = net.flops(h, w) / 1e9;
     let gflops = gflop / (ms / 1e3);
@@ -131,13 +132,13 @@ fn run_forward(args: &ForwardArgs) -> Result<()> {
         100.0 * gflops / peak
     );
     if backend.name() == "cpu" {
-        let kinds = crate::backend::CpuBackend::default().network_kernels(&config, h, w)?;
+        let kinds = densefeat::backend::CpuBackend::default().network_kernels(&config, h, w)?;
         let list: Vec<String> = kinds.iter().map(|(kind, imp)| format!("{kind}: {imp}")).collect();
         println!("\nkernels (cpu backend, this CPU): {}", list.join("; "));
     }
     if args.profile {
         let (rows, total) =
-            pool.install(|| crate::nn::profile_forward(&net, backend, image.view(), args.runs))?;
+            pool.install(|| densefeat::nn::profile_forward(&net, backend, image.view(), args.runs))?;
         println!("\nprofile (mean per forward pass, {} passes):", args.runs);
         println!("| operation | calls | ms | share | GFLOP/s |");
         println!("|---|---|---|---|---|");
@@ -159,9 +160,9 @@ fn run_gemm(args: &GemmArgs) -> Result<()> {
     if args.size == 0 {
         return Err(Error::invalid_argument("--size", "must be at least 1"));
     }
-    let bytes = crate::memory::product(&[3, args.size as u64, args.size as u64, 4]);
+    let bytes = densefeat::memory::product(&[3, args.size as u64, args.size as u64, 4]);
     args.memory.check(&format!("a {} GEMM", args.size), bytes, "use a smaller --size")?;
-    let gflops = pool(args.threads)?.install(|| crate::perf::gemm_gflops(args.size, args.runs));
+    let gflops = pool(args.threads)?.install(|| densefeat::perf::gemm_gflops(args.size, args.runs));
     println!("| n | threads | runs | median GFLOP/s |");
     println!("|---|---|---|---|");
     println!("| {} | {} | {} | {gflops:.1} |", args.size, args.threads, args.runs);

@@ -8,11 +8,11 @@ use std::sync::Arc;
 use clap::Args;
 
 use super::synth::parse_size;
-use crate::backend::{Backend, CpuBackend};
-use crate::costvolume::{fast_kernel_name, CostVolume, CostVolumeImpl, UNSEEN_COST};
-use crate::error::{Error, Result};
+use densefeat::backend::{Backend, CpuBackend};
+use densefeat::costvolume::{fast_kernel_name, CostVolume, CostVolumeImpl, UNSEEN_COST};
+use densefeat::error::{Error, Result};
 
-use crate::io::{write_atomic, write_npy_f32};
+use densefeat::io::{write_atomic, write_npy_f32};
 
 /// Arguments of `densefeat bench costvolume`.
 #[derive(Debug, Clone, Args)]
@@ -57,7 +57,7 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     let backend: Arc<dyn Backend> =
         if args.reference { Arc::new(CpuBackend::reference()) } else { args.backend.resolve()? };
     let (width, height) = parse_size(&args.size)?;
-    let bytes = crate::memory::cost_volume_bytes(height, width, args.bins, args.channels);
+    let bytes = densefeat::memory::cost_volume_bytes(height, width, args.bins, args.channels);
     let what = format!("the {height}x{width}x{} volume with {} channels", args.bins, args.channels);
     args.memory.check(&what, bytes, "use a smaller --size, fewer --bins or --channels")?;
     if args.runs < 10 {
@@ -66,9 +66,9 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     if args.threads == 0 {
         return Err(Error::invalid_argument("--threads", "0: must be at least 1"));
     }
-    let crate::perf::BenchInputs { reference, live, camera: cam, bins, t_nr } =
-        crate::perf::bench_inputs(width, height, args.channels, args.bins)?;
-    let pool = crate::runtime::thread_pool(args.threads)?;
+    let densefeat::perf::BenchInputs { reference, live, camera: cam, bins, t_nr } =
+        densefeat::perf::bench_inputs(width, height, args.channels, args.bins)?;
+    let pool = densefeat::runtime::thread_pool(args.threads)?;
     // Uploads are explicit and outside the timed loop (SPEC.md §15.2); timed on their own.
     let t = Instant::now();
     let reference = backend.upload_owned(reference)?;
@@ -76,13 +76,13 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     backend.synchronize()?;
     let upload = t.elapsed().as_secs_f64();
     // Untruncated (SPEC.md §9.13): the truncation is one `min` per hypothesis block either way.
-    let mut cv = backend.cost_volume(&reference, cam, bins, crate::costvolume::NO_TRUNCATION)?;
+    let mut cv = backend.cost_volume(&reference, cam, bins, densefeat::costvolume::NO_TRUNCATION)?;
     let mut times = Vec::with_capacity(args.runs);
     let mut cpu_start = None;
     pool.install(|| -> Result<()> {
         for run in 0..args.runs + 2 {
             if run == 2 {
-                cpu_start = crate::perf::process_cpu_seconds();
+                cpu_start = densefeat::perf::process_cpu_seconds();
             }
             let start = Instant::now();
             cv.add_frame(&live, &t_nr)?;
@@ -97,7 +97,7 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
     let t = Instant::now();
     let cv = cv.finish()?;
     let download = t.elapsed().as_secs_f64();
-    let cpu = cpu_start.zip(crate::perf::process_cpu_seconds()).map(|(a, b)| (b - a) / args.runs as f64);
+    let cpu = cpu_start.zip(densefeat::perf::process_cpu_seconds()).map(|(a, b)| (b - a) / args.runs as f64);
     let total: f64 = times.iter().sum::<f64>() / args.runs as f64;
     times.sort_by(f64::total_cmp);
     let median = times[times.len() / 2];
@@ -137,11 +137,11 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
         );
     }
     if let Some(dir) = &args.dump {
-        let mut staging = crate::io::Staging::new();
+        let mut staging = densefeat::io::Staging::new();
         let staged = staging.dir(dir)?;
         dump(
             &staged,
-            &crate::perf::bench_inputs(width, height, args.channels, args.bins)?,
+            &densefeat::perf::bench_inputs(width, height, args.channels, args.bins)?,
             &kernel,
             args.threads,
             median,
@@ -167,13 +167,13 @@ pub fn run(args: BenchCostvolumeArgs) -> Result<()> {
 /// (the reference on `|f_r|`, `-|f_n|`, SPEC.md §9.6) and `meta.json` to `dir` (created).
 fn dump(
     dir: &std::path::Path,
-    inputs: &crate::perf::BenchInputs,
+    inputs: &densefeat::perf::BenchInputs,
     kernel: &str,
     threads: usize,
     median_s: f64,
 ) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let crate::perf::BenchInputs { reference, live, camera, bins, t_nr } = inputs;
+    let densefeat::perf::BenchInputs { reference, live, camera, bins, t_nr } = inputs;
     let mut cv = CostVolume::new(reference.clone(), *camera, *bins)?;
     cv.add_frame(live.view(), t_nr)?;
     let mut mag = CostVolume::with_impl(reference.mapv(f32::abs), *camera, *bins, CostVolumeImpl::Reference)?;

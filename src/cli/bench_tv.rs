@@ -9,12 +9,12 @@ use std::time::Instant;
 use clap::Args;
 
 use super::synth::parse_size;
-use crate::dtam::{
+use densefeat::dtam::{
     exhaustive_search, exhaustive_search_reference, rms_gap, search_with_energy, solve, total_energy,
     CostRange, Dispatch, DtamParams, HuberTv,
 };
-use crate::error::{Error, Result};
-use crate::perf::{tv_inputs, TvInputs};
+use densefeat::error::{Error, Result};
+use densefeat::perf::{tv_inputs, TvInputs};
 
 /// Arguments of `densefeat bench tv`.
 #[derive(Debug, Clone, Args)]
@@ -49,13 +49,13 @@ pub(super) fn schedule_params(schedule: &str, inputs: &TvInputs) -> DtamParams {
     if schedule == "raw" {
         return DtamParams::default();
     }
-    let scale = crate::costvolume::cost_scale(inputs.costs.view());
+    let scale = densefeat::costvolume::cost_scale(inputs.costs.view());
     let (_, w, _) = inputs.costs.dim();
-    crate::dtam::MAPPING_DEFAULTS.normalised(scale, w, inputs.bins.rho_max - inputs.bins.rho_min)
+    densefeat::dtam::MAPPING_DEFAULTS.normalised(scale, w, inputs.bins.rho_max - inputs.bins.rho_min)
 }
 
 pub(super) fn median_ms(mut v: Vec<f64>) -> f64 {
-    crate::runtime::median(&mut v) * 1e3
+    densefeat::runtime::median(&mut v) * 1e3
 }
 
 /// Runs the benchmark and prints one iteration's parts and a full solve.
@@ -65,7 +65,7 @@ pub(super) fn median_ms(mut v: Vec<f64>) -> f64 {
 pub fn run(args: &BenchTvArgs) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
     // The costs (f32), their pruning range and about 16 f32 DTAM arrays per pixel.
-    let bytes = crate::memory::product(&[
+    let bytes = densefeat::memory::product(&[
         height as u64,
         width as u64,
         (args.bins as u64).saturating_mul(8).saturating_add(64),
@@ -87,7 +87,7 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
     let (mut ref_step, mut ref_search, mut ref_energy, mut ref_iter) = (vec![], vec![], vec![], vec![]);
     let (mut solves, mut solve_iterations) = (vec![], 0);
     pool.install(|| -> Result<()> {
-        let g = crate::dtam::edge_weights(grey.view(), params.alpha, params.beta);
+        let g = densefeat::dtam::edge_weights(grey.view(), params.alpha, params.beta);
         let range = CostRange::new(costs.view());
         // Iterations at θ_start: the widest pruned search, the slowest iteration of a solve.
         let theta = params.theta_start;

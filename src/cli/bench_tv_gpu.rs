@@ -3,10 +3,10 @@
 //! the energy read-backs of the stopping rule) and the download of `d` and `a` timed separately.
 
 use super::bench_tv::{median_ms, BenchTvArgs};
-use crate::backend::{Backend, GpuBackend};
-use crate::dtam::DtamParams;
-use crate::error::Result;
-use crate::perf::{tv_inputs, TvInputs};
+use densefeat::backend::{Backend, GpuBackend};
+use densefeat::dtam::DtamParams;
+use densefeat::error::Result;
+use densefeat::perf::{tv_inputs, TvInputs};
 
 /// Solves timed per part, after one warm-up solve (pipeline compilation).
 const REPEATS: usize = 3;

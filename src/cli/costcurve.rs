@@ -1,20 +1,21 @@
 //! `densefeat costcurve`: parses the flags, checks them up front, calls
-//! [`crate::mapping::costcurve::cost_curves`] and writes the plot and the CSV (SPEC.md §12.1).
+//! [`densefeat::mapping::costcurve::cost_curves`] and writes the plot and the CSV (SPEC.md §12.1).
 
 use std::path::{Path, PathBuf};
 
 use clap::Args;
 
-use crate::error::{Error, Result};
-use crate::geometry::InverseDepthBins;
-use crate::io::{write_atomic, Staging};
-use crate::mapping::costcurve::{cost_curves, curves_csv, panels};
-use crate::mapping::features::{FeatureExtractor, FeatureKind};
-use crate::memory;
-use crate::plot::grid_of_plots_png;
-use crate::sequence::Sequence;
+use densefeat::error::{Error, Result};
+use densefeat::geometry::InverseDepthBins;
+use densefeat::io::{write_atomic, Staging};
+use densefeat::mapping::costcurve::{cost_curves, curves_csv, panels};
+use densefeat::mapping::features::{FeatureExtractor, FeatureKind};
+use densefeat::memory;
+use densefeat::plot::grid_of_plots_png;
+use densefeat::sequence::Sequence;
 
-use super::validate::{feature_memory, flag, frames_big_enough, MemoryLimit};
+use super::validate::{flag, frames_big_enough, MemoryLimit};
+use densefeat::mapping::features::feature_memory;
 
 /// Arguments of `densefeat costcurve`.
 #[derive(Debug, Clone, Args)]
@@ -171,4 +172,16 @@ pub fn run(args: CostcurveArgs) -> Result<()> {
         start.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_pixels;
+
+    #[test]
+    fn pixels_parse_as_x_comma_y_separated_by_semicolons() {
+        assert_eq!(parse_pixels("1,2; 3,4;").unwrap(), vec![(1, 2), (3, 4)]);
+        assert!(parse_pixels("1;2").is_err());
+        assert!(parse_pixels("").is_err());
+    }
 }

@@ -5,30 +5,17 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 
-use crate::error::Result;
-use crate::mapping::evaluate::{EvalOptions, Method};
-use crate::mapping::keyframe::Regularizer;
-use crate::mapping::FeatureKind;
-use crate::synth::{write_scene, Scene, SceneConfig, Style};
+use densefeat::error::Result;
+use densefeat::mapping::evaluate::{EvalOptions, Method};
+use densefeat::mapping::keyframe::Regularizer;
+use densefeat::mapping::FeatureKind;
+use densefeat::synth::{write_scene, Scene};
 
 use super::eval::{print_table, run_eval};
 use super::mapping_args::MappingArgs;
 
 /// The shipped fixture, in the source tree.
 pub const FIXTURE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");
-
-/// The scene of the fixture: `densefeat synth --seed 1 --frames 40 --size 320x240` writes it byte for
-/// byte (tests/synth.rs, `fixture_regenerates_byte_identical`).
-pub fn fixture_config() -> SceneConfig {
-    SceneConfig {
-        seed: 1,
-        width: 320,
-        height: 240,
-        frames: 40,
-        style: Style::Classic,
-        ..SceneConfig::default()
-    }
-}
 
 /// Arguments of `densefeat demo` (all optional).
 #[derive(Debug, Clone, Args)]
@@ -77,7 +64,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     );
     let kinds = [FeatureKind::Rgb, FeatureKind::Learned(None)];
     super::validate::mapping_preflight(&seq, &cfg, &[args.keyframe], &kinds, "demo")?;
-    let mut staging = crate::io::Staging::new();
+    let mut staging = densefeat::io::Staging::new();
     let out = staging.dir(&args.out)?;
     let table = run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &out, true, || EvalOptions {
         min_confidence: args.mapping.min_confidence,
@@ -103,12 +90,12 @@ impl RenderedFixture {
         let dir = std::env::temp_dir().join(format!("densefeat-demo-room_s1-{}", std::process::id()));
         let guard = Self(dir);
         let _ = std::fs::remove_dir_all(&guard.0);
-        std::fs::create_dir_all(&guard.0).map_err(|e| crate::error::Error::io(&guard.0, e))?;
+        std::fs::create_dir_all(&guard.0).map_err(|e| densefeat::error::Error::io(&guard.0, e))?;
         eprintln!(
             "demo: {FIXTURE} is not here; rendering the same fixture (synthetic seed 1) into {}",
             guard.0.display()
         );
-        write_scene(&Scene::generate(&fixture_config())?, &guard.0, |_, _| {})?;
+        write_scene(&Scene::generate(&densefeat::synth::demo_fixture_config())?, &guard.0, |_, _| {})?;
         Ok(guard)
     }
 }

@@ -5,13 +5,13 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 
-use crate::error::{Error, Result};
-use crate::io::{write_atomic_with, Staging};
-use crate::mapping::evaluate::{evaluate, EvalOptions, EvalTable, Method};
-use crate::mapping::keyframe::Regularizer;
-use crate::mapping::{write_outputs_with, FeatureKind};
-use crate::plot::{line_plot_png, Series};
-use crate::sequence::Sequence;
+use densefeat::error::{Error, Result};
+use densefeat::io::{write_atomic_with, Staging};
+use densefeat::mapping::evaluate::{evaluate, EvalOptions, EvalTable, Method};
+use densefeat::mapping::keyframe::Regularizer;
+use densefeat::mapping::{write_outputs_with, FeatureKind};
+use densefeat::plot::{line_plot_png, Series};
+use densefeat::sequence::Sequence;
 
 use super::mapping_args::{
     parse_keyframes, progress_bar, resolve_depth_range, show_stage, summary, DepthRange, MappingArgs,
@@ -145,8 +145,8 @@ fn write_sweep(table: &EvalTable, out: &Path) -> Result<()> {
     write_text(&out.join("lambda_sweep.csv"), &csv)?;
     const COLOURS: [(u8, u8, u8); 4] = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189)];
     for (file, ylabel, pick) in [
-        ("lambda_sweep.png", "rms (m)", (|d: &crate::eval::DepthMetrics| d.rms) as fn(&_) -> f64),
-        ("lambda_sweep_delta.png", "δ<1.25", |d: &crate::eval::DepthMetrics| d.delta_1_25),
+        ("lambda_sweep.png", "rms (m)", (|d: &densefeat::eval::DepthMetrics| d.rms) as fn(&_) -> f64),
+        ("lambda_sweep_delta.png", "δ<1.25", |d: &densefeat::eval::DepthMetrics| d.delta_1_25),
     ] {
         let series: Vec<Series> = methods
             .iter()

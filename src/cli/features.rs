@@ -6,13 +6,13 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 
 use super::backend_flag::BackendFlag;
-use crate::backend::Backend;
-use crate::error::Result;
-use crate::image::{load_rgb, read_dimensions, save_rgb_png};
-use crate::io::{write_npy_f32, Staging};
-use crate::mapping::features::load_weights;
-use crate::nn::viz::pca_rgb;
-use crate::nn::{FeatureNet, NetworkWeights};
+use densefeat::backend::Backend;
+use densefeat::error::Result;
+use densefeat::image::{load_rgb, read_dimensions, save_rgb_png};
+use densefeat::io::{write_npy_f32, Staging};
+use densefeat::mapping::features::load_weights;
+use densefeat::nn::viz::pca_rgb;
+use densefeat::nn::{FeatureNet, NetworkWeights};
 
 use super::validate::{flag, MemoryLimit};
 
@@ -39,18 +39,6 @@ pub struct FeaturesArgs {
     pub backend: BackendFlag,
 }
 
-/// Computes the features of `image` with the weights at `weights` (`None`: the shipped ones).
-///
-/// # Errors
-/// Reading errors naming the file.
-pub fn features_of(
-    image: &Path,
-    weights: Option<&Path>,
-    backend: &dyn Backend,
-) -> Result<ndarray::Array3<f32>> {
-    features_with(image, load_weights(weights)?, backend)
-}
-
 fn features_with(
     image: &Path,
     weights: NetworkWeights,
@@ -72,7 +60,7 @@ pub fn run(args: FeaturesArgs) -> Result<()> {
     let (w, h) = read_dimensions(&args.image)?;
     let weights = load_weights(args.weights.as_deref())?;
     let config = &weights.config;
-    let bytes = crate::memory::network_forward_bytes(h, w, config.channels, config.b1_stride);
+    let bytes = densefeat::memory::network_forward_bytes(h, w, config.channels, config.b1_stride);
     let what = format!("the network on {} ({w}x{h} pixels, from its header)", args.image.display());
     args.memory.check(&what, bytes, "use a smaller image")?;
     if args.viz.as_ref() == Some(&args.out) {

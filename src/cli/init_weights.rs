@@ -4,10 +4,10 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 
-use crate::error::{Error, Result};
-use crate::image::load_rgb;
-use crate::nn::{NetworkConfig, NetworkWeights};
-use crate::sequence::COLOUR_EXTENSIONS;
+use densefeat::error::{Error, Result};
+use densefeat::image::load_rgb;
+use densefeat::nn::{NetworkConfig, NetworkWeights};
+use densefeat::sequence::COLOUR_EXTENSIONS;
 
 /// Arguments of `densefeat init-weights`.
 #[derive(Debug, Clone, Args)]
@@ -88,7 +88,7 @@ pub fn run(args: InitWeightsArgs) -> Result<()> {
     let config =
         NetworkConfig { blocks: args.blocks, channels: args.channels, b1_stride: args.b1_stride, input_mean };
     config.validate()?;
-    let mut staging = crate::io::Staging::new();
+    let mut staging = densefeat::io::Staging::new();
     let out = staging.file(&args.out)?;
     let weights = NetworkWeights::xavier_uniform(&config, args.seed)?;
     weights.save(&out)?;

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use crate::error::Result;
-use crate::sequence::inspect::Summary;
-use crate::sequence::{open_with, CameraChoice, OpenOptions, DEFAULT_MAX_TIME_GAP};
+use densefeat::error::Result;
+use densefeat::sequence::inspect::Summary;
+use densefeat::sequence::{open_with, CameraChoice, OpenOptions, DEFAULT_MAX_TIME_GAP};
 
 /// Arguments of `densefeat inspect`.
 #[derive(Debug, Args)]

@@ -4,13 +4,13 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use crate::error::Result;
-use crate::fusion::consistency::ConsistencyRule;
-use crate::fusion::FusionWeight;
-use crate::mapping::keyframe::Regularizer;
-use crate::mapping::keyframe_select::KeyframeRule;
-use crate::mapping::sequence_map::{map_sequence, MapConfig};
-use crate::mapping::FeatureKind;
+use densefeat::error::Result;
+use densefeat::fusion::consistency::ConsistencyRule;
+use densefeat::fusion::FusionWeight;
+use densefeat::mapping::keyframe::Regularizer;
+use densefeat::mapping::keyframe_select::KeyframeRule;
+use densefeat::mapping::sequence_map::{map_sequence, MapConfig};
+use densefeat::mapping::FeatureKind;
 
 use super::mapping_args::{progress_bar, DepthRange, MappingArgs};
 use super::validate::{flag, mapping_preflight};
@@ -139,7 +139,7 @@ pub fn run(args: MapArgs) -> Result<()> {
         c.live_frames(seq.len()).map_err(|e| flag("frames", e.to_string()))?;
     }
     mapping_preflight(&seq, &cfg.keyframe, &keys[..1], std::slice::from_ref(&args.features), "map")?;
-    crate::memory::check(
+    densefeat::memory::check(
         cfg.keyframe.max_memory_mb,
         "the TSDF volumes (bounded by the keyframes' frusta)",
         plan.fusion_bytes_bound,

@@ -8,17 +8,17 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::backend_flag::BackendFlag;
-use crate::costvolume::NO_TRUNCATION;
-use crate::dtam::{DtamParams, MAPPING_DEFAULTS};
-use crate::error::{Error, Result};
-use crate::mapping::keyframe::{
+use densefeat::costvolume::NO_TRUNCATION;
+use densefeat::dtam::{DtamParams, MAPPING_DEFAULTS};
+use densefeat::error::{Error, Result};
+use densefeat::mapping::keyframe::{
     KeyframeConfig, Regularizer, Stage, DEFAULT_BINS, DEFAULT_MAX_MEMORY_MB, DEFAULT_MIN_EVIDENCE,
 };
-use crate::mapping::normals::NormalsSource;
-use crate::mapping::output::DEFAULT_MIN_CONFIDENCE;
-use crate::mapping::photometric::PhotometricMode;
-use crate::mapping::{FeatureKind, KeyframeResult, Truncation};
-use crate::sequence::{open_with, OpenOptions, Sequence};
+use densefeat::mapping::normals::NormalsSource;
+use densefeat::mapping::output::DEFAULT_MIN_CONFIDENCE;
+use densefeat::mapping::photometric::PhotometricMode;
+use densefeat::mapping::{FeatureKind, KeyframeResult, Truncation};
+use densefeat::sequence::{open_with, OpenOptions, Sequence};
 
 /// Mapping flags (SPEC.md §10, §11).
 #[derive(Debug, Clone, Args)]
@@ -216,7 +216,7 @@ impl MappingArgs {
             )),
             (Some(n), None) => Ok(Some(n.clone())),
             (None, None) => {
-                Ok(crate::normals_net::SHIPPED_NORMAL_WEIGHTS.map(|_| NormalsSource::Learned(None)))
+                Ok(densefeat::normals_net::SHIPPED_NORMAL_WEIGHTS.map(|_| NormalsSource::Learned(None)))
             }
         }
     }
@@ -294,14 +294,6 @@ pub fn parse_truncation(s: &str) -> std::result::Result<f32, String> {
 /// # Errors
 /// A message for clap.
 pub fn parse_pair_usize(s: &str) -> std::result::Result<(usize, usize), String> {
-    super::validate::pair(s)
-}
-
-/// Parses `A,B` reals.
-///
-/// # Errors
-/// A message for clap.
-pub fn parse_pair_f64(s: &str) -> std::result::Result<(f64, f64), String> {
     super::validate::pair(s)
 }
 

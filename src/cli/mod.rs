@@ -1,9 +1,9 @@
 //! The `densefeat` command line. One file per subcommand; each parses its own arguments (clap) and
-//! returns the library's [`crate::Error`], which `main` prints and turns into exit code 1.
+//! returns the library's [`densefeat::Error`], which `main` prints and turns into exit code 1.
 
 use clap::{Parser, Subcommand};
 
-use crate::error::Result;
+use densefeat::error::Result;
 
 pub mod backend_flag;
 pub mod bench;
@@ -19,6 +19,7 @@ pub mod init_weights;
 pub mod inspect;
 pub mod map;
 pub mod mapping_args;
+pub mod progress_bar;
 pub mod reconstruct;
 pub mod synth;
 pub mod texture_atlas;

@@ -4,10 +4,10 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use crate::error::Result;
-use crate::eval::DepthMetrics;
-use crate::io::Staging;
-use crate::mapping::{reconstruct, write_outputs_with, FeatureKind, Regularizer};
+use densefeat::error::Result;
+use densefeat::eval::DepthMetrics;
+use densefeat::io::Staging;
+use densefeat::mapping::{reconstruct, write_outputs_with, FeatureKind, Regularizer};
 
 use super::mapping_args::{progress_bar, show_stage, summary, MappingArgs};
 use super::validate::mapping_preflight;

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use crate::error::{Error, Result};
-use crate::synth::{write_scene, Scene, SceneConfig, Style};
+use densefeat::error::{Error, Result};
+use densefeat::synth::{write_scene, Scene, SceneConfig, Style};
 
 /// Arguments of `densefeat synth`.
 #[derive(Debug, Clone, Args)]
@@ -60,7 +60,7 @@ pub fn run(args: SynthArgs) -> Result<()> {
             eprintln!("synth: {line}");
         }
     }
-    let mut staging = crate::io::Staging::new();
+    let mut staging = densefeat::io::Staging::new();
     let out = staging.dir(&args.out)?;
     write_scene(&scene, &out, |done, total| {
         if !quiet {
@@ -133,7 +133,7 @@ pub fn run_sheet(args: SynthSheetArgs) -> Result<()> {
         );
         sheet.slice_mut(ndarray::s![oy..oy + height, ox..ox + width, ..]).assign(&frame.rgb);
     }
-    crate::image::save_rgb_png(&args.out, &sheet)?;
+    densefeat::image::save_rgb_png(&args.out, &sheet)?;
     eprintln!(
         "synth-sheet: {} {style} scenes (seeds {}..) written to {}",
         args.count,

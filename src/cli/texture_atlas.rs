@@ -14,10 +14,10 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 use ndarray::{s, Array2, Array3};
 
-use crate::error::{Error, Result};
-use crate::image::{load_depth_png, load_rgb, to_gray};
-use crate::io::write_atomic;
-use crate::synth::{ATLAS_COLUMNS, ATLAS_TILE as TILE, TRAINING_SCENES};
+use densefeat::error::{Error, Result};
+use densefeat::image::{load_depth_png, load_rgb, to_gray};
+use densefeat::io::write_atomic;
+use densefeat::synth::{ATLAS_COLUMNS, ATLAS_TILE as TILE, TRAINING_SCENES};
 
 /// Frames used per source sequence.
 const FRAMES_PER_SOURCE: usize = 16;

@@ -5,18 +5,18 @@ use std::time::Instant;
 
 use clap::Args;
 
-use crate::backend::CpuBackend;
 use crate::cli::init_weights::parse_mean;
 use crate::cli::validate::{self, MemoryLimit};
-use crate::error::{Error, Result};
-use crate::geometry::InverseDepthBins;
-use crate::io::write_npy_f32;
-use crate::nn::{FeatureNet, NetworkConfig, NetworkWeights};
-use crate::train::data::{DataConfig, DataSet, PairRule};
-use crate::train::loss::LossConfig;
-use crate::train::optim::OptimConfig;
-use crate::train::step::{batch_step, pair_step, pair_step_timed, StepTimes, Supervision, TrainingPair};
-use crate::train::trainer::{train, training_init, TrainConfig};
+use densefeat::backend::CpuBackend;
+use densefeat::error::{Error, Result};
+use densefeat::geometry::InverseDepthBins;
+use densefeat::io::write_npy_f32;
+use densefeat::nn::{FeatureNet, NetworkConfig, NetworkWeights};
+use densefeat::train::data::{DataConfig, DataSet, PairRule};
+use densefeat::train::loss::LossConfig;
+use densefeat::train::optim::OptimConfig;
+use densefeat::train::step::{batch_step, pair_step, pair_step_timed, StepTimes, Supervision, TrainingPair};
+use densefeat::train::trainer::{train, training_init, TrainConfig};
 
 /// Arguments of `densefeat train`.
 #[derive(Debug, Clone, Args)]
@@ -131,7 +131,7 @@ pub struct TrainArgs {
     pub loss_sample_stride: usize,
     /// Memory for decoded and rendered training frames, MiB (frames past it are made again on
     /// every use; never changes a result).
-    #[arg(long, default_value_t = crate::train::data::DEFAULT_CACHE_MB)]
+    #[arg(long, default_value_t = densefeat::train::data::DEFAULT_CACHE_MB)]
     pub frame_cache_mb: usize,
     /// Rayon threads (0: all cores).
     #[arg(long, default_value_t = 0)]
@@ -208,7 +208,7 @@ impl TrainArgs {
     }
 }
 
-use crate::runtime::thread_pool as pool;
+use densefeat::runtime::thread_pool as pool;
 
 /// `--loss-sample-stride` must be 1..=64.
 fn check_sample_stride(s: usize) -> Result<()> {
@@ -227,14 +227,21 @@ pub fn run(args: TrainArgs) -> Result<()> {
     check_sample_stride(args.loss_sample_stride)?;
     let cfg = args.config()?;
     let (w, h) = cfg.data.crop;
-    let bytes = crate::memory::train_step_bytes(w, h, cfg.network.channels);
+    let bytes = densefeat::memory::train_step_bytes(w, h, cfg.network.channels);
     args.memory.check(&format!("a training step on a {w}x{h} crop"), bytes, "use a smaller --crop")?;
     for (name, v) in [("lr", args.lr), ("rho-max", args.rho_max)] {
         validate::positive(name, v)?;
     }
     let t = Instant::now();
-    pool(crate::runtime::all_cores_if_zero(args.threads))?
-        .install(|| train(&cfg, &args.out, args.resume.as_deref(), args.stop_after, !args.quiet))?;
+    pool(densefeat::runtime::all_cores_if_zero(args.threads))?.install(|| {
+        train(
+            &cfg,
+            &args.out,
+            args.resume.as_deref(),
+            args.stop_after,
+            &mut crate::cli::progress_bar::Bar::new(!args.quiet),
+        )
+    })?;
     eprintln!("trained in {:.1} s; outputs in {}", t.elapsed().as_secs_f64(), args.out.display());
     Ok(())
 }
@@ -298,8 +305,8 @@ fn dump(
     let l = pair_step(weights, pair, loss, sup, &CpuBackend::default(), Some((&mut grads, 1.0)))?;
     grads.provenance = "gradient of the pair objective".into();
     grads.save(&dir.join("grads.safetensors"))?;
-    let cam = |c: &crate::geometry::PinholeCamera| serde_json::json!({"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height});
-    let m = crate::geometry::pose_to_matrix(&pair.t_lr);
+    let cam = |c: &densefeat::geometry::PinholeCamera| serde_json::json!({"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": c.width, "height": c.height});
+    let m = densefeat::geometry::pose_to_matrix(&pair.t_lr);
     let t_lr: Vec<Vec<f64>> = (0..4).map(|r| (0..4).map(|c| m[(r, c)]).collect()).collect();
     let json = serde_json::json!({
         "ref_camera": cam(&pair.ref_camera),
@@ -314,7 +321,7 @@ fn dump(
         "pixels_aggregated": l.aggregated.pixels,
         "total": l.total(sup),
     });
-    crate::io::write_atomic(
+    densefeat::io::write_atomic(
         &dir.join("pair.json"),
         serde_json::to_string_pretty(&json)
             .map_err(|e| Error::invalid_argument("json", e.to_string()))?
@@ -328,7 +335,7 @@ fn dump(
 /// Bad arguments.
 pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
     let crop = validate::size("crop", &args.crop)?;
-    let bytes = crate::memory::train_step_bytes(crop.0, crop.1, NetworkConfig::default().channels);
+    let bytes = densefeat::memory::train_step_bytes(crop.0, crop.1, NetworkConfig::default().channels);
     args.memory.check(
         &format!("a training step on a {}x{} crop", crop.0, crop.1),
         bytes,
@@ -355,7 +362,7 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
     let cpu = CpuBackend::default();
     let pool = pool(args.threads)?;
     if let Some(dir) = &args.dump {
-        let mut staging = crate::io::Staging::new();
+        let mut staging = densefeat::io::Staging::new();
         let staged = staging.dir(dir)?;
         pool.install(|| dump(&staged, &pair, &weights, &loss, &sup))?;
         staging.commit()?;
@@ -407,7 +414,7 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
         Ok((v, serial))
     })?;
     // The machine's SGEMM yardstick, measured right after (a loaded machine shows here).
-    let sgemm = pool.install(|| crate::perf::gemm_gflops(256, 5));
+    let sgemm = pool.install(|| densefeat::perf::gemm_gflops(256, 5));
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]

@@ -7,13 +7,13 @@ use std::time::Instant;
 use clap::Args;
 
 use crate::cli::validate::{self, MemoryLimit};
-use crate::error::Result;
-use crate::mapping::features::{SHIPPED_WEIGHTS, SHIPPED_WEIGHTS_NAME};
-use crate::nn::NetworkWeights;
-use crate::normals_net::HEAD_SEED;
-use crate::train::data::{DataConfig, PairRule};
-use crate::train::normals::trainer::{train_normals, NormalsTrainConfig};
-use crate::train::optim::OptimConfig;
+use densefeat::error::Result;
+use densefeat::mapping::features::{SHIPPED_WEIGHTS, SHIPPED_WEIGHTS_NAME};
+use densefeat::nn::NetworkWeights;
+use densefeat::normals_net::HEAD_SEED;
+use densefeat::train::data::{DataConfig, PairRule};
+use densefeat::train::normals::trainer::{train_normals, NormalsTrainConfig};
+use densefeat::train::optim::OptimConfig;
 
 /// Arguments of `densefeat train-normals`.
 #[derive(Debug, Clone, Args)]
@@ -99,7 +99,7 @@ pub struct TrainNormalsArgs {
     #[arg(long)]
     pub stop_after: Option<usize>,
     /// Memory for decoded and rendered frames, MiB.
-    #[arg(long, default_value_t = crate::train::data::DEFAULT_CACHE_MB)]
+    #[arg(long, default_value_t = densefeat::train::data::DEFAULT_CACHE_MB)]
     pub frame_cache_mb: usize,
     /// Rayon threads (0: all cores).
     #[arg(long, default_value_t = 0)]
@@ -116,7 +116,7 @@ impl TrainNormalsArgs {
     /// The configuration these arguments describe, every flag checked (nothing heavy runs).
     ///
     /// # Errors
-    /// [`crate::Error::InvalidArgument`] naming the flag.
+    /// [`densefeat::Error::InvalidArgument`] naming the flag.
     pub fn config(&self) -> Result<NormalsTrainConfig> {
         let (min_baseline, max_baseline) =
             validate::pair(&self.baseline).map_err(|e| validate::flag("baseline", e))?;
@@ -197,16 +197,24 @@ pub fn run(args: TrainNormalsArgs) -> Result<()> {
     let cfg = args.config()?;
     let trunk = args.trunk()?;
     let (w, h) = cfg.data.crop;
-    let bytes = crate::memory::train_step_bytes(w, h, trunk.config.channels).saturating_mul(cfg.batch as u64);
+    let bytes =
+        densefeat::memory::train_step_bytes(w, h, trunk.config.channels).saturating_mul(cfg.batch as u64);
     args.memory.check(
         &format!("a batch of {} frames of {w}x{h}", cfg.batch),
         bytes,
         "use a smaller --crop or --batch",
     )?;
-    let pool = crate::runtime::thread_pool(crate::runtime::all_cores_if_zero(args.threads))?;
+    let pool = densefeat::runtime::thread_pool(densefeat::runtime::all_cores_if_zero(args.threads))?;
     let t = Instant::now();
     pool.install(|| {
-        train_normals(&cfg, &trunk, &args.out, args.resume.as_deref(), args.stop_after, !args.quiet)
+        train_normals(
+            &cfg,
+            &trunk,
+            &args.out,
+            args.resume.as_deref(),
+            args.stop_after,
+            &mut crate::cli::progress_bar::Bar::new(!args.quiet),
+        )
     })?;
     eprintln!("trained in {:.1} s; outputs in {}", t.elapsed().as_secs_f64(), args.out.display());
     Ok(())

@@ -4,9 +4,9 @@
 
 use clap::Args;
 
-use crate::error::{Error, Result};
-use crate::memory::DEFAULT_MAX_MEMORY_MB;
-use crate::sequence::Sequence;
+use densefeat::error::{Error, Result};
+use densefeat::memory::DEFAULT_MAX_MEMORY_MB;
+use densefeat::sequence::Sequence;
 
 /// Largest image or crop side any command accepts (the renderer's limit), pixels.
 pub const MAX_SIDE: usize = 8192;
@@ -96,56 +96,13 @@ impl Default for MemoryLimit {
 }
 
 impl MemoryLimit {
-    /// [`crate::memory::check`] against this limit.
+    /// [`densefeat::memory::check`] against this limit.
     ///
     /// # Errors
-    /// As [`crate::memory::check`].
+    /// As [`densefeat::memory::check`].
     pub fn check(&self, what: &str, bytes: u64, shrink: &str) -> Result<()> {
-        crate::memory::check(self.max_memory_mb, what, bytes, shrink)
+        densefeat::memory::check(self.max_memory_mb, what, bytes, shrink)
     }
-}
-
-/// Feature channels and the network's block-1 stride of a feature kind (`(3, 1)` for RGB, `(128, 1)`
-/// for dense SIFT, `(1, 1)` for 7x7 patches), reading a weights file's header and tensors now so that a bad file is reported
-/// before any work.
-///
-/// # Errors
-/// Weight-file errors naming the file.
-pub fn feature_channels(kind: &crate::mapping::FeatureKind) -> Result<(usize, usize)> {
-    use crate::mapping::FeatureKind;
-    let w = match kind {
-        FeatureKind::Rgb => return Ok((3, 1)),
-        FeatureKind::Dsift => return Ok((crate::dsift::CHANNELS, 1)),
-        FeatureKind::Patch7 => return Ok((1, 1)),
-        FeatureKind::Learned(path) | FeatureKind::B1(path) => {
-            crate::mapping::features::load_weights(path.as_deref())?
-        }
-    };
-    Ok((w.config.channels, w.config.b1_stride))
-}
-
-/// Feature channels of a kind and the bytes its extraction holds at its peak for one `height x
-/// width` (level-0) frame beside the cost volume (SPEC.md §11.2, §14.3): nothing for RGB, one
-/// network forward ([`crate::memory::network_forward_bytes`]) for learned and block-1 features, the
-/// dense-SIFT planes and its level-0 descriptors ([`crate::dsift::extraction_bytes`]) for dense SIFT.
-///
-/// # Errors
-/// Weight-file errors naming the file.
-pub fn feature_memory(
-    kind: &crate::mapping::FeatureKind,
-    height: usize,
-    width: usize,
-) -> Result<(usize, u64)> {
-    use crate::mapping::FeatureKind;
-    let (channels, stride) = feature_channels(kind)?;
-    let bytes = match kind {
-        FeatureKind::Rgb | FeatureKind::Patch7 => 0,
-        FeatureKind::Dsift => crate::dsift::extraction_bytes(height, width),
-        FeatureKind::Learned(_) | FeatureKind::B1(_) => {
-            crate::memory::network_forward_bytes(height, width, channels, stride)
-        }
-    };
-    Ok((channels, bytes))
 }
 
 /// Everything a keyframe reconstruction can check before it starts (SPEC.md §14.1): frame size,
@@ -156,13 +113,13 @@ pub fn feature_memory(
 /// The first problem, naming the flag or file.
 pub fn mapping_preflight(
     seq: &Sequence,
-    cfg: &crate::mapping::keyframe::KeyframeConfig,
+    cfg: &densefeat::mapping::keyframe::KeyframeConfig,
     keyframes: &[usize],
-    kinds: &[crate::mapping::FeatureKind],
+    kinds: &[densefeat::mapping::FeatureKind],
     command: &str,
 ) -> Result<()> {
-    use crate::geometry::InverseDepthBins;
-    use crate::mapping::keyframe::Regularizer;
+    use densefeat::geometry::InverseDepthBins;
+    use densefeat::mapping::keyframe::Regularizer;
     frames_big_enough(seq, command)?;
     if cfg.bins < 2 {
         return Err(flag("bins", format!("{}: need at least 2", cfg.bins)));
@@ -189,8 +146,9 @@ pub fn mapping_preflight(
     // The volume lives on the output grid, level `--level` (SPEC.md §11.1).
     let grid = key_camera.at_level(cfg.level);
     for kind in kinds {
-        let (channels, extraction) = feature_memory(kind, key_camera.height, key_camera.width)?;
-        let bytes = crate::memory::cost_volume_bytes(grid.height, grid.width, cfg.bins, channels)
+        let (channels, extraction) =
+            densefeat::mapping::features::feature_memory(kind, key_camera.height, key_camera.width)?;
+        let bytes = densefeat::memory::cost_volume_bytes(grid.height, grid.width, cfg.bins, channels)
             .saturating_add(extraction);
         let what = format!(
             "the {}x{}x{} cost volume with {channels} feature channels ({})",
@@ -199,7 +157,7 @@ pub fn mapping_preflight(
             cfg.bins,
             kind.name()
         );
-        crate::memory::check(cfg.max_memory_mb, &what, bytes, "use fewer --bins or a coarser --level")?;
+        densefeat::memory::check(cfg.max_memory_mb, &what, bytes, "use fewer --bins or a coarser --level")?;
     }
     Ok(())
 }
@@ -211,10 +169,10 @@ pub fn mapping_preflight(
 /// [`Error::InvalidArgument`] naming `--normals` / `--backend`.
 fn normals_preflight(
     seq: &Sequence,
-    cfg: &crate::mapping::KeyframeConfig,
+    cfg: &densefeat::mapping::KeyframeConfig,
     keyframes: &[usize],
 ) -> Result<()> {
-    use crate::mapping::normals::{load_predictor, normals_file, NormalsSource};
+    use densefeat::mapping::normals::{load_predictor, normals_file, NormalsSource};
     let Some(source) = &cfg.normals else {
         return Err(flag(
             "normals",

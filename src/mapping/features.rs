@@ -133,6 +133,41 @@ impl FeatureKind {
     }
 }
 
+/// Feature channels and the network's block-1 stride of a feature kind (`(3, 1)` for RGB, `(128, 1)`
+/// for dense SIFT, `(1, 1)` for 7x7 patches), reading a weights file's header and tensors now so that a bad file is reported
+/// before any work.
+///
+/// # Errors
+/// Weight-file errors naming the file.
+pub fn feature_channels(kind: &FeatureKind) -> Result<(usize, usize)> {
+    let w = match kind {
+        FeatureKind::Rgb => return Ok((3, 1)),
+        FeatureKind::Dsift => return Ok((crate::dsift::CHANNELS, 1)),
+        FeatureKind::Patch7 => return Ok((1, 1)),
+        FeatureKind::Learned(path) | FeatureKind::B1(path) => load_weights(path.as_deref())?,
+    };
+    Ok((w.config.channels, w.config.b1_stride))
+}
+
+/// Feature channels of a kind and the bytes its extraction holds at its peak for one `height x
+/// width` (level-0) frame beside the cost volume (SPEC.md §11.2, §14.3): nothing for RGB, one
+/// network forward ([`crate::memory::network_forward_bytes`]) for learned and block-1 features, the
+/// dense-SIFT planes and its level-0 descriptors ([`crate::dsift::extraction_bytes`]) for dense SIFT.
+///
+/// # Errors
+/// Weight-file errors naming the file.
+pub fn feature_memory(kind: &FeatureKind, height: usize, width: usize) -> Result<(usize, u64)> {
+    let (channels, stride) = feature_channels(kind)?;
+    let bytes = match kind {
+        FeatureKind::Rgb | FeatureKind::Patch7 => 0,
+        FeatureKind::Dsift => crate::dsift::extraction_bytes(height, width),
+        FeatureKind::Learned(_) | FeatureKind::B1(_) => {
+            crate::memory::network_forward_bytes(height, width, channels, stride)
+        }
+    };
+    Ok((channels, bytes))
+}
+
 /// Features of one image on the level-`level` grid, `[H_l, W_l, C]`.
 #[derive(Clone, Debug)]
 pub struct FeatureMap {

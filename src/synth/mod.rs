@@ -227,3 +227,16 @@ impl SceneConfig {
         )
     }
 }
+
+/// The scene of the demo fixture `fixtures/synthetic/room_s1`: `densefeat synth --seed 1 --frames 40 --size 320x240` writes it byte for
+/// byte (tests/synth.rs, `fixture_regenerates_byte_identical`).
+pub fn demo_fixture_config() -> SceneConfig {
+    SceneConfig {
+        seed: 1,
+        width: 320,
+        height: 240,
+        frames: 40,
+        style: Style::Classic,
+        ..SceneConfig::default()
+    }
+}

@@ -11,6 +11,7 @@ use crate::error::{Error, Result};
 use crate::io::{write_atomic, Staging};
 use crate::nn::{NetworkConfig, NetworkWeights};
 use crate::plot::{grid_of_plots_png, Panel, Series};
+use crate::progress::Progress;
 use crate::train::checkpoint::Checkpoint;
 use crate::train::data::{DataConfig, DataSet};
 use crate::train::loss::{LossConfig, LossSums};
@@ -243,7 +244,7 @@ impl RunPaths {
 
 /// Trains. With `resume`, continues from that checkpoint (its configuration must match) up to
 /// `cfg.steps`; `stop_after` ends early after that many steps in total (for tests and for
-/// splitting a long run). `progress` shows a bar on stderr.
+/// splitting a long run). `progress` hears the steps and the validation lines.
 ///
 /// # Errors
 /// Bad configuration, unreadable data, a checkpoint that does not match, write failures.
@@ -252,7 +253,7 @@ pub fn train(
     out: &Path,
     resume: Option<&Path>,
     stop_after: Option<usize>,
-    progress: bool,
+    progress: &mut dyn Progress,
 ) -> Result<NetworkWeights> {
     cfg.optim.validate()?;
     cfg.loss.validate()?;
@@ -313,19 +314,7 @@ pub fn train(
     // The log is kept in memory and written with the checkpoint, the weights and the plot as one
     // staged set (SPEC.md §14.2): the folder always holds a matching four, or what it held before.
     let last = stop_after.unwrap_or(cfg.steps).min(cfg.steps);
-    let bar = if progress {
-        let b = indicatif::ProgressBar::new(cfg.steps as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{bar:40} {pos}/{len} steps, {elapsed} elapsed, eta {eta} {msg}",
-            )
-            .map_err(|e| Error::invalid_argument("progress", e.to_string()))?,
-        );
-        b.set_position(step as u64);
-        b
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
+    progress.start(cfg.steps as u64, step as u64);
     let start = Instant::now();
     let mut smoothed: Option<f64> = None;
     while step < last {
@@ -371,13 +360,12 @@ pub fn train(
         let mut msg = format!("loss {:.3}", smoothed.unwrap_or(loss));
         if let Some((vl, vd, vw)) = val_res {
             msg.push_str(&format!(" | val {vl:.3} δ<1.25 {vd:.3} (wta {vw:.3})"));
-            bar.println(format!(
+            progress.line(&format!(
                 "step {step}: train {:.4}, val loss {vl:.4}, val δ<1.25 expected {vd:.4} wta {vw:.4}",
                 smoothed.unwrap_or(loss)
             ));
         }
-        bar.set_message(msg);
-        bar.set_position(step as u64);
+        progress.update(step as u64, &msg);
         if step % cfg.ckpt_every == 0 || step == last {
             let mut w = weights.clone();
             w.provenance = format!("densefeat train: step {step} of {}; {}", cfg.steps, fingerprint);
@@ -391,6 +379,6 @@ pub fn train(
             staging.commit()?;
         }
     }
-    bar.finish();
+    progress.finish();
     Ok(weights)
 }

@@ -10,6 +10,7 @@ use crate::error::{Error, Result};
 use crate::io::{write_atomic, Staging};
 use crate::nn::NetworkWeights;
 use crate::normals_net::NormalNetWeights;
+use crate::progress::Progress;
 use crate::train::data::{DataConfig, DataSet};
 use crate::train::normals::checkpoint::{NormalAdam, NormalCheckpoint};
 use crate::train::normals::step::{normals_batch_step, validate_normals, NormalSample};
@@ -101,7 +102,8 @@ fn rows_up_to(csv: &Path, step: usize) -> String {
 
 /// Trains from `trunk` (the predictor's trunk is a copy; its head is drawn with `cfg.head_seed`),
 /// or continues from the checkpoint `resume` (same fingerprint) up to `cfg.steps`; `stop_after`
-/// ends early after that many steps in total. Returns the weights.
+/// ends early after that many steps in total; `progress` hears the steps and the validation
+/// lines. Returns the weights.
 ///
 /// # Errors
 /// Bad configuration, unreadable data, a checkpoint that does not match, write failures, a loss
@@ -112,7 +114,7 @@ pub fn train_normals(
     out: &Path,
     resume: Option<&Path>,
     stop_after: Option<usize>,
-    progress: bool,
+    progress: &mut dyn Progress,
 ) -> Result<NormalNetWeights> {
     cfg.optim.validate()?;
     if cfg.batch == 0 || cfg.steps == 0 || cfg.val_every == 0 || cfg.ckpt_every == 0 {
@@ -150,12 +152,7 @@ pub fn train_normals(
     }
     let cpu = CpuBackend::default();
     let last = stop_after.unwrap_or(cfg.steps).min(cfg.steps);
-    let bar = if progress {
-        indicatif::ProgressBar::new(cfg.steps as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_position(step as u64);
+    progress.start(cfg.steps as u64, step as u64);
     let start = Instant::now();
     while step < last {
         step += 1;
@@ -197,11 +194,11 @@ pub fn train_normals(
             start.elapsed().as_secs_f64()
         ));
         if let Some((l, a)) = val_res {
-            bar.println(format!(
+            progress.line(&format!(
                 "step {step}: train loss {loss:.4} ({angle:.2}°), val loss {l:.4}, val mean angle {a:.2}°"
             ));
         }
-        bar.set_position(step as u64);
+        progress.update(step as u64, "");
         if step % cfg.ckpt_every == 0 || step == last {
             let mut w = weights.clone();
             w.trunk.provenance =
@@ -220,6 +217,6 @@ pub fn train_normals(
             staging.commit()?;
         }
     }
-    bar.finish();
+    progress.finish();
     Ok(weights)
 }

@@ -54,6 +54,7 @@ pub mod mapping;
 pub mod memory;
 pub mod nn;
 pub mod normals_net;
+pub mod ops;
 pub mod perf;
 pub mod plot;
 pub mod progress;
@@ -62,5 +63,6 @@ pub mod sequence;
 pub mod synth;
 pub mod testing;
 pub mod train;
+pub mod util;
 
 pub use error::{Error, Result};

@@ -9,10 +9,9 @@ use densefeat::costvolume::{
 use densefeat::eval::depth_metrics;
 use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
 use densefeat::image::{to_gray, RgbImage};
-use densefeat::synth::{
-    rng::SplitMix64, PhotometricConfig, Quad, Scene, SceneConfig, Shape, Surface, Texture,
-};
+use densefeat::synth::{PhotometricConfig, Quad, Scene, SceneConfig, Shape, Surface, Texture};
 use densefeat::testing::within_budget;
+use densefeat::util::rng::SplitMix64;
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;

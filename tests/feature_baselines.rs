@@ -11,7 +11,8 @@ use densefeat::dsift::{dense_sift, DsiftImpl, DsiftParams, CHANNELS};
 use densefeat::mapping::evaluate::Method;
 use densefeat::mapping::features::{load_weights, upsample_to};
 use densefeat::mapping::{FeatureExtractor, FeatureKind, Truncation};
-use densefeat::nn::{downsample2x, FeatureNet};
+use densefeat::nn::FeatureNet;
+use densefeat::ops::downsample2x;
 use densefeat::sequence::open;
 
 const FIXTURE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");

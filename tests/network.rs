@@ -4,9 +4,11 @@
 
 use densefeat::backend::CpuBackend;
 use densefeat::nn::budget::{depth, max_products, relative_budget, LayerCheckExecutor};
-use densefeat::nn::network::{pad_edge, run_network, Executor};
-use densefeat::nn::weights::LayerParams;
-use densefeat::nn::{Activation, FeatureNet, NetworkConfig, NetworkImpl, NetworkWeights};
+use densefeat::nn::network::{run_network, Executor};
+use densefeat::nn::{FeatureNet, NetworkWeights};
+use densefeat::ops::pad_edge;
+use densefeat::ops::LayerParams;
+use densefeat::ops::{Activation, NetworkConfig, NetworkImpl};
 use ndarray::{Array1, Array3};
 
 /// An image in 0..=255 (integers) from a seeded LCG.
@@ -299,7 +301,8 @@ fn rejects_images_that_are_not_rgb() {
 
 #[test]
 fn profile_counts_every_operation_of_the_paper_network() {
-    use densefeat::nn::{profile_forward, FeatureNet, NetworkConfig, NetworkWeights};
+    use densefeat::nn::{profile_forward, FeatureNet, NetworkWeights};
+    use densefeat::ops::NetworkConfig;
     let config = NetworkConfig::default();
     let net = FeatureNet::new(NetworkWeights::xavier_uniform(&config, 1).unwrap()).unwrap();
     let img = ndarray::Array3::from_shape_fn((37, 45, 3), |(y, x, c)| ((y * 5 + x * 3 + c) % 255) as f32);

@@ -3,15 +3,15 @@
 //! versions against the f64 references within the §7.5-style budget, bit-identical results for any
 //! thread count, and the ReLU's backward convention.
 
-use densefeat::nn::conv2d::{
+use densefeat::ops::conv2d::{
     conv2d_backward_input, conv2d_backward_input_reference, conv2d_backward_weight,
     conv2d_backward_weight_reference, conv2d_reference, relu_backward,
 };
-use densefeat::nn::deconv2d::{
+use densefeat::ops::deconv2d::{
     deconv2d_backward_input, deconv2d_backward_input_reference, deconv2d_backward_weight,
     deconv2d_backward_weight_reference, deconv2d_reference,
 };
-use densefeat::nn::{Activation, Conv2dGeometry, Deconv2dGeometry};
+use densefeat::ops::{Activation, Conv2dGeometry, Deconv2dGeometry};
 use densefeat::testing::within_budget;
 use ndarray::{array, Array, Array1, Array3, Array4, Dimension};
 use proptest::prelude::*;

@@ -5,16 +5,16 @@
 use crate::common;
 
 use common::{bits, lcg, thread_pool};
-use densefeat::nn::conv2d::{
+use densefeat::ops::conv2d::{
     conv2d_direct, conv2d_direct_concat_with, conv2d_direct_with, conv2d_im2col, direct, im2col, scratch_len,
     winograd_budget, winograd_magnitude_reference, DirectKernel, PackedConv2d, WinogradTile,
 };
-use densefeat::nn::deconv2d::{
+use densefeat::ops::deconv2d::{
     deconv2d_direct, deconv2d_direct_with, deconv2d_fast, deconv2d_winograd_magnitude_reference,
     scratch_len as deconv_scratch_len, PackedDeconv2d,
 };
-use densefeat::nn::geometry::DownsampleGeometry;
-use densefeat::nn::{
+use densefeat::ops::geometry::DownsampleGeometry;
+use densefeat::ops::{
     add, concat_channels, conv2d, conv2d_concat_into, deconv2d, downsample2x, downsample2x_reference,
     Activation, Conv2dGeometry, Conv2dImpl, Deconv2dGeometry, Deconv2dImpl,
 };
@@ -227,7 +227,7 @@ proptest! {
         let oracle = case.run(Deconv2dImpl::Reference);
         let magnitude = case.abs().run(Deconv2dImpl::Reference);
         within_budget(fast.view(), oracle.view(), magnitude.view(), budget(case.g.k()))?;
-        if densefeat::nn::deconv2d::direct::supported(&case.g) {
+        if densefeat::ops::deconv2d::direct::supported(&case.g) {
             let packed = PackedDeconv2d::new(&case.g, case.w.view(), case.b.view()).unwrap();
             let skip: Vec<f32> = (0..fast.len()).map(|i| ((i * 7919) % 113) as f32 * 0.37 - 20.0).collect();
             let mut fused = vec![0.0f32; fast.len()];

@@ -5,11 +5,11 @@
 use crate::common;
 
 use common::{bits, lcg, thread_pool};
-use densefeat::nn::conv2d::{
+use densefeat::ops::conv2d::{
     conv2d_winograd_with, winograd_budget, winograd_magnitude_reference, PackedWinograd, WinogradKernel,
     WinogradTile,
 };
-use densefeat::nn::{conv2d, Activation, Conv2dGeometry, Conv2dImpl};
+use densefeat::ops::{conv2d, Activation, Conv2dGeometry, Conv2dImpl};
 use densefeat::testing::within_budget;
 use ndarray::{Array1, Array3, Array4};
 use proptest::prelude::*;

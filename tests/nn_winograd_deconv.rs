@@ -6,12 +6,12 @@
 use crate::common;
 
 use common::{bits, lcg, thread_pool};
-use densefeat::nn::conv2d::{winograd_budget, OutputLayout, WinogradKernel, WinogradTile};
-use densefeat::nn::deconv2d::winograd::{equivalent_geometry, equivalent_weight};
-use densefeat::nn::deconv2d::{
+use densefeat::ops::conv2d::{winograd_budget, OutputLayout, WinogradKernel, WinogradTile};
+use densefeat::ops::deconv2d::winograd::{equivalent_geometry, equivalent_weight};
+use densefeat::ops::deconv2d::{
     deconv2d_winograd_magnitude_reference, deconv2d_winograd_with, pack_deconv_winograd,
 };
-use densefeat::nn::{deconv2d, deconv2d_into, Deconv2dGeometry, Deconv2dImpl};
+use densefeat::ops::{deconv2d, deconv2d_into, Deconv2dGeometry, Deconv2dImpl};
 use densefeat::testing::within_budget;
 use ndarray::{Array1, Array3, Array4};
 use proptest::prelude::*;
@@ -179,8 +179,8 @@ fn deconv_winograd_rejects_bad_lengths_and_convolution_weights() {
     let bad = Array4::<f32>::zeros((8, 3, 5, 5));
     assert!(pack_deconv_winograd(WinogradTile::F2x2, &case.g, bad.view(), case.b.view()).is_err());
     // Convolution weights are not taken for a transposed convolution.
-    let g = densefeat::nn::Conv2dGeometry::new(5, 6, 3, 32, 1).unwrap();
-    let conv = densefeat::nn::conv2d::PackedWinograd::new(
+    let g = densefeat::ops::Conv2dGeometry::new(5, 6, 3, 32, 1).unwrap();
+    let conv = densefeat::ops::conv2d::PackedWinograd::new(
         WinogradTile::F2x2,
         &g,
         Array4::<f32>::zeros((32, 3, 3, 3)).view(),

@@ -8,19 +8,20 @@ use std::process::Command;
 
 use densefeat::backend::CpuBackend;
 use densefeat::geometry::PinholeCamera;
-use densefeat::nn::weights::LayerParams;
-use densefeat::nn::{NetworkConfig, NetworkWeights};
+use densefeat::nn::NetworkWeights;
 use densefeat::normals_net::head::{
     head_backward, head_backward_reference, head_forward, head_forward_reference, normal_loss,
     normal_loss_f64, orient, pixel_terms, ray,
 };
 use densefeat::normals_net::{upsample_normals, NormalNet, NormalNetWeights, HEAD_SEED};
-use densefeat::synth::rng::SplitMix64;
+use densefeat::ops::LayerParams;
+use densefeat::ops::NetworkConfig;
 use densefeat::train::data::{DataConfig, DataSet};
 use densefeat::train::normals::checkpoint::NormalCheckpoint;
 use densefeat::train::normals::step::{normals_batch_step, sample_step, validate_normals, NormalSample};
 use densefeat::train::normals::trainer::{train_normals, NormalsTrainConfig};
 use densefeat::train::optim::OptimConfig;
+use densefeat::util::rng::SplitMix64;
 use ndarray::{Array1, Array3, Array4};
 
 fn rng(seed: u64) -> impl FnMut() -> f64 {

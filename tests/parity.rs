@@ -19,10 +19,10 @@ use densefeat::error::Error;
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use densefeat::mapping::keyframe::{reconstruct, KeyframeConfig, Regularizer};
 use densefeat::mapping::FeatureKind;
-use densefeat::nn::conv2d::{winograd_budget, winograd_magnitude_reference};
-use densefeat::nn::deconv2d::deconv2d_winograd_magnitude_reference;
-use densefeat::nn::weights::LayerParams;
-use densefeat::nn::{Activation, Conv2dGeometry, Deconv2dGeometry, NetworkConfig};
+use densefeat::ops::conv2d::{winograd_budget, winograd_magnitude_reference};
+use densefeat::ops::deconv2d::deconv2d_winograd_magnitude_reference;
+use densefeat::ops::LayerParams;
+use densefeat::ops::{Activation, Conv2dGeometry, Deconv2dGeometry, NetworkConfig};
 use densefeat::sequence::open;
 use densefeat::testing::within_budget;
 

@@ -7,9 +7,8 @@ use std::path::{Path, PathBuf};
 use densefeat::eval::photometric_warp_check;
 use densefeat::geometry::{PinholeCamera, Pose};
 use densefeat::sequence::Frame;
-use densefeat::synth::{
-    random_colour, rng::SplitMix64, PhotometricConfig, Quad, Scene, SceneConfig, Shape, Surface, Texture,
-};
+use densefeat::synth::{random_colour, PhotometricConfig, Quad, Scene, SceneConfig, Shape, Surface, Texture};
+use densefeat::util::rng::SplitMix64;
 use densefeat::Error;
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 

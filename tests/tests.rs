@@ -18,6 +18,7 @@ mod fusion_consistency;
 mod fuzz;
 mod geometry;
 mod image_ops;
+mod layering;
 mod malformed;
 mod mapping;
 mod mapping_level0;

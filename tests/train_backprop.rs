@@ -3,13 +3,14 @@
 //! downsampling and concatenation helpers.
 
 use densefeat::backend::CpuBackend;
-use densefeat::nn::{concat_channels, concat_channels_backward, downsample2x, downsample2x_backward};
-use densefeat::nn::{FeatureNet, NetworkConfig, NetworkWeights};
+use densefeat::nn::{FeatureNet, NetworkWeights};
+use densefeat::ops::NetworkConfig;
+use densefeat::ops::{concat_channels, concat_channels_backward, downsample2x, downsample2x_backward};
 use densefeat::train::backprop::{backward, forward_with_tape};
 use ndarray::{Array3, ArrayView3};
 
 fn rng(seed: u64) -> impl FnMut() -> f64 {
-    let mut r = densefeat::synth::rng::SplitMix64::new(seed);
+    let mut r = densefeat::util::rng::SplitMix64::new(seed);
     move || r.range(-1.0, 1.0)
 }
 

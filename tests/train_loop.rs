@@ -6,7 +6,8 @@ use std::path::Path;
 
 use densefeat::backend::CpuBackend;
 use densefeat::geometry::InverseDepthBins;
-use densefeat::nn::{FeatureNet, NetworkConfig, NetworkWeights};
+use densefeat::nn::{FeatureNet, NetworkWeights};
+use densefeat::ops::NetworkConfig;
 use densefeat::train::checkpoint::Checkpoint;
 use densefeat::train::data::DataConfig;
 use densefeat::train::loss::LossConfig;
@@ -106,6 +107,23 @@ fn resuming_gives_exactly_the_uninterrupted_run() {
     let steps: Vec<usize> =
         csv.lines().skip(1).map(|l| l.split(',').next().unwrap().parse().unwrap()).collect();
     assert_eq!(steps, vec![1, 2, 3, 4]);
+}
+
+#[test]
+fn a_checkpoint_is_written_to_the_same_bytes_every_time() {
+    // Sorted metadata (SPEC.md §8.4's layout): two saves of one checkpoint, in one process or in
+    // two runs, are byte-identical (a HashMap's order differs between maps and processes).
+    let d = tempfile::tempdir().unwrap();
+    run(&tiny(), d.path(), 1, None, Some(2));
+    let ck = Checkpoint::load(&d.path().join("checkpoint.safetensors")).unwrap();
+    let (a, b) = (d.path().join("a.safetensors"), d.path().join("b.safetensors"));
+    for _ in 0..3 {
+        ck.save(&a).unwrap();
+        ck.save(&b).unwrap();
+        assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    }
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(d.path().join("checkpoint.safetensors")).unwrap());
+    assert_eq!(Checkpoint::load(&a).unwrap(), ck);
 }
 
 /// What the trainer tells its [`densefeat::progress::Progress`] (the CLI draws its bar from this).

@@ -13,7 +13,7 @@ use proptest::prelude::*;
 
 /// Values in [-1, 1) from SplitMix64.
 fn rng(seed: u64) -> impl FnMut() -> f64 {
-    let mut r = densefeat::synth::rng::SplitMix64::new(seed);
+    let mut r = densefeat::util::rng::SplitMix64::new(seed);
     move || r.range(-1.0, 1.0)
 }
 

@@ -4,7 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use densefeat::nn::weights::{fans, tensor_specs, MAX_HEADER_BYTES};
-use densefeat::nn::{NetworkConfig, NetworkWeights};
+use densefeat::nn::NetworkWeights;
+use densefeat::ops::NetworkConfig;
 use densefeat::Error;
 use serde_json::{json, Value};
 

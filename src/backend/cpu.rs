@@ -8,14 +8,14 @@ use crate::costvolume::{winner_take_all_costs, CostVolume, CostVolumeImpl, WtaDe
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
-use crate::nn::alloc::zeroed_vec;
-use crate::nn::conv2d::{OutputLayout, WinogradKernel};
-use crate::nn::network::{concat_conv_geometry, conv_geometry, deconv_geometry};
-use crate::nn::weights::LayerParams;
-use crate::nn::{
+use crate::ops::conv2d::{OutputLayout, WinogradKernel};
+use crate::ops::LayerParams;
+use crate::ops::{
     add, concat_channels_into, conv2d_concat_into, conv2d_into, deconv2d_into, downsample2x, expect_shape,
     Activation, Conv2dGeometry, Conv2dImpl, Deconv2dImpl, NetworkConfig, NetworkImpl,
 };
+use crate::ops::{concat_conv_geometry, conv_geometry, deconv_geometry};
+use crate::util::alloc::zeroed_vec;
 
 /// Kernel choices of the CPU backend. [`CpuBackend::default`] is the fast one; tests build others
 /// (for example [`NetworkImpl::REFERENCE`]) to compare implementations.
@@ -42,7 +42,7 @@ impl CpuBackend {
     /// The convolution implementation this backend runs for `geom`: with `network.conv =
     /// Direct` (the product's choice) [`Conv2dImpl::fastest_for`] the layer (Winograd, Direct or
     /// im2col, SPEC.md §7.11), otherwise `network.conv` itself.
-    pub fn conv_impl_for(&self, geom: &crate::nn::Conv2dGeometry) -> Conv2dImpl {
+    pub fn conv_impl_for(&self, geom: &crate::ops::Conv2dGeometry) -> Conv2dImpl {
         match self.network.conv {
             Conv2dImpl::Direct => Conv2dImpl::fastest_for(geom),
             other => other,
@@ -52,7 +52,7 @@ impl CpuBackend {
     /// The transposed-convolution implementation this backend runs for `geom`: with `network.deconv
     /// = Direct` (the product's choice) [`Deconv2dImpl::fastest_for`] the layer (Winograd or Direct,
     /// SPEC.md §7.3), otherwise `network.deconv` itself.
-    pub fn deconv_impl_for(&self, geom: &crate::nn::Deconv2dGeometry) -> Deconv2dImpl {
+    pub fn deconv_impl_for(&self, geom: &crate::ops::Deconv2dGeometry) -> Deconv2dImpl {
         match self.network.deconv {
             Deconv2dImpl::Direct => Deconv2dImpl::fastest_for(geom),
             other => other,
@@ -79,7 +79,7 @@ impl CpuBackend {
             let imp = self.conv_impl_for(&g);
             let kernel = match imp {
                 Conv2dImpl::WinogradF2 | Conv2dImpl::WinogradF4 => WinogradKernel::select(&g).name(),
-                Conv2dImpl::Direct => crate::nn::conv2d::direct::kernel_name(&g),
+                Conv2dImpl::Direct => crate::ops::conv2d::direct::kernel_name(&g),
                 Conv2dImpl::Im2colGemm => "matrixmultiply sgemm",
                 _ => "f64 loops",
             };
@@ -92,15 +92,15 @@ impl CpuBackend {
         if config.blocks > 1 {
             let ci = config.block_in_channels(1);
             conv(format!("concat + conv s2 {ci}->{c}"), Conv2dGeometry::new(h1, w1, ci, c, 2)?);
-            let g = crate::nn::Deconv2dGeometry::new(h1.div_ceil(2), w1.div_ceil(2), c, c)?;
+            let g = crate::ops::Deconv2dGeometry::new(h1.div_ceil(2), w1.div_ceil(2), c, c)?;
             let imp = self.deconv_impl_for(&g);
             let kernel = match imp {
                 Deconv2dImpl::WinogradF2 | Deconv2dImpl::WinogradF4 => {
-                    let e = crate::nn::deconv2d::winograd::equivalent_geometry(&g)?;
+                    let e = crate::ops::deconv2d::winograd::equivalent_geometry(&g)?;
                     WinogradKernel::select_for(&e, OutputLayout::Deconv).name()
                 }
-                Deconv2dImpl::Direct if crate::nn::deconv2d::direct::supported(&g) => {
-                    crate::nn::deconv2d::direct::select(&g).name()
+                Deconv2dImpl::Direct if crate::ops::deconv2d::direct::supported(&g) => {
+                    crate::ops::deconv2d::direct::select(&g).name()
                 }
                 Deconv2dImpl::Direct | Deconv2dImpl::ParityGemm => "parity GEMMs, matrixmultiply",
                 _ => "f64 loops",
@@ -215,7 +215,7 @@ impl Backend for CpuBackend {
         spare: Option<Tensor>,
     ) -> Result<Tensor> {
         let (a, b) = (host(self.name(), a)?, host(self.name(), b)?);
-        crate::nn::downsample::check_same_spatial(a.shape(), b.shape())?;
+        crate::ops::downsample::check_same_spatial(a.shape(), b.shape())?;
         let g = concat_conv_geometry(a.dim(), b.dim(), l, stride)?;
         let imp = self.conv_impl_for(&g);
         let mut out = output_array(g.output_shape(), spare);
@@ -267,7 +267,7 @@ impl Backend for CpuBackend {
 
     fn concat_reusing(&self, a: &Tensor, b: &Tensor, spare: Option<Tensor>) -> Result<Tensor> {
         let (a, b) = (host(self.name(), a)?, host(self.name(), b)?);
-        crate::nn::downsample::check_same_spatial(a.shape(), b.shape())?;
+        crate::ops::downsample::check_same_spatial(a.shape(), b.shape())?;
         let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
         let mut out = output_array([h, w, ca + cb], spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };

@@ -7,11 +7,11 @@
 //! | op | CPU implementation | SPEC |
 //! |---|---|---|
 //! | [`Backend::upload`] / [`Backend::download`] | host arrays | §15.2 |
-//! | [`Backend::conv3x3`]: 3x3 conv, stride 1/2, bias, fused ReLU | [`crate::nn::conv2d()`] | §7.2 |
-//! | [`Backend::deconv5x5s2`]: 5x5 stride-2 transposed conv | [`crate::nn::deconv2d()`] | §7.3 |
-//! | [`Backend::downsample2x`]: 2x tent | [`crate::nn::downsample2x`] | §7.4 |
-//! | [`Backend::concat`], [`Backend::add`], [`Backend::crop`] | [`crate::nn::concat_channels`], [`crate::nn::add`] | §7.4 |
-//! | [`Backend::image_pyramid`] | [`crate::nn::network::image_pyramid`] | §8.2 |
+//! | [`Backend::conv3x3`]: 3x3 conv, stride 1/2, bias, fused ReLU | [`crate::ops::conv2d()`] | §7.2 |
+//! | [`Backend::deconv5x5s2`]: 5x5 stride-2 transposed conv | [`crate::ops::deconv2d()`] | §7.3 |
+//! | [`Backend::downsample2x`]: 2x tent | [`crate::ops::downsample2x`] | §7.4 |
+//! | [`Backend::concat`], [`Backend::add`], [`Backend::crop`] | [`crate::ops::concat_channels`], [`crate::ops::add`] | §7.4 |
+//! | [`Backend::image_pyramid`] | [`crate::ops::image_pyramid`] | §8.2 |
 //! | [`Backend::cost_volume`]: `add_frame` (bilinear epipolar sampling, L1, counts), finalisation | [`crate::costvolume::CostVolume`] | §9 |
 //! | [`Backend::winner_take_all`] with sub-bin refinement | [`crate::costvolume::winner_take_all_costs`] | §9.5 |
 //! | [`Backend::dtam_solve`]: primal-dual steps, a-search, energy, to convergence | [`crate::dtam::solve`] | §10 |
@@ -28,6 +28,7 @@
 mod cpu;
 #[cfg(feature = "gpu")]
 mod gpu;
+mod patch;
 mod tensor;
 
 use std::fmt::Debug;
@@ -39,8 +40,8 @@ use crate::costvolume::{CostVolume, WtaDepth};
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
-use crate::nn::weights::LayerParams;
-use crate::nn::{Activation, NetworkConfig};
+use crate::ops::LayerParams;
+use crate::ops::{Activation, NetworkConfig};
 
 pub use cpu::CpuBackend;
 #[cfg(feature = "gpu")]
@@ -194,7 +195,7 @@ pub trait Backend: Send + Sync + Debug {
         image: ArrayView3<f32>,
         max_level: usize,
     ) -> Result<Vec<Tensor>> {
-        let level0 = crate::nn::network::padded_input(config, image)?;
+        let level0 = crate::ops::padded_input(config, image)?;
         let mut levels = vec![self.upload_owned(level0)?];
         for l in 0..max_level {
             let next = self.downsample2x(&levels[l])?;

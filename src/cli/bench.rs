@@ -7,7 +7,8 @@ use clap::{Args, Subcommand};
 
 use crate::cli::synth::parse_size;
 use densefeat::error::{Error, Result};
-use densefeat::nn::{FeatureNet, NetworkConfig, NetworkWeights};
+use densefeat::nn::{FeatureNet, NetworkWeights};
+use densefeat::ops::NetworkConfig;
 
 /// Arguments of `densefeat bench`.
 #[derive(Debug, Clone, Args)]

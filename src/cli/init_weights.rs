@@ -6,7 +6,8 @@ use clap::Args;
 
 use densefeat::error::{Error, Result};
 use densefeat::image::load_rgb;
-use densefeat::nn::{NetworkConfig, NetworkWeights};
+use densefeat::nn::NetworkWeights;
+use densefeat::ops::NetworkConfig;
 use densefeat::sequence::COLOUR_EXTENSIONS;
 
 /// Arguments of `densefeat init-weights`.

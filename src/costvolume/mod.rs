@@ -60,7 +60,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
-use crate::nn::alloc::zeroed_aligned;
+use crate::util::alloc::zeroed_aligned;
 
 pub use curve::{confidence, confidence_and_scale, cost_scale, filter_evidence, winner_take_all_costs};
 pub use fast::fast_kernel_name;

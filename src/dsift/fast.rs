@@ -16,7 +16,7 @@ use ndarray::{Array3, ArrayView3};
 use rayon::prelude::*;
 
 use super::{DsiftParams, CELLS, CHANNELS, CLIP, ORIENTATIONS};
-use crate::nn::alloc::{zeroed_map_aligned, zeroed_vec};
+use crate::util::alloc::{zeroed_map_aligned, zeroed_vec};
 
 /// Values of one pixel's horizontal pass: 4 cell columns x 8 orientations.
 const ROW_CELLS: usize = CELLS * ORIENTATIONS;

@@ -36,7 +36,7 @@ use super::bounds;
 use super::Dispatch;
 use crate::costvolume::{parabola_offset, UNSEEN_COST};
 use crate::geometry::InverseDepthBins;
-use crate::nn::alloc::zeroed_aligned;
+use crate::util::alloc::zeroed_aligned;
 
 /// Cells at or above this are unseen (`crate::costvolume::UNSEEN_COST`).
 pub const UNSEEN: f32 = UNSEEN_COST;

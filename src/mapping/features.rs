@@ -21,7 +21,8 @@ use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera};
 use crate::image::sample::axis;
 use crate::image::{sample_bilinear, to_gray, RgbImage};
-use crate::nn::{downsample2x, FeatureNet, NetworkWeights};
+use crate::nn::{FeatureNet, NetworkWeights};
+use crate::ops::downsample2x;
 use std::sync::Arc;
 
 /// The weights shipped in `fixtures/weights/`, compiled into the binary so that the demo and
@@ -238,7 +239,7 @@ impl FeatureExtractor {
             (FeatureKind::Dsift, _) => crate::dsift::CHANNELS,
             (FeatureKind::Patch7, _) => 1,
             (_, Some(net)) => net.config().channels,
-            _ => crate::nn::config::IMAGE_CHANNELS,
+            _ => crate::ops::config::IMAGE_CHANNELS,
         }
     }
 
@@ -372,7 +373,7 @@ pub fn upsample_to(x: ArrayView3<f32>, levels: u32, out_h: usize, out_w: usize) 
     let Some(src) = x.as_slice() else { unreachable!("standard layout is contiguous") };
     // Huge pages for the large map (one page fault per 2 MB instead of per 4 KB), starting on a
     // cache line so that the cost volume's block kernel reads it without an aligned copy.
-    let mut map = crate::nn::alloc::zeroed_map_aligned([out_h, out_w, c]);
+    let mut map = crate::util::alloc::zeroed_map_aligned([out_h, out_w, c]);
     let Some(out) = map.as_slice_mut() else { unreachable!("a new map is standard layout") };
     #[cfg(target_arch = "x86_64")]
     let avx512 = crate::runtime::has_avx512f();

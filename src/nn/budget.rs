@@ -16,17 +16,18 @@ use ndarray::{Array1, Array3, Array4};
 
 use crate::backend::{Backend, CpuBackend, Tensor};
 use crate::error::Result;
-use crate::nn::config::NetworkConfig;
-use crate::nn::conv2d::{conv2d_reference, winograd_budget, winograd_magnitude_reference};
-use crate::nn::deconv2d::{deconv2d_reference, deconv2d_winograd_magnitude_reference};
-use crate::nn::network::{Executor, NetworkImpl};
+use crate::nn::network::Executor;
+use crate::ops::config::NetworkConfig;
+use crate::ops::conv2d::{conv2d_reference, winograd_budget, winograd_magnitude_reference};
+use crate::ops::deconv2d::{deconv2d_reference, deconv2d_winograd_magnitude_reference};
+use crate::ops::NetworkImpl;
 
 /// One CPU-backend op on host arrays, with the kernels `imp`.
 fn host_op(imp: NetworkImpl, op: impl FnOnce(&CpuBackend) -> Result<Tensor>) -> Result<Array3<f32>> {
     Ok(op(&CpuBackend::with_network(imp))?.into_host().expect("the CPU backend returns host tensors"))
 }
-use crate::nn::weights::LayerParams;
-use crate::nn::Activation;
+use crate::ops::Activation;
+use crate::ops::LayerParams;
 use crate::testing::within_budget;
 
 /// Relative budget of one layer with `k` products per output (SPEC.md §7.5).
@@ -101,7 +102,7 @@ impl Executor for LayerCheckExecutor {
         act: Activation,
     ) -> Result<Array3<f32>> {
         let got = host_op(self.imp, |b| b.conv3x3(&Tensor::host(x.clone()), l, stride, act))?;
-        let g = crate::nn::network::conv_geometry(x.dim(), l, stride)?;
+        let g = crate::ops::conv_geometry(x.dim(), l, stride)?;
         let (xf, xa) = f64_and_abs(x);
         let (aw, ab) = abs_params(l);
         let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));
@@ -118,7 +119,7 @@ impl Executor for LayerCheckExecutor {
     }
     fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
         let got = host_op(self.imp, |b| b.deconv5x5s2(&Tensor::host(x.clone()), l))?;
-        let g = crate::nn::network::deconv_geometry(x.dim(), l)?;
+        let g = crate::ops::deconv_geometry(x.dim(), l)?;
         let (xf, xa) = f64_and_abs(x);
         let (aw, ab) = abs_params(l);
         let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));

@@ -19,43 +19,14 @@
 use std::sync::Mutex;
 
 use ndarray::{Array3, ArrayView3};
-use rayon::prelude::*;
 
 use crate::backend::{Backend, Tensor};
-use crate::error::{Error, Result};
-use crate::nn::alloc::zeroed_map;
-use crate::nn::config::{NetworkConfig, IMAGE_CHANNELS};
-use crate::nn::geometry::{Conv2dGeometry, Deconv2dGeometry, DECONV_KERNEL};
-use crate::nn::weights::{LayerParams, NetworkWeights};
-use crate::nn::{downsample2x, Activation, Conv2dImpl, Deconv2dImpl};
-
-/// Which kernels the network runs. Every combination is always compiled and tested.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct NetworkImpl {
-    /// Convolution implementation.
-    pub conv: Conv2dImpl,
-    /// Transposed-convolution implementation.
-    pub deconv: Deconv2dImpl,
-}
-
-impl NetworkImpl {
-    /// The fast kernels (the default). In a network, `conv: Direct` runs every layer with
-    /// [`Conv2dImpl::fastest_for`] its geometry: Winograd F(4x4, 3x3) for the stride-1 `32 -> 32`
-    /// layers and Direct for the others, with the AVX-512F or AVX2+FMA kernels (the same bits),
-    /// `Im2colGemm` on CPUs with neither; and `deconv: Direct` each transposed convolution with
-    /// [`Deconv2dImpl::fastest_for`]: Winograd F(4x4, 3x3) on its equivalent convolution where a
-    /// SIMD kernel runs it, else Direct (SPEC.md §7.3, §7.7, §7.11, §8.1).
-    pub const FAST: NetworkImpl = NetworkImpl { conv: Conv2dImpl::Direct, deconv: Deconv2dImpl::Direct };
-    /// The f64 reference kernels (the oracle; single-threaded and slow).
-    pub const REFERENCE: NetworkImpl =
-        NetworkImpl { conv: Conv2dImpl::Reference, deconv: Deconv2dImpl::Reference };
-}
-
-impl Default for NetworkImpl {
-    fn default() -> Self {
-        Self::FAST
-    }
-}
+use crate::error::Result;
+use crate::nn::weights::NetworkWeights;
+use crate::ops::config::NetworkConfig;
+use crate::ops::geometry::DECONV_KERNEL;
+use crate::ops::LayerParams;
+use crate::ops::{concat_conv_geometry, conv_geometry, image_pyramid, Activation};
 
 /// Everything a forward pass computes, cropped to the input's size (SPEC.md §8.2).
 #[derive(Clone, Debug)]
@@ -137,42 +108,6 @@ pub trait Executor {
     fn release(&mut self, map: Self::Map) {
         drop(map);
     }
-}
-
-/// The validated geometry of `layer` (a 3x3 conv, weight `[c_out, c_in, 3, 3]`) applied to a map
-/// of shape `(h, w, c_in)`.
-///
-/// # Errors
-/// [`crate::Error::InvalidArgument`] for an empty map or a bad stride.
-pub fn conv_geometry(
-    (h, w, c_in): (usize, usize, usize),
-    layer: &LayerParams,
-    stride: usize,
-) -> Result<Conv2dGeometry> {
-    Conv2dGeometry::new(h, w, c_in, layer.weight.shape()[0], stride)
-}
-
-/// The validated geometry of `layer` applied to `concat(a, b)` (shapes `(h, w, ca)`, `(h, w, cb)`):
-/// [`conv_geometry`] of `(h, w, ca + cb)`; the spatial match is the concatenation's to check.
-///
-/// # Errors
-/// As [`conv_geometry`].
-pub fn concat_conv_geometry(
-    (h, w, ca): (usize, usize, usize),
-    (_, _, cb): (usize, usize, usize),
-    layer: &LayerParams,
-    stride: usize,
-) -> Result<Conv2dGeometry> {
-    conv_geometry((h, w, ca + cb), layer, stride)
-}
-
-/// The validated geometry of `layer` (a 5x5 transposed conv, weight `[c_in, c_out, 5, 5]`) on a
-/// map of shape `(h, w, c_in)`.
-///
-/// # Errors
-/// [`crate::Error::InvalidArgument`] for an empty map.
-pub fn deconv_geometry((h, w, c_in): (usize, usize, usize), layer: &LayerParams) -> Result<Deconv2dGeometry> {
-    Deconv2dGeometry::new(h, w, c_in, layer.weight.shape()[1])
 }
 
 /// Runs the forward pass's ops on a [`Backend`]: the one way the product runs the network.
@@ -311,68 +246,6 @@ impl Executor for PooledExecutor<'_> {
     }
 }
 
-/// Pads `[h, w, c]` at the bottom and right to `[hp, wp, c]` by replicating the last row/column.
-pub fn pad_edge(x: ArrayView3<f32>, hp: usize, wp: usize) -> Array3<f32> {
-    let (h, w, c) = x.dim();
-    Array3::from_shape_fn((hp, wp, c), |(y, i, ch)| x[[y.min(h - 1), i.min(w - 1), ch]])
-}
-
-/// Level 0 of [`image_pyramid`]: the image padded to the network's multiple (SPEC.md §8.2) with the
-/// mean subtracted in f32.
-///
-/// # Errors
-/// [`Error::InvalidArgument`] if the image is not `[H, W, 3]` with `H, W >= 1`.
-pub fn padded_input(config: &NetworkConfig, image: ArrayView3<f32>) -> Result<Array3<f32>> {
-    let (h, w, c) = image.dim();
-    if c != IMAGE_CHANNELS || h == 0 || w == 0 {
-        return Err(Error::invalid_argument(
-            "image",
-            format!("shape {:?}, expected [H >= 1, W >= 1, 3]", image.shape()),
-        ));
-    }
-    let (hp, wp) = config.padded_size(h, w);
-    // `pad_edge` then `v - mean[ch]` in f32, written row-parallel from slices.
-    let image = image.as_standard_layout();
-    let Some(src) = image.as_slice() else { unreachable!("standard layout is contiguous") };
-    let mean = config.input_mean;
-    let mut level0 = zeroed_map([hp, wp, c]);
-    let Some(dst) = level0.as_slice_mut() else { unreachable!("a new array is contiguous") };
-    dst.par_chunks_mut(wp * c).enumerate().for_each(|(y, row)| {
-        let src_row = &src[y.min(h - 1) * w * c..][..w * c];
-        let (inside, pad) = row.split_at_mut(w * c);
-        let subtract = |o: &mut [f32], v: &[f32]| {
-            for ((o, &v), m) in o.iter_mut().zip(v).zip(mean) {
-                *o = v - m;
-            }
-        };
-        for (o, v) in inside.chunks_exact_mut(IMAGE_CHANNELS).zip(src_row.chunks_exact(IMAGE_CHANNELS)) {
-            subtract(o, v);
-        }
-        for o in pad.chunks_exact_mut(IMAGE_CHANNELS) {
-            subtract(o, &src_row[(w - 1) * c..]);
-        }
-    });
-    Ok(level0)
-}
-
-/// The image pyramid the blocks see: level 0 is the image padded (SPEC.md §8.2) with the mean
-/// subtracted in f32, level `l + 1` is [`downsample2x`] of level `l`, up to `max_level`.
-///
-/// # Errors
-/// [`Error::InvalidArgument`] if the image is not `[H, W, 3]` with `H, W >= 1`.
-pub fn image_pyramid(
-    config: &NetworkConfig,
-    image: ArrayView3<f32>,
-    max_level: usize,
-) -> Result<Vec<Array3<f32>>> {
-    let mut levels = vec![padded_input(config, image)?];
-    for l in 0..max_level {
-        let next = downsample2x(levels[l].view())?;
-        levels.push(next);
-    }
-    Ok(levels)
-}
-
 /// The encoder of the forward pass (SPEC.md §8.1-8.2): every block's output, uncropped (on the
 /// padded input's grid).
 fn run_blocks<E: Executor>(
@@ -420,7 +293,7 @@ fn run_first_blocks<E: Executor>(
 /// aggregated map, cropped (what training's deep supervision needs).
 ///
 /// # Errors
-/// [`Error::InvalidArgument`] for a malformed image or weights that do not match their config.
+/// [`crate::Error::InvalidArgument`] for a malformed image or weights that do not match their config.
 pub fn run_network<E: Executor>(
     exec: &mut E,
     weights: &NetworkWeights,
@@ -521,7 +394,7 @@ impl FeatureNet {
     /// Wraps validated weights.
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`] if a tensor's shape disagrees with the configuration.
+    /// [`crate::Error::InvalidArgument`] if a tensor's shape disagrees with the configuration.
     pub fn new(weights: NetworkWeights) -> Result<Self> {
         weights.validate()?;
         Ok(FeatureNet { weights, spares: Mutex::new(Vec::new()) })
@@ -542,7 +415,7 @@ impl FeatureNet {
     /// result is bit-identical for any thread count.
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`] if the image is not `[H >= 1, W >= 1, 3]`.
+    /// [`crate::Error::InvalidArgument`] if the image is not `[H >= 1, W >= 1, 3]`.
     pub fn forward(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<ForwardOutput> {
         let out = self.forward_tensors(image, backend)?;
         let down = |maps: Vec<Tensor>| -> Result<Vec<Array3<f32>>> {

@@ -6,13 +6,13 @@ use std::time::Instant;
 
 use ndarray::{Array3, ArrayView3};
 
-use super::network::{
-    concat_conv_geometry, conv_geometry, deconv_geometry, run_features, Executor, PooledExecutor,
-};
-use super::weights::LayerParams;
-use super::{Activation, FeatureNet};
+use super::network::{run_features, Executor, PooledExecutor};
+use super::FeatureNet;
 use crate::backend::{Backend, Tensor};
 use crate::error::Result;
+use crate::ops::Activation;
+use crate::ops::LayerParams;
+use crate::ops::{concat_conv_geometry, conv_geometry, deconv_geometry};
 
 /// Accumulated time and FLOPs of one kind of operation.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

@@ -14,9 +14,10 @@ use safetensors::{Dtype, SafeTensorError, SafeTensors};
 
 use crate::error::{Error, Result};
 use crate::io::write_atomic;
-use crate::nn::config::NetworkConfig;
-use crate::nn::geometry::{CONV_KERNEL, DECONV_KERNEL};
-use crate::synth::rng::SplitMix64;
+use crate::ops::config::NetworkConfig;
+use crate::ops::geometry::{CONV_KERNEL, DECONV_KERNEL};
+use crate::ops::LayerParams;
+use crate::util::rng::SplitMix64;
 
 /// Value of the `format` metadata key.
 pub const FORMAT: &str = "densefeat-featurenet-v1";
@@ -25,15 +26,6 @@ pub const MAX_HEADER_BYTES: usize = 1 << 20;
 /// Metadata keys every file must carry.
 pub const METADATA_KEYS: [&str; 6] =
     ["format", "blocks", "channels", "b1_stride", "input_mean", "provenance"];
-
-/// Weight and bias of one (transposed) convolution, in PyTorch layout.
-#[derive(Clone, Debug, PartialEq)]
-pub struct LayerParams {
-    /// `[c_out, c_in, 3, 3]` (convolution) or `[c_in, c_out, 5, 5]` (transposed convolution).
-    pub weight: Array4<f32>,
-    /// `[c_out]`.
-    pub bias: Array1<f32>,
-}
 
 /// The three convolutions of one encoder block.
 #[derive(Clone, Debug, PartialEq)]

@@ -17,12 +17,12 @@ use ndarray::{Array3, Array4, ArrayView1, ArrayView3, ArrayView4};
 
 use crate::error::Result;
 use crate::geometry::PinholeCamera;
-use crate::nn::conv2d::{
+use crate::ops::conv2d::{
     conv2d, conv2d_backward_input_reference, conv2d_backward_input_with, conv2d_backward_weight,
     conv2d_backward_weight_reference, Conv2dImpl,
 };
-use crate::nn::weights::LayerParams;
-use crate::nn::{Activation, Conv2dGeometry};
+use crate::ops::LayerParams;
+use crate::ops::{Activation, Conv2dGeometry};
 
 /// What one pixel contributes to the loss.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -114,8 +114,8 @@ pub fn normal_loss_f64<T: Copy + Into<f64>>(
     weight: f64,
 ) -> Result<(NormalLossSums, Array3<f64>)> {
     let (h, w, c) = raw.dim();
-    crate::nn::expect_shape("normal loss gt", gt.shape(), &[h, w, 3])?;
-    crate::nn::expect_shape("normal loss raw", &[h, w, c], &[camera.height, camera.width, 3])?;
+    crate::ops::expect_shape("normal loss gt", gt.shape(), &[h, w, 3])?;
+    crate::ops::expect_shape("normal loss raw", &[h, w, c], &[camera.height, camera.width, 3])?;
     let mut sums = NormalLossSums::default();
     let mut grad = Array3::<f64>::zeros((h, w, 3));
     for y in 0..h {
@@ -169,7 +169,7 @@ pub fn unit_normals(raw: ArrayView3<f32>, camera: &PinholeCamera) -> Array3<f32>
 
 fn head_geometry(features: (usize, usize, usize), head: (usize, usize)) -> Result<Conv2dGeometry> {
     Conv2dGeometry::new(features.0, features.1, features.2, head.0, 1).and_then(|g| {
-        crate::nn::expect_shape("head weight", &[head.0, head.1, 3, 3], &g.weight_shape())?;
+        crate::ops::expect_shape("head weight", &[head.0, head.1, 3, 3], &g.weight_shape())?;
         Ok(g)
     })
 }

@@ -43,7 +43,7 @@ impl NormalNet {
     /// [`crate::Error::InvalidArgument`] if the image does not match the camera.
     pub fn head_normals(&self, image: ArrayView3<f32>, camera: &PinholeCamera) -> Result<Array3<f32>> {
         let (h, w, _) = image.dim();
-        crate::nn::expect_shape("normal predictor image", &[h, w], &[camera.height, camera.width])?;
+        crate::ops::expect_shape("normal predictor image", &[h, w], &[camera.height, camera.width])?;
         let features = self.trunk.features(image, &CpuBackend::default())?;
         let raw = head_forward(&self.weights.head, features.view())?;
         Ok(unit_normals(raw.view(), &camera.at_level(self.level())))

@@ -9,10 +9,11 @@ use ndarray::{Array1, Array4};
 
 use crate::error::{Error, Result};
 use crate::io::write_atomic;
-use crate::nn::weights::{config_from_fields, fans, tensor_specs, LayerParams};
+use crate::nn::weights::{config_from_fields, fans, tensor_specs};
 use crate::nn::NetworkWeights;
 use crate::normals_net::file::{to_bytes, TensorFile, TensorOut};
-use crate::synth::rng::SplitMix64;
+use crate::ops::LayerParams;
+use crate::util::rng::SplitMix64;
 
 /// Value of the `format` metadata key of a normal-predictor weights file.
 pub const NORMALNET_FORMAT: &str = "densefeat-normalnet-v1";

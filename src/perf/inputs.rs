@@ -6,7 +6,7 @@ use ndarray::{Array2, Array3};
 
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
-use crate::synth::rng::SplitMix64;
+use crate::util::rng::SplitMix64;
 
 /// A deterministic test pattern `[h, w, 3]` in 0..=255.
 pub fn pattern(h: usize, w: usize) -> Array3<f32> {

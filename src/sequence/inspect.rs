@@ -8,9 +8,9 @@ use std::path::PathBuf;
 use super::text::image_format_name;
 use super::{Format, Sequence, StereoInfo, WARNING_NOTE};
 use crate::error::Result;
-use crate::eval::{photometric_warp_check, WarpCheck};
 use crate::geometry::{relative_pose, PinholeCamera, RadTan};
 use crate::image::is_valid_depth;
+use crate::sequence::warp_check::{photometric_warp_check, WarpCheck};
 
 /// Most frames whose depth is loaded for [`DepthStats`].
 pub const DEPTH_SAMPLE_FRAMES: usize = 12;

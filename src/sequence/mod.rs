@@ -518,6 +518,7 @@ pub mod sevenscenes_write;
 mod stereo;
 mod text;
 mod tum;
+pub mod warp_check;
 
 pub use calib::{read_camera_file, CameraChoice};
 pub use detect::{detect, open, open_with, OpenOptions, DEFAULT_MAX_POSE_GAP, DEFAULT_MAX_TIME_GAP};

@@ -10,11 +10,11 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::detmath::{cos, sin};
 use super::layout::{yaw_axes, Builder, Footprint, Room, CLEARANCE, GAP, PLACEMENT_TRIES, POSTER_OFFSET};
-use super::rng::SplitMix64;
 use super::scene::{Lamp, Light};
 use super::surface::{Cuboid, Quad, Shape};
 use super::texture::{paint, photo, Texture};
 use super::trajectory::CameraPath;
+use crate::util::rng::SplitMix64;
 
 /// Camera height above the floor, room height, half-width, far-wall distance and back gap, metres.
 const CAMERA_HEIGHT: (f64, f64) = (1.25, 1.7);

@@ -8,11 +8,11 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::detmath::{cos, sin};
-use super::rng::SplitMix64;
 use super::scene::Light;
 use super::surface::{Cuboid, Quad, Shape, Surface};
 use super::texture::Texture;
 use super::trajectory::CameraPath;
+use crate::util::rng::SplitMix64;
 
 /// Horizontal distance every object keeps from the camera path's box, metres.
 pub(super) const CLEARANCE: f64 = 0.7;

@@ -17,7 +17,7 @@
 //! hit through the pixel centre (integer coordinates, SPEC.md §2.1), colour is the mean of
 //! `n × n` stratified sub-pixel samples around it. Geometry is `f64`.
 //!
-//! Determinism: the scene comes from an in-crate SplitMix64 ([`rng`]), per-pixel noise from a
+//! Determinism: the scene comes from an in-crate SplitMix64 ([`crate::util::rng`]), per-pixel noise from a
 //! counter-based hash, trigonometry from [`detmath`] (IEEE basic operations only), and rows are
 //! rendered in parallel with each pixel computed independently. A seed gives bit-identical frames
 //! for any thread count, and the same files on any platform with the same `Cargo.lock`.
@@ -41,7 +41,6 @@ mod layout;
 pub mod noise;
 mod photometric;
 mod render;
-pub mod rng;
 mod scene;
 mod sensor;
 pub mod surface;
@@ -212,7 +211,8 @@ impl SceneConfig {
     pub fn camera(&self) -> Result<PinholeCamera> {
         self.validate()?;
         if self.style == Style::Real {
-            let mut rng = rng::SplitMix64::new(rng::mix64(self.seed ^ INTRINSICS_SALT));
+            let mut rng =
+                crate::util::rng::SplitMix64::new(crate::util::rng::mix64(self.seed ^ INTRINSICS_SALT));
             let (fx, fy, cx, cy) = sensor::random_intrinsics(&mut rng, self.width, self.height);
             return PinholeCamera::new(fx, fy, cx, cy, self.width, self.height);
         }

@@ -3,7 +3,7 @@
 //! A lattice value is [`hash_unit`] of the integer corner (so the noise is a pure function of its
 //! inputs), corners are blended with the quintic fade `6t⁵ - 15t⁴ + 10t³` (C² continuous).
 
-use super::rng::hash_unit;
+use crate::util::rng::hash_unit;
 
 /// Octave-to-octave frequency factor of [`fbm`].
 const LACUNARITY: f64 = 2.0;

@@ -8,7 +8,7 @@
 //! `0..=255`. Quantising makes the in-memory frame identical to what is written to disk.
 
 use super::detmath::sin;
-use super::rng::{hash64, SplitMix64};
+use crate::util::rng::{hash64, SplitMix64};
 
 /// The strength of each photometric effect.
 #[derive(Clone, Copy, Debug, PartialEq)]

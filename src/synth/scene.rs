@@ -3,7 +3,6 @@
 use nalgebra::Vector3;
 
 use super::photometric::{Photometric, PhotometricConfig};
-use super::rng::SplitMix64;
 use super::sensor::{random_photometric, Sensor};
 use super::surface::Surface;
 use super::trajectory::CameraPath;
@@ -11,6 +10,7 @@ use super::{furnish, layout, SceneConfig, Style};
 use crate::error::{Error, Result};
 use crate::geometry::{PinholeCamera, Pose};
 use crate::image::{DepthMap, RgbImage};
+use crate::util::rng::SplitMix64;
 
 /// A directional light plus ambient term. Shading is "half-Lambert" (soft, never black) and
 /// view-independent: `shade = ambient + diffuse · (1 - n·direction) / 2` with `n` the unit surface

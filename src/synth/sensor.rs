@@ -11,9 +11,9 @@ use image::codecs::jpeg::JpegEncoder;
 use ndarray::Array3;
 
 use super::photometric::{Exposure, Photometric, PhotometricConfig};
-use super::rng::{hash64, hash_unit, SplitMix64};
 use crate::error::{Error, Result};
 use crate::image::RgbImage;
+use crate::util::rng::{hash64, hash_unit, SplitMix64};
 
 /// Focal length range, pixels at a 640-pixel-wide image (scaled by `width / 640`).
 pub const FOCAL_RANGE_640: (f64, f64) = (300.0, 700.0);

@@ -7,7 +7,7 @@
 //! not alias at typical viewing distances.
 
 use super::noise::{fbm, smoothstep, value_noise};
-use super::rng::{hash_unit, SplitMix64};
+use crate::util::rng::{hash_unit, SplitMix64};
 
 /// Linear RGB albedo, each channel in `[0, 1]`.
 pub type Albedo = [f64; 3];
@@ -191,7 +191,7 @@ impl Texture {
                 let mut b = 1.0 + PHOTO_BLOTCH * (fbm(*key, u / BLOTCH_SCALE, v / BLOTCH_SCALE, 2) - 0.5);
                 if *cells {
                     let (ci, cj) = ((x / t).floor(), (y / t).floor());
-                    let h = super::rng::hash64(*key, ci as i64 as u64, cj as i64 as u64, 7);
+                    let h = crate::util::rng::hash64(*key, ci as i64 as u64, cj as i64 as u64, 7);
                     (x, y) = (x - ci * t, y - cj * t);
                     if h & 1 == 1 {
                         x = t - 1.0 - x;

@@ -7,8 +7,8 @@
 use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 use super::detmath::{cos, sin};
-use super::rng::{hash_unit, SplitMix64};
 use crate::geometry::Pose;
+use crate::util::rng::{hash_unit, SplitMix64};
 
 /// Amplitudes (metres) of the slow and fast translation sinusoids along x, y (down), z.
 const TRANSLATION_AMPLITUDE: [[f64; 2]; 3] = [[0.45, 0.05], [0.06, 0.02], [0.2, 0.04]];

@@ -15,11 +15,13 @@ use ndarray::{s, Array3, ArrayView3};
 
 use crate::backend::{CpuBackend, Tensor};
 use crate::error::{Error, Result};
-use crate::nn::conv2d::{conv2d_backward_input_with, conv2d_backward_weight, relu_backward, Conv2dImpl};
-use crate::nn::deconv2d::{deconv2d_backward_input, deconv2d_backward_weight};
-use crate::nn::network::{conv_geometry, deconv_geometry, run_network, BackendExecutor, Executor};
-use crate::nn::weights::LayerParams;
-use crate::nn::{Activation, ForwardOutput, NetworkWeights};
+use crate::nn::network::{run_network, BackendExecutor, Executor};
+use crate::nn::{ForwardOutput, NetworkWeights};
+use crate::ops::conv2d::{conv2d_backward_input_with, conv2d_backward_weight, relu_backward, Conv2dImpl};
+use crate::ops::deconv2d::{deconv2d_backward_input, deconv2d_backward_weight};
+use crate::ops::Activation;
+use crate::ops::LayerParams;
+use crate::ops::{conv_geometry, deconv_geometry};
 
 /// What one block's backward pass needs, at padded size.
 #[derive(Clone, Debug)]

@@ -3,7 +3,7 @@
 //! configuration, the step, Adam's step count and the training configuration it was made with.
 //! Written atomically; loading checks every tensor's presence, dtype and shape.
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use ndarray::{Array1, Array4};
@@ -11,7 +11,7 @@ use safetensors::{Dtype, SafeTensors};
 
 use crate::error::{Error, Result};
 use crate::io::write_atomic;
-use crate::nn::weights::{config_from_fields, tensor_specs};
+use crate::nn::weights::{config_from_fields, f32_safetensors_bytes, tensor_specs, TensorOut};
 use crate::nn::NetworkWeights;
 use crate::train::optim::AdamState;
 
@@ -45,30 +45,26 @@ impl Checkpoint {
     /// [`Error::Io`] on a write failure.
     pub fn save(&self, path: &Path) -> Result<()> {
         let specs = tensor_specs(&self.weights.config);
-        let mut meta: HashMap<String, String> = self.weights.metadata();
+        // Sorted metadata and a fixed tensor order (SPEC.md §8.4's layout): the same run writes
+        // the same bytes (a HashMap's order differs from process to process).
+        let mut meta: BTreeMap<String, String> = self.weights.metadata().into_iter().collect();
         meta.insert("format".into(), CHECKPOINT_FORMAT.into());
         meta.insert("step".into(), self.step.to_string());
         meta.insert("adam_step".into(), self.adam.step.to_string());
         meta.insert("train_config".into(), self.train_config.clone());
         let groups =
             [("", flat(&self.weights)), ("adam.m.", flat(&self.adam.m)), ("adam.v.", flat(&self.adam.v))];
-        let bytes_of = |d: &[f32]| d.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
-        let mut owned: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
-        for (prefix, tensors) in &groups {
-            for (spec, data) in specs.iter().zip(tensors) {
-                owned.push((format!("{prefix}{}", spec.name), spec.shape.clone(), bytes_of(data)));
+        let mut tensors = Vec::new();
+        for (prefix, data) in &groups {
+            for (spec, data) in specs.iter().zip(data) {
+                tensors.push(TensorOut {
+                    name: format!("{prefix}{}", spec.name),
+                    shape: spec.shape.clone(),
+                    data,
+                });
             }
         }
-        let views: Vec<(String, safetensors::tensor::TensorView<'_>)> = owned
-            .iter()
-            .map(|(n, shape, b)| {
-                safetensors::tensor::TensorView::new(Dtype::F32, shape.clone(), b)
-                    .map(|v| (n.clone(), v))
-                    .map_err(|e| Error::invalid_argument("checkpoint", e.to_string()))
-            })
-            .collect::<Result<_>>()?;
-        let bytes = safetensors::serialize(views, Some(meta))
-            .map_err(|e| Error::invalid_argument("checkpoint", e.to_string()))?;
+        let bytes = f32_safetensors_bytes(&meta, &tensors)?;
         write_atomic(path, &bytes)
     }
 

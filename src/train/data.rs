@@ -16,10 +16,10 @@ use crate::error::{Error, Result};
 use crate::geometry::{relative_pose, PinholeCamera, Pose, Warp};
 use crate::image::is_valid_depth;
 use crate::sequence::{open, Sequence};
-use crate::synth::rng::{hash64, SplitMix64};
 use crate::synth::{Scene, SceneConfig, Style};
 use crate::train::frame_cache::{Frame, FrameCache, FrameKey};
 use crate::train::step::{ExtraLive, TrainingPair};
+use crate::util::rng::{hash64, SplitMix64};
 
 /// Which frame pairs are used.
 #[derive(Clone, Copy, Debug, PartialEq)]

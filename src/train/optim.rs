@@ -3,8 +3,8 @@
 //! schedule of linear warm-up then cosine decay.
 
 use crate::error::{Error, Result};
-use crate::nn::weights::LayerParams;
 use crate::nn::NetworkWeights;
+use crate::ops::LayerParams;
 
 /// Optimiser hyper-parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]

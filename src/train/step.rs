@@ -11,9 +11,9 @@ use crate::backend::CpuBackend;
 use crate::error::{Error, Result};
 use crate::geometry::{PinholeCamera, Pose, Warp};
 use crate::nn::{ForwardOutput, NetworkWeights};
-use crate::synth::rng::hash64;
 use crate::train::backprop::{backward, forward_with_tape, Tape};
 use crate::train::loss::{scale_loss_multi, LiveView, LossConfig, LossSums};
+use crate::util::rng::hash64;
 
 /// A reference and a live frame, cropped, with the reference's ground-truth depth.
 #[derive(Clone, Debug)]

@@ -3,7 +3,8 @@
 use std::path::Path;
 
 use densefeat::image::{load_depth_png, load_rgb};
-use densefeat::nn::{NetworkConfig, NetworkWeights};
+use densefeat::nn::NetworkWeights;
+use densefeat::ops::NetworkConfig;
 use densefeat::sequence::disparity::read_pfm;
 use densefeat::sequence::{open, read_camera_file};
 use densefeat::synth::{write_sequence, SceneConfig};

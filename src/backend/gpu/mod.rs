@@ -27,10 +27,10 @@ use crate::costvolume::WtaDepth;
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera};
-use crate::nn::geometry::DownsampleGeometry;
-use crate::nn::network::{conv_geometry, deconv_geometry};
-use crate::nn::weights::LayerParams;
-use crate::nn::Activation;
+use crate::ops::geometry::DownsampleGeometry;
+use crate::ops::Activation;
+use crate::ops::LayerParams;
+use crate::ops::{conv_geometry, deconv_geometry};
 
 const NAME: &str = "gpu";
 /// Invocations per workgroup (every kernel's `@workgroup_size`).

@@ -27,7 +27,6 @@ mod reference;
 
 use ndarray::{Array3, ArrayView2};
 
-use crate::backend::{Tensor, VolumeBuilder};
 use crate::costvolume::{check_truncation, CostVolume, MAX_FRAMES};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
@@ -174,6 +173,11 @@ impl PatchVolume {
         Ok(())
     }
 
+    /// The keyframe's camera.
+    pub fn camera(&self) -> &PinholeCamera {
+        &self.camera
+    }
+
     /// Frames added so far.
     pub fn frames(&self) -> usize {
         self.frames
@@ -221,30 +225,6 @@ impl PatchVolume {
             (sums, self.counts, self.frames),
             self.truncation,
         )
-    }
-}
-
-impl VolumeBuilder for PatchVolume {
-    fn add_frame_seen_by(&mut self, live: &Tensor, camera: &PinholeCamera, t_nr: &Pose) -> Result<()> {
-        let Some(live) = live.as_host() else {
-            return Err(Error::Unsupported {
-                backend: live.location().into(),
-                what: "the patch7 cost volume runs on the CPU only: pass host images".into(),
-            });
-        };
-        PatchVolume::add_frame_seen_by(self, live, camera, t_nr)
-    }
-    fn camera(&self) -> &PinholeCamera {
-        &self.camera
-    }
-    fn frames(&self) -> usize {
-        self.frames
-    }
-    fn snapshot(&self) -> Result<CostVolume> {
-        self.clone().into_cost_volume()
-    }
-    fn finish(self: Box<Self>) -> Result<CostVolume> {
-        self.into_cost_volume()
     }
 }
 

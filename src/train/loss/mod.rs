@@ -407,7 +407,7 @@ pub fn pixel_sampled(cfg: &LossConfig, x: usize, y: usize) -> bool {
         return true;
     }
     let offset =
-        crate::synth::rng::hash64(cfg.sample_seed, (x / s) as u64, (y / s) as u64, 0) % (s * s) as u64;
+        crate::util::rng::hash64(cfg.sample_seed, (x / s) as u64, (y / s) as u64, 0) % (s * s) as u64;
     offset == ((y % s) * s + x % s) as u64
 }
 
@@ -502,7 +502,7 @@ pub(crate) fn ray_point(warp: &Warp, x: usize, y: usize) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::rng::SplitMix64;
+    use crate::util::rng::SplitMix64;
 
     /// The AVX-512 build of the per-pixel terms gives the portable build's bits.
     #[test]

@@ -156,7 +156,7 @@ mod avx512 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::rng::SplitMix64;
+    use crate::util::rng::SplitMix64;
 
     /// The AVX-512 taps (where the CPU has it) are the portable ones, bit for bit, including the
     /// bins of the tail (K not a multiple of 8), rays that leave the image or pass behind the

@@ -8,11 +8,11 @@
 //! for an `h x w` input.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use densefeat::nn::conv2d::{
+use densefeat::ops::conv2d::{
     conv2d_direct, conv2d_im2col, conv2d_winograd, direct, im2col, scratch_len, PackedConv2d, PackedWinograd,
     WinogradKernel, WinogradTile,
 };
-use densefeat::nn::{
+use densefeat::ops::{
     conv2d, deconv2d_into, Activation, Conv2dGeometry, Conv2dImpl, Deconv2dGeometry, Deconv2dImpl,
 };
 use densefeat::testing::within_budget;

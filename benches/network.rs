@@ -6,7 +6,8 @@
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use densefeat::backend::CpuBackend;
-use densefeat::nn::{FeatureNet, NetworkConfig, NetworkWeights};
+use densefeat::nn::{FeatureNet, NetworkWeights};
+use densefeat::ops::NetworkConfig;
 use ndarray::Array3;
 use std::hint::black_box;
 

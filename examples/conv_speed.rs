@@ -13,11 +13,11 @@
 //! `cargo run --release --example conv_speed [rounds] [shape filter, e.g. 640]`; set
 //! `CONV_SHAPE=h,w,c_in,c_out,stride` to time another shape.
 
-use densefeat::nn::conv2d::{
+use densefeat::ops::conv2d::{
     conv2d_direct, conv2d_direct_with, conv2d_im2col, conv2d_winograd, direct, im2col, scratch_len,
     DirectKernel, PackedConv2d, PackedWinograd, WinogradKernel, WinogradTile,
 };
-use densefeat::nn::{Activation, Conv2dGeometry};
+use densefeat::ops::{Activation, Conv2dGeometry};
 use ndarray::{Array1, Array3, Array4};
 use std::time::Instant;
 

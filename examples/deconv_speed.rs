@@ -7,7 +7,7 @@
 //! `cargo run --release --example deconv_speed [rounds]`; set `DECONV_SHAPE=h,w,c_in,c_out` to time
 //! another input shape.
 
-use densefeat::nn::{deconv2d_into, Deconv2dGeometry, Deconv2dImpl};
+use densefeat::ops::{deconv2d_into, Deconv2dGeometry, Deconv2dImpl};
 use ndarray::{Array1, Array3, Array4};
 use std::time::Instant;
 

@@ -7,7 +7,10 @@ use std::process::Command;
 
 use densefeat::error::Error;
 use densefeat::mapping::evaluate::{evaluate, EvalOptions, Method};
-use densefeat::mapping::keyframe::{memory_estimate, reconstruct, KeyframeConfig, Regularizer};
+use densefeat::mapping::features::FeatureExtractor;
+use densefeat::mapping::keyframe::{
+    memory_estimate, reconstruct, reconstruct_with, KeyframeConfig, Regularizer,
+};
 use densefeat::mapping::{write_outputs, FeatureKind};
 use densefeat::sequence::{open, Sequence};
 
@@ -32,6 +35,31 @@ fn invalid_argument(e: Error) -> (String, String) {
         Error::InvalidArgument { name, what } => (name, what),
         other => panic!("expected InvalidArgument, got {other}"),
     }
+}
+
+#[test]
+fn one_extractor_serves_many_keyframes_with_the_same_bits() {
+    // `map` and `eval` build the extractor once per run (issue 33): the same depth as building it
+    // per keyframe, and an extractor of another kind or level is refused.
+    let seq = fixture();
+    let mut cfg = small_config();
+    cfg.features = FeatureKind::Learned(None);
+    cfg.regularizer = Regularizer::None;
+    let ex = FeatureExtractor::new(cfg.features.clone(), cfg.level, cfg.backend.clone()).unwrap();
+    for k in [15, 20] {
+        cfg.keyframe = k;
+        let a = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+        let b = reconstruct_with(&seq, &cfg, &ex, |_, _, _| {}).unwrap();
+        let bits = |r: &densefeat::mapping::KeyframeResult| {
+            r.wta.depth.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        };
+        assert_eq!(bits(&a), bits(&b), "keyframe {k}");
+    }
+    let rgb = FeatureExtractor::new(FeatureKind::Rgb, cfg.level, cfg.backend.clone()).unwrap();
+    let (name, _) = invalid_argument(reconstruct_with(&seq, &cfg, &rgb, |_, _, _| {}).unwrap_err());
+    assert_eq!(name, "features");
+    let level0 = FeatureExtractor::new(cfg.features.clone(), 0, cfg.backend.clone()).unwrap();
+    assert!(reconstruct_with(&seq, &cfg, &level0, |_, _, _| {}).is_err());
 }
 
 #[test]

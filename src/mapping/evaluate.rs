@@ -7,8 +7,9 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::eval::DepthMetrics;
+use crate::mapping::features::FeatureExtractor;
 use crate::mapping::keyframe::{
-    reconstruct, KeyframeConfig, KeyframeResult, Regularizer, Stage, StageTimings,
+    reconstruct_with, KeyframeConfig, KeyframeResult, Regularizer, Stage, StageTimings,
 };
 use crate::mapping::FeatureKind;
 use crate::sequence::Sequence;
@@ -241,12 +242,14 @@ pub fn evaluate(
         };
         // The λ sweep is attributed to the TV methods only (SPEC.md §10.2).
         cfg.lambda_sweep = if tv { options.lambda_sweep.clone() } else { Vec::new() };
+        // One extractor per feature kind for every keyframe (the weights read once).
+        let extractor = FeatureExtractor::new(cfg.features.clone(), cfg.level, cfg.backend.clone())?;
         for (j, &k) in keyframes.iter().enumerate() {
             cfg.keyframe = k;
             if let Some(&(near, far)) = options.depth_ranges.get(j) {
                 (cfg.near, cfg.far) = (near, far);
             }
-            let result = reconstruct(seq, &cfg, |s, d, t| progress(k, s, d, t))?;
+            let result = reconstruct_with(seq, &cfg, &extractor, |s, d, t| progress(k, s, d, t))?;
             if let Some(e) = result.normals_error {
                 // Every kind runs the same predictor on the same keyframe: recorded once.
                 if !normals_error.iter().any(|(kk, _)| *kk == k) {

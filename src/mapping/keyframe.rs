@@ -450,16 +450,44 @@ pub fn depth_at_level(depth: &DepthMap, level: u32) -> DepthMap {
 pub fn reconstruct(
     seq: &Sequence,
     cfg: &KeyframeConfig,
+    progress: impl FnMut(Stage, usize, usize),
+) -> Result<KeyframeResult> {
+    cfg.validate()?;
+    let extractor = FeatureExtractor::new(cfg.features.clone(), cfg.level, cfg.backend.clone())?;
+    reconstruct_with(seq, cfg, &extractor, progress)
+}
+
+/// [`reconstruct`] with a feature extractor built once for many keyframes (`map`, `eval`): it must
+/// extract `cfg.features` on `cfg.level`'s grid, so the weights are read and the network built once
+/// per run instead of once per keyframe. The same bits as [`reconstruct`].
+///
+/// # Errors
+/// As [`reconstruct`]; [`Error::InvalidArgument`] if the extractor's kind or level is not the
+/// configuration's.
+pub fn reconstruct_with(
+    seq: &Sequence,
+    cfg: &KeyframeConfig,
+    extractor: &FeatureExtractor,
     mut progress: impl FnMut(Stage, usize, usize),
 ) -> Result<KeyframeResult> {
     let bins = cfg.validate()?;
     let live = cfg.live_frames(seq.len())?;
     let level = cfg.level;
+    if extractor.kind() != &cfg.features || extractor.level() != level {
+        return Err(Error::invalid_argument(
+            "features",
+            format!(
+                "the extractor makes {} features at level {}, the configuration asks for {} at level {level}",
+                extractor.name(),
+                extractor.level(),
+                cfg.features.name()
+            ),
+        ));
+    }
     // The keyframe's camera; each live frame is warped into its own (SPEC.md §9.1).
     let key_camera = seq.frame_camera(cfg.keyframe); // in range: `live_frames` checked it
     let camera = key_camera.at_level(level);
     let backend = cfg.backend.as_ref();
-    let extractor = FeatureExtractor::new(cfg.features.clone(), level, cfg.backend.clone())?;
     let mut timings = StageTimings::default();
     progress(Stage::Keyframe, 0, 1);
     let t = Instant::now();

@@ -16,6 +16,7 @@ use nalgebra::Vector3;
 use serde::Serialize;
 use serde_json::json;
 
+use super::features::FeatureExtractor;
 use super::keyframe::{depth_at_level, KeyframeConfig, Regularizer, Stage};
 use super::keyframe_select::{keyframe_window, select_keyframes, KeyframeRule};
 use super::output::{write_outputs_with, write_pfm};
@@ -291,6 +292,8 @@ pub fn map_sequence(
     let n = plan.keyframes.len();
     let mut timings = MapTimings::default();
     let mut resumed = Vec::new();
+    // One extractor for every keyframe (the weights read and the network built once per run).
+    let mut extractor: Option<FeatureExtractor> = None;
     for (i, k) in plan.keyframes.iter().enumerate() {
         let dir = keyframe_dir(out, k.index);
         let fp = cfg.fingerprint(seq, k);
@@ -301,9 +304,14 @@ pub fn map_sequence(
         }
         let t = Instant::now();
         let kcfg = cfg.keyframe_config(k);
-        let r = super::reconstruct(seq, &kcfg, |s: Stage, d, tot| {
+        let ex = match extractor.take() {
+            Some(e) if e.kind() == &kcfg.features && e.level() == kcfg.level => e,
+            _ => FeatureExtractor::new(kcfg.features.clone(), kcfg.level, kcfg.backend.clone())?,
+        };
+        let r = super::keyframe::reconstruct_with(seq, &kcfg, &ex, |s: Stage, d, tot| {
             progress(i, n, &format!("keyframe {}: {s} {d}/{tot}", k.index))
         })?;
+        extractor = Some(ex);
         let mut staging = Staging::new();
         let stage = staging.dir(&dir)?;
         write_outputs_with(&r, &stage, cfg.min_confidence)?;

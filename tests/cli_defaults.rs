@@ -122,4 +122,11 @@ fn every_subcommand_runs_with_only_its_required_flags() {
     for made in ["synth", "sheet.png", "features", "init.safetensors", "rec", "eval", "map", "curve"] {
         assert!(proj.join(made).exists(), "{made} was not written");
     }
+    // The level defaults: `map` works at level 1 (SPEC.md §16.9), `reconstruct` at level 0.
+    let json = |p: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(proj.join(p)).unwrap()).unwrap()
+    };
+    assert_eq!(json("map/map.json")["mapping"]["level"], densefeat::mapping::sequence_map::MAP_LEVEL);
+    assert_eq!(densefeat::mapping::sequence_map::MAP_LEVEL, 1);
+    assert_eq!(json("rec/metrics.json")["level"], 0, "{}", json("rec/metrics.json"));
 }

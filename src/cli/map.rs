@@ -100,7 +100,9 @@ fn parse_frames(text: &str) -> Result<(usize, usize)> {
 ///
 /// # Errors
 /// Bad arguments, reading or writing errors.
-pub fn run(args: MapArgs) -> Result<()> {
+pub fn run(mut args: MapArgs) -> Result<()> {
+    // `map` works on the learned features' own grid unless told otherwise (SPEC.md §16.9).
+    args.mapping.level.get_or_insert(densefeat::mapping::sequence_map::MAP_LEVEL);
     let frames = args.frames.as_deref().map(parse_frames).transpose()?;
     let seq = args.mapping.open_sequence(&args.sequence)?;
     let keyframe =

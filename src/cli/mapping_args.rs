@@ -37,9 +37,10 @@ pub struct MappingArgs {
     /// Number of inverse-depth hypotheses.
     #[arg(long, default_value_t = DEFAULT_BINS)]
     pub bins: usize,
-    /// Pyramid level of the output depth: 0 = the input resolution, 1 = half, ...
-    #[arg(long, default_value_t = 0)]
-    pub level: u32,
+    /// Pyramid level of the output depth: 0 = the input resolution, 1 = half, ... [default: 0;
+    /// `map`: 1, the learned features' own grid]
+    #[arg(long)]
+    pub level: Option<u32>,
     /// Evidence minimum: a cost-volume cell competes only when at least this fraction of the frames
     /// that saw the pixel saw it (0 = any seen cell).
     #[arg(long, default_value_t = DEFAULT_MIN_EVIDENCE)]
@@ -259,7 +260,7 @@ impl MappingArgs {
                 tolerance: self.tolerance,
             },
             max_memory_mb: self.max_memory_mb,
-            level: self.level,
+            level: self.level.unwrap_or(0),
             min_evidence: self.min_evidence,
             lambda_sweep: Vec::new(),
             backend: self.backend.resolve()?,

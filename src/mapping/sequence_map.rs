@@ -34,6 +34,12 @@ use crate::io::{write_atomic_with, Staging};
 use crate::sequence::disparity::read_pfm;
 use crate::sequence::Sequence;
 
+/// `densefeat map`'s default pyramid level (SPEC.md §16.9): 1, half the input resolution, where
+/// the shipped learned features are computed. Chosen on the validation scenes (2026-12-03, SUN3D
+/// f0935 and render 200001): the same mean F-score at 5 cm as level 0 (0.269 vs 0.269) in a
+/// third to a sixth of the time per keyframe (`docs/map/results.md`).
+pub const MAP_LEVEL: u32 = 1;
+
 /// Everything [`map_sequence`] needs besides the sequence.
 #[derive(Clone, Debug)]
 pub struct MapConfig {

@@ -241,6 +241,39 @@ fn eval_without_ground_truth_is_an_error() {
 }
 
 #[test]
+fn a_lambda_sweep_reaches_the_normal_prior_rows_without_tv() {
+    // λ per variant (issue 32): with only -normals methods the sweep solves with the normal prior
+    // and is reported for them; the row at the run's own λ is that method's result.
+    use densefeat::mapping::normals::NormalsSource;
+    let seq = fixture();
+    let mut base = small_config();
+    base.past = 3;
+    base.future = 3;
+    base.bins = 16;
+    base.dtam.iterations = 20;
+    base.dtam.lambda = 100.0;
+    base.normals = Some(NormalsSource::GroundTruth);
+    let options = EvalOptions { lambda_sweep: vec![30.0, 100.0], ..EvalOptions::default() };
+    let methods = [Method::RgbNormals, Method::LearnedTv, Method::LearnedNormals];
+    let table = evaluate(&seq, &base, &[20], &methods, &options, |_| Ok(()), |_, _, _, _| {}).unwrap();
+    let rows: Vec<(Method, f64)> = table.sweep.iter().map(|(m, l, _)| (*m, *l)).collect();
+    // RGB has no -tv row: its normal-prior row gets the sweep; learned has one: only it does.
+    assert_eq!(
+        rows,
+        vec![
+            (Method::RgbNormals, 30.0),
+            (Method::RgbNormals, 100.0),
+            (Method::LearnedTv, 30.0),
+            (Method::LearnedTv, 100.0)
+        ]
+    );
+    let own = table.rows.iter().find(|r| r.method == Method::RgbNormals).unwrap().metrics;
+    let at_100 = table.sweep.iter().find(|(m, l, _)| *m == Method::RgbNormals && *l == 100.0).unwrap().2;
+    assert_eq!(own.rms.to_bits(), at_100.rms.to_bits());
+    assert_eq!(own.delta_1_25.to_bits(), at_100.delta_1_25.to_bits());
+}
+
+#[test]
 fn eval_table_contains_every_method() {
     let seq = fixture();
     let mut base = small_config();

@@ -152,8 +152,8 @@ pub struct EvalTable {
     pub rows: Vec<EvalRow>,
     /// `(keyframe, method, metrics)` for every run.
     pub per_keyframe: Vec<(usize, Method, DepthMetrics)>,
-    /// `(method, λ, metrics averaged over keyframes)` for every TV method and
-    /// [`EvalOptions::lambda_sweep`] value.
+    /// `(method, λ, metrics averaged over keyframes)` for every TV method (or normal-prior method of a
+    /// kind without a TV method) and [`EvalOptions::lambda_sweep`] value.
     pub sweep: Vec<(Method, f64, DepthMetrics)>,
     /// The confidence threshold of [`EvalRow::confident`].
     pub min_confidence: f32,
@@ -240,8 +240,9 @@ pub fn evaluate(
             (false, true) => Regularizer::Normals,
             (false, false) => Regularizer::None,
         };
-        // The λ sweep is attributed to the TV methods only (SPEC.md §10.2).
-        cfg.lambda_sweep = if tv { options.lambda_sweep.clone() } else { Vec::new() };
+        // The λ sweep runs the kind's Huber-TV solve where a -tv method is asked for, else its
+        // normal prior (`reconstruct` does that), and is attributed to that method (SPEC.md §10.2).
+        cfg.lambda_sweep = if tv || normals { options.lambda_sweep.clone() } else { Vec::new() };
         // One extractor per feature kind for every keyframe (the weights read once).
         let extractor = FeatureExtractor::new(cfg.features.clone(), cfg.level, cfg.backend.clone())?;
         for (j, &k) in keyframes.iter().enumerate() {
@@ -273,7 +274,7 @@ pub fn evaluate(
                         conf_per_kf.push((m, c, d));
                     }
                 }
-                if m.tv() {
+                if m.tv() || (m.normals() && !tv) {
                     for (l, e) in &result.sweep {
                         sweep_per_kf.push((m, *l, result.metrics(e)?));
                     }
@@ -308,7 +309,7 @@ pub fn evaluate(
         })
         .collect();
     let mut sweep = Vec::new();
-    for &m in methods.iter().filter(|m| m.tv()) {
+    for &m in methods.iter().filter(|m| m.tv() || m.normals()) {
         for &l in &options.lambda_sweep {
             let ms: Vec<DepthMetrics> =
                 sweep_per_kf.iter().filter(|(pm, pl, _)| *pm == m && *pl == l).map(|(_, _, d)| *d).collect();

@@ -7,7 +7,8 @@
 #   tools/train_chain/lambda_sweep.sh NAME WEIGHTS [LAMBDAS]
 #
 # METHODS=rgb-tv (or learned-tv) limits it to one feature type (RGB does not depend on WEIGHTS);
-# the csv then gets that type's rows.
+# the csv then gets that type's rows. EXTRA adds eval flags (e.g. EXTRA="--normals gt" for the
+# -normals methods), OUTDIR replaces docs/training/chain_NAME as the csv's folder.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
@@ -29,11 +30,12 @@ for sk in "${scenes[@]}"; do
   [ -d "$seq" ] || { echo "$seq missing: run tools/train_chain/validate.sh first" >&2; exit 1; }
   out=$root/$scene
   nice -n 10 "$bin" eval --sequence "$seq" --keyframes "$kfs" --methods "${METHODS:-rgb-tv,learned-tv}" \
-    --weights "$weights" --lambda-sweep "$lambdas" --out "$out" > "$out.log" 2>&1
+    --weights "$weights" --lambda-sweep "$lambdas" ${EXTRA:-} --out "$out" > "$out.log" 2>&1
   awk -F, -v scene="$scene" 'NR > 1 && $1 !~ /@/ { print scene "," $0 }' "$out/lambda_sweep.csv" >> "$all"
 done
-mkdir -p "docs/training/chain_$name"
-python3 - "$all" "docs/training/chain_$name/lambda_sweep_${METHODS:-all}.csv" <<'PY'
+outdir=${OUTDIR:-docs/training/chain_$name}
+mkdir -p "$outdir"
+python3 - "$all" "$outdir/lambda_sweep_${METHODS:-all}.csv" <<'PY'
 import csv, sys
 from collections import defaultdict
 acc = defaultdict(list)

@@ -8,7 +8,8 @@
 #
 # Scenes: SUN3D f0935 keyframes 15, 25, 35 (real), classic renders 200000-200005 and realistic renders
 # 200050-200052 (40 frames, 320x240) at keyframe 20. RGB methods do not depend on the weights:
-# they are run once per scene and kept in runs/val/.
+# they are run once per scene and kept in runs/val/rgb_*; delete those folders when the mapper's
+# defaults change (they were stale at λ 100 until 2026-12-03 afternoon, after RGB's default became 300).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 

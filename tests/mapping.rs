@@ -427,7 +427,7 @@ fn cli_eval_lambda_sweep_writes_csv_and_plot() {
         let png = image::open(dir.path().join(f)).unwrap();
         assert!(png.width() > 100 && png.height() > 100);
     }
-    // A sweep needs a TV method.
+    // A sweep needs a TV or normal-prior method.
     let bad = Command::new(env!("CARGO_BIN_EXE_densefeat"))
         .args(["eval", "--sequence", FIXTURE, "--keyframes", "20:10:20", "--methods", "rgb-wta"])
         .args(["--lambda-sweep", "10", "--out"])

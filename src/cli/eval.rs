@@ -43,8 +43,9 @@ pub struct EvalArgs {
     /// Also write every keyframe's depth files into OUT/kf_I_FEATURES/.
     #[arg(long)]
     pub save_depth: bool,
-    /// Comma-separated DTAM λ values: also run every TV method at each λ on the same volumes (the
-    /// same λ for RGB and learned features) and write `lambda_sweep.csv`, `lambda_sweep.png` (rms
+    /// Comma-separated DTAM λ values: also run every TV method (or a kind's normal-prior method when
+    /// its TV method is not asked for) at each λ on the same volumes (the same λ for RGB and learned
+    /// features) and write `lambda_sweep.csv`, `lambda_sweep.png` (rms
     /// against λ) and `lambda_sweep_delta.png` (δ<1.25 against λ).
     #[arg(long, value_delimiter = ',')]
     pub lambda_sweep: Vec<f64>,
@@ -109,8 +110,8 @@ fn preflight(seq: &Sequence, args: &EvalArgs, keyframes: &[usize]) -> Result<()>
         positive("lambda-learned", l)?;
     }
     if !args.lambda_sweep.is_empty() {
-        if !args.methods.iter().any(|m| m.tv()) {
-            return Err(flag("lambda-sweep", "needs at least one TV method in --methods"));
+        if !args.methods.iter().any(|m| m.tv() || m.normals()) {
+            return Err(flag("lambda-sweep", "needs at least one TV or normal-prior method in --methods"));
         }
         if let Some(bad) = args.lambda_sweep.iter().find(|l| !(**l > 0.0 && l.is_finite())) {
             return Err(flag("lambda-sweep", format!("λ = {bad}: must be positive")));

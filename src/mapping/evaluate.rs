@@ -192,7 +192,7 @@ pub struct EvalOptions {
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] for no keyframe or method, [`EvalOptions::depth_ranges`] that is
-/// neither empty nor one range per keyframe, a keyframe without ground truth; any [`reconstruct`]
+/// neither empty nor one range per keyframe, a keyframe without ground truth; any [`reconstruct_with`]
 /// error.
 pub fn evaluate(
     seq: &Sequence,

@@ -30,6 +30,17 @@ fn small_config() -> KeyframeConfig {
     cfg
 }
 
+/// [`small_config`] cut down for the evaluation tests: 3 frames either side, 16 bins, 20 DTAM
+/// iterations.
+fn eval_config() -> KeyframeConfig {
+    let mut cfg = small_config();
+    cfg.past = 3;
+    cfg.future = 3;
+    cfg.bins = 16;
+    cfg.dtam.iterations = 20;
+    cfg
+}
+
 fn invalid_argument(e: Error) -> (String, String) {
     match e {
         Error::InvalidArgument { name, what } => (name, what),
@@ -246,11 +257,7 @@ fn a_lambda_sweep_reaches_the_normal_prior_rows_without_tv() {
     // and is reported for them; the row at the run's own λ is that method's result.
     use densefeat::mapping::normals::NormalsSource;
     let seq = fixture();
-    let mut base = small_config();
-    base.past = 3;
-    base.future = 3;
-    base.bins = 16;
-    base.dtam.iterations = 20;
+    let mut base = eval_config();
     base.dtam.lambda = 100.0;
     base.normals = Some(NormalsSource::GroundTruth);
     let options = EvalOptions { lambda_sweep: vec![30.0, 100.0], ..EvalOptions::default() };
@@ -276,11 +283,7 @@ fn a_lambda_sweep_reaches_the_normal_prior_rows_without_tv() {
 #[test]
 fn eval_table_contains_every_method() {
     let seq = fixture();
-    let mut base = small_config();
-    base.past = 3;
-    base.future = 3;
-    base.bins = 16;
-    base.dtam.iterations = 20;
+    let base = eval_config();
     let mut seen = Vec::new();
     let table = evaluate(
         &seq,

@@ -410,26 +410,9 @@ fn synthetic_room_wta_depth_is_accurate_on_textured_pixels() {
 
 #[test]
 fn bench_costvolume_cli_runs() {
-    let args = [
-        "densefeat",
-        "bench",
-        "costvolume",
-        "--size",
-        "16x12",
-        "--bins",
-        "4",
-        "--channels",
-        "3",
-        "--threads",
-        "1",
-    ];
-    let run = |args: &[&str]| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_densefeat")).args(&args[1..]).output().unwrap()
-    };
-    let ok = run(&args);
-    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
-    let bad = run(&["densefeat", "bench", "costvolume", "--runs", "3"]);
-    assert!(!bad.status.success());
+    let args = ["bench", "costvolume", "--size", "16x12", "--bins", "4", "--channels", "3", "--threads", "1"];
+    crate::common::run_densefeat(&args).unwrap();
+    assert!(crate::common::run_densefeat(&["bench", "costvolume", "--runs", "3"]).is_err());
 }
 
 /// SPEC.md §9.13: a frame adds `min(l1, τ)`. Reference 0 against a live frame of constant 50 in

@@ -13,7 +13,7 @@ use densefeat::Error;
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
 /// The command recorded in `fixtures/synthetic/README.md`, without the output folder.
-const FIXTURE_ARGS: [&str; 8] = ["densefeat", "synth", "--seed", "1", "--frames", "40", "--size", "320x240"];
+const FIXTURE_ARGS: [&str; 7] = ["synth", "--seed", "1", "--frames", "40", "--size", "320x240"];
 
 fn fixture_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/synthetic/room_s1")
@@ -37,16 +37,6 @@ fn files(root: &Path) -> BTreeMap<String, Vec<u8>> {
     out
 }
 
-/// Runs the binary with `args` (the first is the program name, as clap sees it).
-fn run_cli(args: &[&str]) -> Result<(), String> {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_densefeat")).args(&args[1..]).output().unwrap();
-    if out.status.success() {
-        Ok(())
-    } else {
-        Err(String::from_utf8_lossy(&out.stderr).into_owned())
-    }
-}
-
 #[test]
 fn fixture_regenerates_byte_identical() {
     let tmp = tempfile::tempdir().unwrap();
@@ -54,7 +44,7 @@ fn fixture_regenerates_byte_identical() {
     let mut args = FIXTURE_ARGS.to_vec();
     let out_str = out.to_str().unwrap();
     args.extend(["--out", out_str, "--quiet"]);
-    run_cli(&args).unwrap();
+    crate::common::run_densefeat(&args).unwrap();
     let (want, got) = (files(&fixture_dir()), files(&out));
     let want: BTreeMap<_, _> = want.into_iter().filter(|(k, _)| !k.ends_with(".md")).collect();
     assert_eq!(want.keys().collect::<Vec<_>>(), got.keys().collect::<Vec<_>>(), "file lists differ");
@@ -258,7 +248,9 @@ fn bad_arguments_are_invalid_argument_errors() {
     let out = tempfile::tempdir().unwrap();
     let out = out.path().to_str().unwrap();
     for (size, frames) in [("0x240", "4"), ("320x0", "4"), ("320", "4"), ("axb", "4"), ("320x240", "0")] {
-        let r = run_cli(&["densefeat", "synth", "--size", size, "--frames", frames, "--out", out, "--quiet"]);
+        let r = crate::common::run_densefeat(&[
+            "synth", "--size", size, "--frames", frames, "--out", out, "--quiet",
+        ]);
         // The library's Error::InvalidArgument, as the binary prints it (not a clap parse error).
         let e = r.expect_err("refused");
         assert!(e.starts_with("error: invalid --"), "--size {size} --frames {frames}: {e}");

@@ -147,13 +147,10 @@ fn real_frames_warp_onto_each_other_after_a_brightness_fit() {
 fn unknown_style_is_an_invalid_argument() {
     let out = tempfile::tempdir().unwrap();
     let out = out.path().to_str().unwrap();
-    let r = std::process::Command::new(env!("CARGO_BIN_EXE_densefeat"))
-        .args(["synth", "--style", "fancy", "--out", out, "--quiet"])
-        .output()
-        .unwrap();
     // The library's Error::InvalidArgument, as the binary prints it (not a clap parse error).
-    let stderr = String::from_utf8_lossy(&r.stderr);
-    assert!(!r.status.success() && stderr.starts_with("error: invalid --style"), "{stderr}");
+    let e = crate::common::run_densefeat(&["synth", "--style", "fancy", "--out", out, "--quiet"])
+        .expect_err("refused");
+    assert!(e.starts_with("error: invalid --style"), "{e}");
     assert_eq!("real".parse::<Style>().unwrap(), Style::Real);
     assert_eq!(Style::Classic.to_string(), "classic");
 }

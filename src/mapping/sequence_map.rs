@@ -298,7 +298,8 @@ pub fn map_sequence(
     let n = plan.keyframes.len();
     let mut timings = MapTimings::default();
     let mut resumed = Vec::new();
-    // One extractor for every keyframe (the weights read and the network built once per run).
+    // One extractor for every computed keyframe (the weights read and the network built once per
+    // run), made when the first keyframe needs it.
     let mut extractor: Option<FeatureExtractor> = None;
     for (i, k) in plan.keyframes.iter().enumerate() {
         let dir = keyframe_dir(out, k.index);
@@ -310,14 +311,18 @@ pub fn map_sequence(
         }
         let t = Instant::now();
         let kcfg = cfg.keyframe_config(k);
-        let ex = match extractor.take() {
-            Some(e) if e.kind() == &kcfg.features && e.level() == kcfg.level => e,
-            _ => FeatureExtractor::new(kcfg.features.clone(), kcfg.level, kcfg.backend.clone())?,
+        // Every keyframe shares the run's features, level and backend (`keyframe_config`).
+        let ex = match &extractor {
+            Some(e) => e,
+            None => extractor.insert(FeatureExtractor::new(
+                kcfg.features.clone(),
+                kcfg.level,
+                kcfg.backend.clone(),
+            )?),
         };
-        let r = super::keyframe::reconstruct_with(seq, &kcfg, &ex, |s: Stage, d, tot| {
+        let r = super::keyframe::reconstruct_with(seq, &kcfg, ex, |s: Stage, d, tot| {
             progress(i, n, &format!("keyframe {}: {s} {d}/{tot}", k.index))
         })?;
-        extractor = Some(ex);
         let mut staging = Staging::new();
         let stage = staging.dir(&dir)?;
         write_outputs_with(&r, &stage, cfg.min_confidence)?;

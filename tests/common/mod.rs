@@ -59,3 +59,14 @@ pub fn bits<D: ndarray::Dimension>(a: &ndarray::Array<f32, D>) -> Vec<u32> {
 pub fn thread_pool(n: usize) -> rayon::ThreadPool {
     rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap()
 }
+
+/// Runs the `densefeat` binary with `args` (no program name): `Ok(())` when it exits 0, else
+/// `Err` with what it printed on stderr.
+pub fn run_densefeat(args: &[&str]) -> Result<(), String> {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_densefeat")).args(args).output().unwrap();
+    if out.status.success() {
+        Ok(())
+    } else {
+        Err(String::from_utf8_lossy(&out.stderr).into_owned())
+    }
+}

@@ -28,7 +28,7 @@ run train train --synthetic-scenes 2 --synthetic-val-scenes 1 --crop 96x64 --bin
 # Files that carry wall times are compared without them: JSON without the keys that hold seconds,
 # RSS or rates, log.csv without its pairs_per_s and elapsed_s columns; every other file byte for byte.
 python3 - "$work" <<'PY'
-import csv, io, json, os, sys
+import csv, json, os, sys
 work = sys.argv[1]
 TIMING = ("seconds", "timings", "wall", "elapsed", "peak_rss", "rss", "per_s", "_ms", "s_per_keyframe")
 def scrub(v):

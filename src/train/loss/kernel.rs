@@ -119,6 +119,9 @@ pub(super) struct LiveRows {
     pub tile: usize,
     /// Tiles per row (the last one may be shorter).
     pub per_row: usize,
+    /// `log2(tile)` when `tile` is a power of two (the network's 32 channels: 512), so that the
+    /// tile of an offset is a shift, not a division (the lookup runs four times per hypothesis).
+    tile_shift: Option<u32>,
     /// `tiles[y * per_row + t]`: the gradient of tile `t` of live row `y`, or empty.
     pub tiles: Vec<Vec<f32>>,
 }
@@ -128,14 +131,18 @@ impl LiveRows {
     pub fn new(height: usize, row: usize, c: usize) -> Self {
         let tile = TILE_PX * c;
         let per_row = row.div_ceil(tile).max(1);
-        LiveRows { row, tile, per_row, tiles: vec![Vec::new(); height * per_row] }
+        let tile_shift = tile.is_power_of_two().then(|| tile.trailing_zeros());
+        LiveRows { row, tile, per_row, tile_shift, tiles: vec![Vec::new(); height * per_row] }
     }
 
     /// The `len` values at offset `x` of live row `y` (inside one pixel, so inside one tile), the
     /// tile allocated (zero) on first use.
     #[inline(always)]
     fn at_mut(&mut self, y: usize, x: usize, len: usize) -> &mut [f32] {
-        let t = x / self.tile;
+        let t = match self.tile_shift {
+            Some(s) => x >> s,
+            None => x / self.tile,
+        };
         let start = t * self.tile;
         let r = &mut self.tiles[y * self.per_row + t];
         if r.is_empty() {
@@ -256,7 +263,11 @@ mod avx512 {
     }
 
     /// [`backward`] for 32 channels (the network's): the same operations in the same order, with
-    /// `d_u` held in two registers across the taps and each corner's tile looked up once.
+    /// `d_u` held in two registers across the taps, and the four corners of a run of consecutive
+    /// taps in the same bilinear cell (an epipolar line crosses a cell in several bins) held in
+    /// eight: loaded when the run starts and stored when it ends, before the next cell's corners
+    /// (which may share two of them) are loaded. Every corner sees the same additions in the same
+    /// order as one update per tap in memory, so the bits are those of the portable kernel.
     #[target_feature(enable = "avx512f")]
     unsafe fn backward_32(taps: &[Tap], coefs: &[f32], resid: &[f32], d_u: &mut [f32], live: &mut LiveRows) {
         const C: usize = 2 * LANES;
@@ -264,35 +275,92 @@ mod avx512 {
         // SAFETY: d_u holds 32 f32.
         let (mut u0, mut u1) =
             unsafe { (_mm512_loadu_ps(d_u.as_ptr()), _mm512_loadu_ps(d_u.as_ptr().add(LANES))) };
+        // The open run's cell (rows and column offsets), its corners' tile pointers and values.
+        let mut run: Option<([u32; 2], [usize; 2])> = None;
+        let mut ptrs = [std::ptr::null_mut::<f32>(); 4];
+        let mut acc = [[_mm512_setzero_ps(); 2]; 4];
         for (j, tap) in taps.iter().enumerate() {
             let coef = coefs[j];
             if coef == 0.0 {
                 continue;
             }
-            // Each corner's 32 values, in its tile: looking one up may allocate another tile,
-            // never move this one.
-            let corners = tap.corners().map(|(y, x)| live.at_mut(y, x, C).as_mut_ptr());
-            // SAFETY: resid holds taps.len() · 32 values; every corner pointer has 32 values
-            // (`at_mut`'s slice); the corners are updated one after another, so two that share
-            // memory (a 1-row or 1-column map) see each other's writes, as in the portable order.
-            unsafe {
-                let r0 = _mm512_loadu_ps(resid.as_ptr().add(j * C));
-                let r1 = _mm512_loadu_ps(resid.as_ptr().add(j * C + LANES));
-                let cv = _mm512_set1_ps(coef);
-                u0 = _mm512_add_ps(u0, _mm512_mul_ps(cv, r0));
-                u1 = _mm512_add_ps(u1, _mm512_mul_ps(cv, r1));
-                for (t, p) in corners.into_iter().enumerate() {
-                    let cw = _mm512_set1_ps(-coef * tap.w[t]);
-                    _mm512_storeu_ps(p, _mm512_add_ps(_mm512_loadu_ps(p), _mm512_mul_ps(cw, r0)));
-                    let p = p.add(LANES);
-                    _mm512_storeu_ps(p, _mm512_add_ps(_mm512_loadu_ps(p), _mm512_mul_ps(cw, r1)));
+            // SAFETY: resid holds taps.len() · 32 values.
+            let (r0, r1) = unsafe {
+                (
+                    _mm512_loadu_ps(resid.as_ptr().add(j * C)),
+                    _mm512_loadu_ps(resid.as_ptr().add(j * C + LANES)),
+                )
+            };
+            let cv = _mm512_set1_ps(coef);
+            u0 = _mm512_add_ps(u0, _mm512_mul_ps(cv, r0));
+            u1 = _mm512_add_ps(u1, _mm512_mul_ps(cv, r1));
+            let cell = (tap.y, tap.xc);
+            if run != Some(cell) {
+                if run.take().is_some() {
+                    // SAFETY: the pointers of the open run, 32 values each (`at_mut`'s slices).
+                    unsafe { store_corners(&ptrs, &acc) };
                 }
+                let [k0, k1, k2, k3] = tap.corners();
+                // Looking a corner up may allocate another tile, never move this one.
+                ptrs = [
+                    live.at_mut(k0.0, k0.1, C).as_mut_ptr(),
+                    live.at_mut(k1.0, k1.1, C).as_mut_ptr(),
+                    live.at_mut(k2.0, k2.1, C).as_mut_ptr(),
+                    live.at_mut(k3.0, k3.1, C).as_mut_ptr(),
+                ];
+                if tap.y[0] == tap.y[1] || tap.xc[0] == tap.xc[1] {
+                    // Corners that share memory (a 1-row or 1-column map): one after another in
+                    // memory, so each sees the others' writes, as in the portable order.
+                    for (t, p) in ptrs.into_iter().enumerate() {
+                        let cw = _mm512_set1_ps(-coef * tap.w[t]);
+                        // SAFETY: 32 values at p.
+                        unsafe {
+                            _mm512_storeu_ps(p, _mm512_add_ps(_mm512_loadu_ps(p), _mm512_mul_ps(cw, r0)));
+                            let p = p.add(LANES);
+                            _mm512_storeu_ps(p, _mm512_add_ps(_mm512_loadu_ps(p), _mm512_mul_ps(cw, r1)));
+                        }
+                    }
+                    continue;
+                }
+                for t in 0..4 {
+                    // SAFETY: 32 values at each pointer.
+                    unsafe {
+                        acc[t][0] = _mm512_loadu_ps(ptrs[t]);
+                        acc[t][1] = _mm512_loadu_ps(ptrs[t].add(LANES));
+                    }
+                }
+                run = Some(cell);
             }
+            for t in 0..4 {
+                let cw = _mm512_set1_ps(-coef * tap.w[t]);
+                acc[t][0] = _mm512_add_ps(acc[t][0], _mm512_mul_ps(cw, r0));
+                acc[t][1] = _mm512_add_ps(acc[t][1], _mm512_mul_ps(cw, r1));
+            }
+        }
+        if run.is_some() {
+            // SAFETY: as above.
+            unsafe { store_corners(&ptrs, &acc) };
         }
         // SAFETY: d_u holds 32 f32.
         unsafe {
             _mm512_storeu_ps(d_u.as_mut_ptr(), u0);
             _mm512_storeu_ps(d_u.as_mut_ptr().add(LANES), u1);
+        }
+    }
+
+    /// Stores the four corners' registers of a run of [`backward_32`].
+    ///
+    /// # Safety
+    /// AVX-512F; each pointer has 32 writable f32.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    unsafe fn store_corners(ptrs: &[*mut f32; 4], acc: &[[__m512; 2]; 4]) {
+        for t in 0..4 {
+            // SAFETY: the caller's contract.
+            unsafe {
+                _mm512_storeu_ps(ptrs[t], acc[t][0]);
+                _mm512_storeu_ps(ptrs[t].add(LANES), acc[t][1]);
+            }
         }
     }
 

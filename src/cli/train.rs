@@ -283,6 +283,10 @@ pub struct BenchTrainArgs {
     /// `benches/compare/train_torch.py`).
     #[arg(long)]
     pub dump: Option<PathBuf>,
+    /// Time the step with these weights (e.g. the shipped ones, or a chain's checkpoint's) instead
+    /// of the initialisation; their block-1 stride is used (`--b1-stride` is ignored).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
     /// Memory limit.
     #[command(flatten)]
     pub memory: MemoryLimit,
@@ -350,9 +354,17 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
         ..DataConfig::default()
     })?;
     let pair = data.train_pair(0, 1, 0)?;
-    let config =
-        NetworkConfig { b1_stride: args.b1_stride, input_mean: [110.0; 3], ..NetworkConfig::default() };
-    let weights = training_init(&config, 0)?;
+    let weights = match &args.weights {
+        Some(path) => NetworkWeights::load(path)?,
+        None => {
+            let config = NetworkConfig {
+                b1_stride: args.b1_stride,
+                input_mean: [110.0; 3],
+                ..NetworkConfig::default()
+            };
+            training_init(&config, 0)?
+        }
+    };
     let loss = LossConfig {
         bins: InverseDepthBins::new(0.0, 4.0, args.bins)?,
         sample_stride: args.loss_sample_stride,
@@ -421,12 +433,17 @@ pub fn run_bench(args: &BenchTrainArgs) -> Result<()> {
         v[v.len() / 2]
     };
     let (step, fwd) = (median(ms_step), median(ms_fwd));
+    let b1_stride = weights.config.b1_stride;
+    let from = args
+        .weights
+        .as_ref()
+        .map_or_else(|| "initialisation seed 0".to_string(), |p| p.display().to_string());
     let net = FeatureNet::new(weights)?;
     // Forward of two images, backward ≈ 2x forward (input and weight gradients).
     let net_flops = 3.0 * 2.0 * net.flops(crop.1, crop.0);
     println!(
-        "bench train: crop {}x{}, {} bins, b1 stride {}, {} threads, deep supervision L1..L5 + L, loss sample stride {}, {} live frame(s)",
-        crop.0, crop.1, args.bins, args.b1_stride, args.threads, args.loss_sample_stride, args.live_frames
+        "bench train: crop {}x{}, {} bins, b1 stride {}, {} threads, deep supervision L1..L5 + L, loss sample stride {}, {} live frame(s), weights: {from}",
+        crop.0, crop.1, args.bins, b1_stride, args.threads, args.loss_sample_stride, args.live_frames
     );
     println!("  SGEMM indicator (256x256x256, {} threads): {sgemm:.1} GFLOP/s", args.threads);
     println!("  one pair (forward 2 images + loss at 6 scales + backward): {step:.1} ms median of {} -> {:.3} pairs/s", args.runs, 1e3 / step);

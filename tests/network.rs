@@ -2,12 +2,11 @@
 //! reference network within the propagated budget of §8.7, and bit-identical features for any
 //! thread count.
 
-use densefeat::backend::CpuBackend;
+use densefeat::backend::{Backend, CpuBackend, LayerOp, PreparedLayer};
 use densefeat::nn::budget::{depth, max_products, relative_budget, LayerCheckExecutor};
 use densefeat::nn::network::{run_network, Executor};
-use densefeat::nn::{FeatureNet, NetworkWeights};
+use densefeat::nn::{FeatureNet, NetworkWeights, PreparedNetwork};
 use densefeat::ops::pad_edge;
-use densefeat::ops::LayerParams;
 use densefeat::ops::{Activation, NetworkConfig, NetworkImpl};
 use ndarray::{Array1, Array3};
 
@@ -142,19 +141,19 @@ impl Executor for Recorder {
     fn conv(
         &mut self,
         x: &Self::Map,
-        l: &LayerParams,
+        l: &PreparedLayer,
         stride: usize,
         act: Activation,
     ) -> densefeat::Result<Self::Map> {
         let (h, w, _) = x.dim();
-        let c = l.weight.shape()[0];
+        let c = l.params().weight.shape()[0];
         self.0.push(format!("conv {:?} -> c{c} s{stride} {act:?}", x.shape()));
         Ok(Array3::zeros(((h - 1) / stride + 1, (w - 1) / stride + 1, c)))
     }
-    fn deconv(&mut self, x: &Self::Map, l: &LayerParams) -> densefeat::Result<Self::Map> {
+    fn deconv(&mut self, x: &Self::Map, l: &PreparedLayer) -> densefeat::Result<Self::Map> {
         let (h, w, _) = x.dim();
         self.0.push(format!("deconv {:?}", x.shape()));
-        Ok(Array3::zeros((2 * h, 2 * w, l.weight.shape()[1])))
+        Ok(Array3::zeros((2 * h, 2 * w, l.params().weight.shape()[1])))
     }
     fn concat(&mut self, a: &Self::Map, b: &Self::Map) -> densefeat::Result<Self::Map> {
         self.0.push(format!("concat {:?} {:?}", a.shape(), b.shape()));
@@ -174,7 +173,8 @@ fn network_structure_matches_spec() {
     // B1 stride 1, 3 blocks, 8 channels, 10x6 image padded to 12x8 (total stride 4).
     let config = NetworkConfig { blocks: 3, channels: 8, b1_stride: 1, input_mean: [0.0; 3] };
     let mut rec = Recorder(Vec::new());
-    run_network(&mut rec, &weights(&config, 6), image(6, 10, 6).view()).unwrap();
+    let net = PreparedNetwork::new(&weights(&config, 6), &CpuBackend::default()).unwrap();
+    run_network(&mut rec, &net, image(6, 10, 6).view()).unwrap();
     // The input pyramid first (levels 0 and 1), then the blocks.
     let want = [
         "image [8, 12, 3]",
@@ -216,7 +216,8 @@ fn every_fast_layer_meets_its_budget_inside_the_network() {
     for (i, (config, h, w)) in cases().enumerate() {
         let wts = weights(&config, 10 + i as u64);
         let mut check = LayerCheckExecutor::new(NetworkImpl::FAST);
-        run_network(&mut check, &wts, image(h, w, 20 + i as u64).view()).unwrap();
+        let net = PreparedNetwork::new(&wts, &CpuBackend::default()).unwrap();
+        run_network(&mut check, &net, image(h, w, 20 + i as u64).view()).unwrap();
         assert_eq!(check.layers, depth(&config), "{config:?}");
         assert!(check.failures.is_empty(), "{config:?} {h}x{w}:\n{}", check.failures.join("\n"));
         assert!(check.worst_fraction <= 1.0);
@@ -333,7 +334,7 @@ fn pooled_forward_is_bit_identical_to_unpooled() {
     use densefeat::nn::network::{BackendExecutor, PooledExecutor};
     let cpu = CpuBackend::default();
     for config in every_config(6).chain(every_config(32).filter(|c| c.blocks >= 4)) {
-        let w = weights(&config, 21);
+        let w = PreparedNetwork::new(&weights(&config, 21), &cpu).unwrap();
         let img = image(37, 29, 21);
         for n in [1, 2] {
             let (plain, pooled) = thread_pool(n).install(|| {
@@ -356,24 +357,47 @@ fn pooled_forward_is_bit_identical_to_unpooled() {
 }
 
 #[test]
-fn packed_weights_follow_in_place_updates() {
-    // SPEC §7.9: the pack cache is keyed by address but checked by content, so a weight changed in
-    // place (as training does) is repacked: the forward pass sees the new values.
+fn prepared_layers_pack_once_and_new_weights_need_a_new_preparation() {
+    // SPEC §7.9, §15.1: a prepared network packs each layer on its first use and keeps it (no
+    // process-wide cache); a second pass on it, a fresh preparation and the per-call packing of
+    // the plain ops give the same bits; changed weights (as training makes) take effect through a
+    // new preparation, which training makes every step.
+    use densefeat::nn::network::BackendExecutor;
+    use densefeat::ops::{conv2d, conv_geometry};
     let config = NetworkConfig { channels: 32, blocks: 2, ..NetworkConfig::default() };
     let mut w = weights(&config, 5);
     let img = image(20, 24, 5);
     let cpu = CpuBackend::default();
-    let run = |w: &NetworkWeights| {
-        let out = run_network(&mut densefeat::nn::network::BackendExecutor(&cpu), w, img.view()).unwrap();
+    let run = |net: &PreparedNetwork| {
+        let out = run_network(&mut BackendExecutor(&cpu), net, img.view()).unwrap();
         out.aggregated[0].as_host().unwrap().clone()
     };
-    let before = run(&w);
+    let prepared = PreparedNetwork::new(&w, &cpu).unwrap();
+    let first = run(&prepared);
+    assert_eq!(bits(&first), bits(&run(&prepared)));
+    assert_eq!(bits(&first), bits(&run(&PreparedNetwork::new(&w, &cpu).unwrap())));
+    // One layer through the backend (prepared) and through the plain op (packed for the call).
+    let x = image(20, 24, 6).mapv(|v| v - 110.0);
+    let l = &w.blocks[0].conv1;
+    let g = conv_geometry(x.dim(), l, 2).unwrap();
+    let p = cpu.prepare_layer(std::sync::Arc::new(l.clone()), LayerOp::Conv3x3).unwrap();
+    for _ in 0..2 {
+        let via_backend =
+            cpu.conv3x3(&densefeat::backend::Tensor::host(x.clone()), &p, 2, Activation::Relu).unwrap();
+        let plain =
+            conv2d(cpu.conv_impl_for(&g), &g, x.view(), l.weight.view(), l.bias.view(), Activation::Relu)
+                .unwrap();
+        assert_eq!(bits(via_backend.as_host().unwrap()), bits(&plain));
+    }
     w.blocks[0].conv1.weight.mapv_inplace(|v| v * 0.5);
     w.deconvs[0].weight.mapv_inplace(|v| v * 0.5);
-    let after = run(&w);
-    let fresh = run(&w.clone());
-    assert_ne!(bits(&before), bits(&after));
-    assert_eq!(bits(&after), bits(&fresh));
+    let after = run(&PreparedNetwork::new(&w, &cpu).unwrap());
+    assert_ne!(bits(&first), bits(&after));
+    assert_eq!(bits(&after), bits(&run(&PreparedNetwork::new(&w.clone(), &cpu).unwrap())));
+    // A layer prepared for one op is refused by another, with the backend named.
+    let d = cpu.prepare_layer(std::sync::Arc::new(w.deconvs[0].clone()), LayerOp::Deconv5x5s2).unwrap();
+    let e = cpu.conv3x3(&densefeat::backend::Tensor::host(x.clone()), &d, 1, Activation::None).unwrap_err();
+    assert!(e.to_string().contains("prepared by backend cpu for Deconv5x5s2"), "{e}");
 }
 
 #[test]

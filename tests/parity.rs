@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use ndarray::{Array1, Array3, Array4};
 
-use densefeat::backend::{self, Backend, CpuBackend, Tensor};
+use densefeat::backend::{self, Backend, CpuBackend, LayerOp, Tensor};
 use densefeat::costvolume::{NO_TRUNCATION, UNSEEN_COST};
 use densefeat::error::Error;
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose};
@@ -141,6 +141,18 @@ fn bits(a: &Array3<f32>) -> Vec<u32> {
 }
 
 /// Run `op` on `backend` with host inputs uploaded, and download the result.
+/// `be.conv3x3` of `l`, prepared by `be` for this call.
+fn conv_on(be: &dyn Backend, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Tensor {
+    let p = be.prepare_layer(Arc::new(l.clone()), LayerOp::Conv3x3).unwrap();
+    be.conv3x3(x, &p, stride, act).unwrap()
+}
+
+/// `be.deconv5x5s2` of `l`, prepared by `be` for this call.
+fn deconv_on(be: &dyn Backend, x: &Tensor, l: &LayerParams) -> Tensor {
+    let p = be.prepare_layer(Arc::new(l.clone()), LayerOp::Deconv5x5s2).unwrap();
+    be.deconv5x5s2(x, &p).unwrap()
+}
+
 fn run(
     backend: &dyn Backend,
     inputs: &[&Array3<f32>],
@@ -162,10 +174,10 @@ fn conv3x3_matches_reference_within_its_budget() {
         ] {
             let x = random_map(&mut rng, (h, w, c_in));
             let l = random_layer(&mut rng, [c_out, c_in, 3, 3], c_out);
-            let got = run(b.as_ref(), &[&x], |be, t| be.conv3x3(&t[0], &l, stride, act).unwrap());
-            let want = run(&reference(), &[&x], |be, t| be.conv3x3(&t[0], &l, stride, act).unwrap());
+            let got = run(b.as_ref(), &[&x], |be, t| conv_on(be, &t[0], &l, stride, act));
+            let want = run(&reference(), &[&x], |be, t| conv_on(be, &t[0], &l, stride, act));
             let mut mag = run(&reference(), &[&x.mapv(f32::abs)], |be, t| {
-                be.conv3x3(&t[0], &abs_layer(&l), stride, Activation::None).unwrap()
+                conv_on(be, &t[0], &abs_layer(&l), stride, Activation::None)
             });
             let k = 9 * c_in + 1;
             let mut rel = 2.0 * k as f32 * EPS;
@@ -198,11 +210,10 @@ fn deconv5x5s2_matches_reference_within_its_budget() {
         for &(h, w, c_in, c_out) in &[(4, 5, 32, 32), (7, 3, 5, 9), (1, 1, 32, 32)] {
             let x = random_map(&mut rng, (h, w, c_in));
             let l = random_layer(&mut rng, [c_in, c_out, 5, 5], c_out);
-            let got = run(b.as_ref(), &[&x], |be, t| be.deconv5x5s2(&t[0], &l).unwrap());
-            let want = run(&reference(), &[&x], |be, t| be.deconv5x5s2(&t[0], &l).unwrap());
-            let mut mag = run(&reference(), &[&x.mapv(f32::abs)], |be, t| {
-                be.deconv5x5s2(&t[0], &abs_layer(&l)).unwrap()
-            });
+            let got = run(b.as_ref(), &[&x], |be, t| deconv_on(be, &t[0], &l));
+            let want = run(&reference(), &[&x], |be, t| deconv_on(be, &t[0], &l));
+            let mut mag =
+                run(&reference(), &[&x.mapv(f32::abs)], |be, t| deconv_on(be, &t[0], &abs_layer(&l)));
             // §7.5: at most 9 taps per output pixel and input channel, plus the bias.
             let k = 9 * c_in + 1;
             let mut rel = 2.0 * k as f32 * EPS;
@@ -714,20 +725,13 @@ fn every_network_op_is_deterministic_run_after_run() {
         let ops: Vec<(&str, Op)> = vec![
             (
                 "conv3x3 s1",
-                Box::new(|be: &dyn Backend, t: &[Tensor]| {
-                    be.conv3x3(&t[0], &conv, 1, Activation::Relu).unwrap()
-                }),
+                Box::new(|be: &dyn Backend, t: &[Tensor]| conv_on(be, &t[0], &conv, 1, Activation::Relu)),
             ),
             (
                 "conv3x3 s2",
-                Box::new(|be: &dyn Backend, t: &[Tensor]| {
-                    be.conv3x3(&t[0], &conv, 2, Activation::None).unwrap()
-                }),
+                Box::new(|be: &dyn Backend, t: &[Tensor]| conv_on(be, &t[0], &conv, 2, Activation::None)),
             ),
-            (
-                "deconv5x5s2",
-                Box::new(|be: &dyn Backend, t: &[Tensor]| be.deconv5x5s2(&t[0], &deconv).unwrap()),
-            ),
+            ("deconv5x5s2", Box::new(|be: &dyn Backend, t: &[Tensor]| deconv_on(be, &t[0], &deconv))),
             ("downsample2x", Box::new(|be: &dyn Backend, t: &[Tensor]| be.downsample2x(&t[0]).unwrap())),
             ("concat", Box::new(|be: &dyn Backend, t: &[Tensor]| be.concat(&t[0], &t[1]).unwrap())),
             ("add", Box::new(|be: &dyn Backend, t: &[Tensor]| be.add(&t[0], &t[1]).unwrap())),

@@ -3,7 +3,9 @@
 
 use ndarray::{s, Array3, ArrayView2, ArrayView3};
 
-use super::{Backend, Tensor, VolumeBuilder};
+use std::sync::Arc;
+
+use super::{Backend, LayerOp, PreparedLayer, Tensor, VolumeBuilder};
 use crate::costvolume::{winner_take_all_costs, CostVolume, CostVolumeImpl, WtaDepth};
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
@@ -11,8 +13,9 @@ use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use crate::ops::conv2d::{OutputLayout, WinogradKernel};
 use crate::ops::LayerParams;
 use crate::ops::{
-    add, concat_channels_into, conv2d_concat_into, conv2d_into, deconv2d_into, downsample2x, expect_shape,
-    Activation, Conv2dGeometry, Conv2dImpl, Deconv2dImpl, NetworkConfig, NetworkImpl,
+    add, concat_channels_into, conv2d_concat_prepared_into, conv2d_prepared_into, deconv2d_prepared_into,
+    downsample2x, expect_shape, Activation, Conv2dGeometry, Conv2dImpl, Deconv2dImpl, NetworkConfig,
+    NetworkImpl, PreparedConv, PreparedDeconv,
 };
 use crate::ops::{concat_conv_geometry, conv_geometry, deconv_geometry};
 use crate::util::alloc::zeroed_vec;
@@ -184,24 +187,36 @@ impl Backend for CpuBackend {
         Ok(host(self.name(), x)?.clone())
     }
 
-    fn conv3x3(&self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+    fn prepare_layer(&self, layer: Arc<LayerParams>, op: LayerOp) -> Result<PreparedLayer> {
+        if layer.weight.ndim() != 4 || layer.bias.ndim() != 1 {
+            return Err(Error::invalid_argument("layer", "expected a 4-d weight and a 1-d bias"));
+        }
+        let data: Arc<dyn std::any::Any + Send + Sync> = match op {
+            LayerOp::Conv3x3 => Arc::new(PreparedConv::new(layer.clone())),
+            LayerOp::Deconv5x5s2 => Arc::new(PreparedDeconv::new(layer.clone())),
+        };
+        Ok(PreparedLayer::new(self.name(), op, layer, data))
+    }
+
+    fn conv3x3(&self, x: &Tensor, l: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor> {
         self.conv3x3_reusing(x, l, stride, act, None)
     }
 
     fn conv3x3_reusing(
         &self,
         x: &Tensor,
-        l: &LayerParams,
+        l: &PreparedLayer,
         stride: usize,
         act: Activation,
         spare: Option<Tensor>,
     ) -> Result<Tensor> {
         let x = host(self.name(), x)?;
-        let g = conv_geometry(x.dim(), l, stride)?;
+        let p: &PreparedConv = l.data(self.name(), LayerOp::Conv3x3)?;
+        let g = conv_geometry(x.dim(), l.params(), stride)?;
         let imp = self.conv_impl_for(&g);
         let mut out = output_array(g.output_shape(), spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
-        conv2d_into(imp, &g, x.view(), l.weight.view(), l.bias.view(), act, o)?;
+        conv2d_prepared_into(imp, &g, x.view(), p, act, o)?;
         Ok(Tensor::host(out))
     }
 
@@ -209,43 +224,46 @@ impl Backend for CpuBackend {
         &self,
         a: &Tensor,
         b: &Tensor,
-        l: &LayerParams,
+        l: &PreparedLayer,
         stride: usize,
         act: Activation,
         spare: Option<Tensor>,
     ) -> Result<Tensor> {
         let (a, b) = (host(self.name(), a)?, host(self.name(), b)?);
+        let p: &PreparedConv = l.data(self.name(), LayerOp::Conv3x3)?;
         crate::ops::downsample::check_same_spatial(a.shape(), b.shape())?;
-        let g = concat_conv_geometry(a.dim(), b.dim(), l, stride)?;
+        let g = concat_conv_geometry(a.dim(), b.dim(), l.params(), stride)?;
         let imp = self.conv_impl_for(&g);
         let mut out = output_array(g.output_shape(), spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
-        conv2d_concat_into(imp, &g, a.view(), b.view(), l.weight.view(), l.bias.view(), act, o)?;
+        conv2d_concat_prepared_into(imp, &g, a.view(), b.view(), p, act, o)?;
         Ok(Tensor::host(out))
     }
 
-    fn deconv5x5s2(&self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+    fn deconv5x5s2(&self, x: &Tensor, l: &PreparedLayer) -> Result<Tensor> {
         let x = host(self.name(), x)?;
-        let g = deconv_geometry(x.dim(), l)?;
+        let p: &PreparedDeconv = l.data(self.name(), LayerOp::Deconv5x5s2)?;
+        let g = deconv_geometry(x.dim(), l.params())?;
         let mut out = output_array(g.output_shape(), None);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
-        deconv2d_into(self.deconv_impl_for(&g), &g, x.view(), l.weight.view(), l.bias.view(), None, o)?;
+        deconv2d_prepared_into(self.deconv_impl_for(&g), &g, x.view(), p, None, o)?;
         Ok(Tensor::host(out))
     }
 
-    fn deconv5x5s2_add(&self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+    fn deconv5x5s2_add(&self, x: &Tensor, l: &PreparedLayer, skip: &Tensor) -> Result<Tensor> {
         self.deconv5x5s2_add_reusing(x, l, skip, None)
     }
 
     fn deconv5x5s2_add_reusing(
         &self,
         x: &Tensor,
-        l: &LayerParams,
+        l: &PreparedLayer,
         skip: &Tensor,
         spare: Option<Tensor>,
     ) -> Result<Tensor> {
         let (x, skip) = (host(self.name(), x)?, host(self.name(), skip)?);
-        let g = deconv_geometry(x.dim(), l)?;
+        let p: &PreparedDeconv = l.data(self.name(), LayerOp::Deconv5x5s2)?;
+        let g = deconv_geometry(x.dim(), l.params())?;
         expect_shape("U-Net skip map", skip.shape(), &g.output_shape())?;
         let skip = skip.as_standard_layout();
         let Some(ss) = skip.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
@@ -253,7 +271,7 @@ impl Backend for CpuBackend {
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
         // Direct and Winograd fuse the sum into their store; the others add in a second pass (same
         // bits).
-        deconv2d_into(self.deconv_impl_for(&g), &g, x.view(), l.weight.view(), l.bias.view(), Some(ss), o)?;
+        deconv2d_prepared_into(self.deconv_impl_for(&g), &g, x.view(), p, Some(ss), o)?;
         Ok(Tensor::host(out))
     }
 

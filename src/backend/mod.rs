@@ -7,6 +7,7 @@
 //! | op | CPU implementation | SPEC |
 //! |---|---|---|
 //! | [`Backend::upload`] / [`Backend::download`] | host arrays | §15.2 |
+//! | [`Backend::prepare_layer`]: a layer's weights made ready, owned by the caller | [`crate::ops::PreparedConv`], [`crate::ops::PreparedDeconv`] | §15.1, §7.9 |
 //! | [`Backend::conv3x3`]: 3x3 conv, stride 1/2, bias, fused ReLU | [`crate::ops::conv2d()`] | §7.2 |
 //! | [`Backend::deconv5x5s2`]: 5x5 stride-2 transposed conv | [`crate::ops::deconv2d()`] | §7.3 |
 //! | [`Backend::downsample2x`]: 2x tent | [`crate::ops::downsample2x`] | §7.4 |
@@ -48,6 +49,79 @@ pub use cpu::CpuBackend;
 pub use gpu::{DtamTimings, GpuBackend, GpuBuffer};
 pub use tensor::{DeviceBuffer, Tensor};
 
+/// The ops a layer is prepared for ([`Backend::prepare_layer`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LayerOp {
+    /// [`Backend::conv3x3`] (and its concatenating and reusing forms): weight `[c_out, c_in, 3, 3]`.
+    Conv3x3,
+    /// [`Backend::deconv5x5s2`] (and the fused U-Net sum): weight `[c_in, c_out, 5, 5]`.
+    Deconv5x5s2,
+}
+
+/// A layer prepared by one backend ([`Backend::prepare_layer`]): its parameters and what that
+/// backend made of them (packed weights, a device buffer). Cloning shares both.
+#[derive(Clone)]
+pub struct PreparedLayer {
+    params: Arc<LayerParams>,
+    op: LayerOp,
+    backend: &'static str,
+    data: Arc<dyn std::any::Any + Send + Sync>,
+}
+
+impl PreparedLayer {
+    /// What `backend` (its [`Backend::name`]) prepared for `op` from `params`.
+    pub fn new(
+        backend: &'static str,
+        op: LayerOp,
+        params: Arc<LayerParams>,
+        data: Arc<dyn std::any::Any + Send + Sync>,
+    ) -> Self {
+        PreparedLayer { params, op, backend, data }
+    }
+
+    /// The layer's weight and bias.
+    pub fn params(&self) -> &LayerParams {
+        &self.params
+    }
+
+    /// The op it was prepared for.
+    pub fn op(&self) -> LayerOp {
+        self.op
+    }
+
+    /// The backend that prepared it.
+    pub fn backend(&self) -> &'static str {
+        self.backend
+    }
+
+    /// The prepared data of `backend` for `op`.
+    ///
+    /// # Errors
+    /// [`Error::Unsupported`] for a layer another backend (or another op) prepared.
+    pub fn data<T: 'static>(&self, backend: &'static str, op: LayerOp) -> Result<&T> {
+        match self.data.downcast_ref::<T>() {
+            Some(d) if self.backend == backend && self.op == op => Ok(d),
+            _ => Err(Error::Unsupported {
+                backend: backend.into(),
+                what: format!(
+                    "a layer prepared by backend {} for {:?}, used for {op:?}: prepare it with this backend",
+                    self.backend, self.op
+                ),
+            }),
+        }
+    }
+}
+
+impl Debug for PreparedLayer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PreparedLayer")
+            .field("backend", &self.backend)
+            .field("op", &self.op)
+            .field("weight", &self.params.weight.shape())
+            .finish()
+    }
+}
+
 /// Every op the product runs, on one kind of hardware. See the module documentation for the list
 /// and the SPEC sections that define each op's maths; backends agree within SPEC.md §15.3's budgets.
 pub trait Backend: Send + Sync + Debug {
@@ -82,12 +156,21 @@ pub trait Backend: Send + Sync + Debug {
         Ok(())
     }
 
+    /// A layer made ready for this backend's `op` (SPEC.md §15.1): the CPU packs its weights for
+    /// the fast kernels (packed on first use, §7.9), a device backend uploads them. The caller
+    /// owns the result and passes it to every call of that layer (the network prepares its layers
+    /// once, `nn::PreparedNetwork`); no backend keeps a cache of weights.
+    ///
+    /// # Errors
+    /// A weight that is not 4-d; device allocation failures.
+    fn prepare_layer(&self, layer: Arc<LayerParams>, op: LayerOp) -> Result<PreparedLayer>;
+
     /// 3x3 convolution, padding 1, stride 1 or 2, bias, optional fused ReLU (SPEC.md §7.2); the
-    /// layer's weight is `[c_out, c_in, 3, 3]` (PyTorch layout).
+    /// layer's weight is `[c_out, c_in, 3, 3]` (PyTorch layout), prepared by this backend.
     ///
     /// # Errors
     /// Shape errors; [`Error::Unsupported`].
-    fn conv3x3(&self, x: &Tensor, layer: &LayerParams, stride: usize, act: Activation) -> Result<Tensor>;
+    fn conv3x3(&self, x: &Tensor, layer: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor>;
     /// [`Backend::conv3x3`] that may write its output into `spare`'s storage: a map of any shape
     /// the caller no longer needs (its values are overwritten; a shared or foreign one is dropped).
     /// The network's forward pass recycles its dead maps so (SPEC.md §8.9). The default drops
@@ -98,7 +181,7 @@ pub trait Backend: Send + Sync + Debug {
     fn conv3x3_reusing(
         &self,
         x: &Tensor,
-        layer: &LayerParams,
+        layer: &PreparedLayer,
         stride: usize,
         act: Activation,
         spare: Option<Tensor>,
@@ -116,7 +199,7 @@ pub trait Backend: Send + Sync + Debug {
         &self,
         a: &Tensor,
         b: &Tensor,
-        layer: &LayerParams,
+        layer: &PreparedLayer,
         stride: usize,
         act: Activation,
         spare: Option<Tensor>,
@@ -129,13 +212,13 @@ pub trait Backend: Send + Sync + Debug {
     ///
     /// # Errors
     /// Shape errors; [`Error::Unsupported`].
-    fn deconv5x5s2(&self, x: &Tensor, layer: &LayerParams) -> Result<Tensor>;
+    fn deconv5x5s2(&self, x: &Tensor, layer: &PreparedLayer) -> Result<Tensor>;
     /// The decoder's U-Net step `skip + deconv5x5s2(x)` (SPEC.md §8.3). The default runs the two
     /// ops; a backend may fuse them, with the same bits (the sum is one f32 addition per value).
     ///
     /// # Errors
     /// Shape errors; [`Error::Unsupported`].
-    fn deconv5x5s2_add(&self, x: &Tensor, layer: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+    fn deconv5x5s2_add(&self, x: &Tensor, layer: &PreparedLayer, skip: &Tensor) -> Result<Tensor> {
         let up = self.deconv5x5s2(x, layer)?;
         self.add(skip, &up)
     }
@@ -147,7 +230,7 @@ pub trait Backend: Send + Sync + Debug {
     fn deconv5x5s2_add_reusing(
         &self,
         x: &Tensor,
-        layer: &LayerParams,
+        layer: &PreparedLayer,
         skip: &Tensor,
         spare: Option<Tensor>,
     ) -> Result<Tensor> {

@@ -14,7 +14,7 @@
 
 use ndarray::{Array1, Array3, Array4};
 
-use crate::backend::{Backend, CpuBackend, Tensor};
+use crate::backend::{Backend, CpuBackend, PreparedLayer, Tensor};
 use crate::error::Result;
 use crate::nn::network::Executor;
 use crate::ops::config::NetworkConfig;
@@ -97,15 +97,15 @@ impl Executor for LayerCheckExecutor {
     fn conv(
         &mut self,
         x: &Array3<f32>,
-        l: &LayerParams,
+        l: &PreparedLayer,
         stride: usize,
         act: Activation,
     ) -> Result<Array3<f32>> {
         let got = host_op(self.imp, |b| b.conv3x3(&Tensor::host(x.clone()), l, stride, act))?;
-        let g = crate::ops::conv_geometry(x.dim(), l, stride)?;
+        let g = crate::ops::conv_geometry(x.dim(), l.params(), stride)?;
         let (xf, xa) = f64_and_abs(x);
-        let (aw, ab) = abs_params(l);
-        let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));
+        let (aw, ab) = abs_params(l.params());
+        let (wf, bf) = (l.params().weight.mapv(f64::from), l.params().bias.mapv(f64::from));
         let want = conv2d_reference(&g, xf.view(), wf.view(), bf.view(), act)?;
         let imp = CpuBackend::with_network(self.imp).conv_impl_for(&g);
         let (magnitude, rel) = if let Some(tile) = imp.winograd_tile() {
@@ -117,12 +117,12 @@ impl Executor for LayerCheckExecutor {
         self.check(&format!("conv {:?} stride {stride}, {imp:?}", x.shape()), &got, &want, &magnitude, rel);
         Ok(got)
     }
-    fn deconv(&mut self, x: &Array3<f32>, l: &LayerParams) -> Result<Array3<f32>> {
+    fn deconv(&mut self, x: &Array3<f32>, l: &PreparedLayer) -> Result<Array3<f32>> {
         let got = host_op(self.imp, |b| b.deconv5x5s2(&Tensor::host(x.clone()), l))?;
-        let g = crate::ops::deconv_geometry(x.dim(), l)?;
+        let g = crate::ops::deconv_geometry(x.dim(), l.params())?;
         let (xf, xa) = f64_and_abs(x);
-        let (aw, ab) = abs_params(l);
-        let (wf, bf) = (l.weight.mapv(f64::from), l.bias.mapv(f64::from));
+        let (aw, ab) = abs_params(l.params());
+        let (wf, bf) = (l.params().weight.mapv(f64::from), l.params().bias.mapv(f64::from));
         let want = deconv2d_reference(&g, xf.view(), wf.view(), bf.view())?;
         let imp = CpuBackend::with_network(self.imp).deconv_impl_for(&g);
         let (magnitude, rel) = if let Some(tile) = imp.winograd_tile() {

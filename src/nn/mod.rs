@@ -5,11 +5,13 @@
 
 pub mod budget;
 pub mod network;
+pub mod prepared;
 pub mod profile;
 pub mod viz;
 pub mod weights;
 
 pub use crate::ops::config::NetworkConfig;
 pub use network::{FeatureNet, ForwardOutput};
+pub use prepared::PreparedNetwork;
 pub use profile::{profile_forward, OpTotals};
 pub use weights::NetworkWeights;

@@ -20,12 +20,12 @@ use std::sync::Mutex;
 
 use ndarray::{Array3, ArrayView3};
 
-use crate::backend::{Backend, Tensor};
+use crate::backend::{Backend, PreparedLayer, Tensor};
 use crate::error::Result;
+use crate::nn::prepared::PreparedNetwork;
 use crate::nn::weights::NetworkWeights;
 use crate::ops::config::NetworkConfig;
 use crate::ops::geometry::DECONV_KERNEL;
-use crate::ops::LayerParams;
 use crate::ops::{concat_conv_geometry, conv_geometry, image_pyramid, Activation};
 
 /// Everything a forward pass computes, cropped to the input's size (SPEC.md §8.2).
@@ -69,7 +69,7 @@ pub trait Executor {
     fn conv(
         &mut self,
         x: &Self::Map,
-        layer: &LayerParams,
+        layer: &PreparedLayer,
         stride: usize,
         act: Activation,
     ) -> Result<Self::Map>;
@@ -80,7 +80,7 @@ pub trait Executor {
         &mut self,
         a: &Self::Map,
         b: &Self::Map,
-        layer: &LayerParams,
+        layer: &PreparedLayer,
         stride: usize,
         act: Activation,
     ) -> Result<Self::Map> {
@@ -90,14 +90,14 @@ pub trait Executor {
         Ok(y)
     }
     /// 5x5 stride-2 transposed convolution.
-    fn deconv(&mut self, x: &Self::Map, layer: &LayerParams) -> Result<Self::Map>;
+    fn deconv(&mut self, x: &Self::Map, layer: &PreparedLayer) -> Result<Self::Map>;
     /// Channel concatenation, `a` first.
     fn concat(&mut self, a: &Self::Map, b: &Self::Map) -> Result<Self::Map>;
     /// Elementwise sum.
     fn add(&mut self, a: &Self::Map, b: &Self::Map) -> Result<Self::Map>;
     /// The decoder step `skip + deconv(x)`; the default runs [`Executor::deconv`] then
     /// [`Executor::add`] (the training tape records them so), executors may fuse it.
-    fn deconv_add(&mut self, x: &Self::Map, layer: &LayerParams, skip: &Self::Map) -> Result<Self::Map> {
+    fn deconv_add(&mut self, x: &Self::Map, layer: &PreparedLayer, skip: &Self::Map) -> Result<Self::Map> {
         let up = self.deconv(x, layer)?;
         self.add(skip, &up)
     }
@@ -127,10 +127,10 @@ impl Executor for BackendExecutor<'_> {
     ) -> Result<Vec<Tensor>> {
         self.0.image_pyramid(config, image, max_level)
     }
-    fn conv(&mut self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+    fn conv(&mut self, x: &Tensor, l: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor> {
         self.0.conv3x3(x, l, stride, act)
     }
-    fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+    fn deconv(&mut self, x: &Tensor, l: &PreparedLayer) -> Result<Tensor> {
         self.0.deconv5x5s2(x, l)
     }
     fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
@@ -139,7 +139,7 @@ impl Executor for BackendExecutor<'_> {
     fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
         self.0.add(a, b)
     }
-    fn deconv_add(&mut self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+    fn deconv_add(&mut self, x: &Tensor, l: &PreparedLayer, skip: &Tensor) -> Result<Tensor> {
         self.0.deconv5x5s2_add(x, l, skip)
     }
     fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
@@ -205,8 +205,8 @@ impl Executor for PooledExecutor<'_> {
     ) -> Result<Vec<Tensor>> {
         self.backend.image_pyramid(config, image, max_level)
     }
-    fn conv(&mut self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
-        let [h, w, c] = conv_geometry(x.dim(), l, stride)?.output_shape();
+    fn conv(&mut self, x: &Tensor, l: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor> {
+        let [h, w, c] = conv_geometry(x.dim(), l.params(), stride)?.output_shape();
         let spare = self.take_spare(h * w * c);
         self.backend.conv3x3_reusing(x, l, stride, act, spare)
     }
@@ -214,15 +214,15 @@ impl Executor for PooledExecutor<'_> {
         &mut self,
         a: &Tensor,
         b: &Tensor,
-        l: &LayerParams,
+        l: &PreparedLayer,
         stride: usize,
         act: Activation,
     ) -> Result<Tensor> {
-        let [ho, wo, co] = concat_conv_geometry(a.dim(), b.dim(), l, stride)?.output_shape();
+        let [ho, wo, co] = concat_conv_geometry(a.dim(), b.dim(), l.params(), stride)?.output_shape();
         let spare = self.take_spare(ho * wo * co);
         self.backend.conv3x3_concat(a, b, l, stride, act, spare)
     }
-    fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+    fn deconv(&mut self, x: &Tensor, l: &PreparedLayer) -> Result<Tensor> {
         self.backend.deconv5x5s2(x, l)
     }
     fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
@@ -233,7 +233,7 @@ impl Executor for PooledExecutor<'_> {
     fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
         self.backend.add(a, b)
     }
-    fn deconv_add(&mut self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
+    fn deconv_add(&mut self, x: &Tensor, l: &PreparedLayer, skip: &Tensor) -> Result<Tensor> {
         let (h, w, c) = skip.dim();
         let spare = self.take_spare(h * w * c);
         self.backend.deconv5x5s2_add_reusing(x, l, skip, spare)
@@ -250,10 +250,10 @@ impl Executor for PooledExecutor<'_> {
 /// padded input's grid).
 fn run_blocks<E: Executor>(
     exec: &mut E,
-    weights: &NetworkWeights,
+    net: &PreparedNetwork,
     image: ArrayView3<f32>,
 ) -> Result<Vec<E::Map>> {
-    run_first_blocks(exec, weights, image, weights.config.blocks)
+    run_first_blocks(exec, net, image, net.config().blocks)
 }
 
 /// The first `count` blocks of the encoder (`1..=blocks`), uncropped. The input is padded to the
@@ -261,28 +261,25 @@ fn run_blocks<E: Executor>(
 /// of the full pass's; the image pyramid stops at the last level these blocks read.
 fn run_first_blocks<E: Executor>(
     exec: &mut E,
-    weights: &NetworkWeights,
+    net: &PreparedNetwork,
     image: ArrayView3<f32>,
     count: usize,
 ) -> Result<Vec<E::Map>> {
-    weights.validate()?;
-    let config = &weights.config;
+    let config = net.config();
     let count = count.clamp(1, config.blocks);
     // Block k > 0 needs the image at block k-1's level; the deepest is the next-to-last block's.
     let max_level = if count > 1 { config.block_level(count - 2) } else { 0 };
     let pyramid = exec.pyramid(config, image, max_level)?;
     let mut outs: Vec<E::Map> = Vec::with_capacity(count);
-    for (k, block) in weights.blocks.iter().take(count).enumerate() {
+    for (k, [conv1, conv2, conv3]) in net.blocks.iter().take(count).enumerate() {
         let (stride, act) = (config.block_stride(k), Activation::Relu);
         let x1 = match outs.last() {
-            None => exec.conv(&pyramid[0], &block.conv1, stride, act)?,
-            Some(prev) => {
-                exec.concat_conv(prev, &pyramid[config.block_level(k - 1)], &block.conv1, stride, act)?
-            }
+            None => exec.conv(&pyramid[0], conv1, stride, act)?,
+            Some(prev) => exec.concat_conv(prev, &pyramid[config.block_level(k - 1)], conv1, stride, act)?,
         };
-        let x2 = exec.conv(&x1, &block.conv2, 1, Activation::Relu)?;
+        let x2 = exec.conv(&x1, conv2, 1, Activation::Relu)?;
         exec.release(x1);
-        let out = exec.conv(&x2, &block.conv3, 1, Activation::None)?;
+        let out = exec.conv(&x2, conv3, 1, Activation::None)?;
         exec.release(x2);
         outs.push(out);
     }
@@ -293,20 +290,21 @@ fn run_first_blocks<E: Executor>(
 /// aggregated map, cropped (what training's deep supervision needs).
 ///
 /// # Errors
-/// [`crate::Error::InvalidArgument`] for a malformed image or weights that do not match their config.
+/// [`crate::Error::InvalidArgument`] for a malformed image; the backend's errors (a layer
+/// prepared by another backend).
 pub fn run_network<E: Executor>(
     exec: &mut E,
-    weights: &NetworkWeights,
+    net: &PreparedNetwork,
     image: ArrayView3<f32>,
 ) -> Result<ForwardOutput<E::Map>> {
-    let outs = run_blocks(exec, weights, image)?;
-    let config = &weights.config;
+    let outs = run_blocks(exec, net, image)?;
+    let config = net.config();
     // Decoder, coarse to fine: a_k = out_k + deconv_k(a_{k+1}).
     let mut aggregated: Vec<E::Map> = Vec::with_capacity(config.blocks);
     for k in (0..config.blocks).rev() {
         let a = match aggregated.last() {
             None => outs[k].clone(),
-            Some(coarser) => exec.deconv_add(coarser, &weights.deconvs[k], &outs[k])?,
+            Some(coarser) => exec.deconv_add(coarser, &net.deconvs[k], &outs[k])?,
         };
         aggregated.push(a);
     }
@@ -330,20 +328,20 @@ pub fn run_network<E: Executor>(
 /// As [`run_network`].
 pub fn run_features<E: Executor>(
     exec: &mut E,
-    weights: &NetworkWeights,
+    net: &PreparedNetwork,
     image: ArrayView3<f32>,
 ) -> Result<E::Map> {
-    let mut outs = run_blocks(exec, weights, image)?;
+    let mut outs = run_blocks(exec, net, image)?;
     let Some(mut a) = outs.pop() else { unreachable!("validated weights have at least one block") };
     // `outs.pop()` is block k's output, k = blocks - 2 down to 0.
     while let Some(skip) = outs.pop() {
-        let next = exec.deconv_add(&a, &weights.deconvs[outs.len()], &skip)?;
+        let next = exec.deconv_add(&a, &net.deconvs[outs.len()], &skip)?;
         exec.release(a);
         exec.release(skip);
         a = next;
     }
     let (h, w, _) = image.dim();
-    let [h0, w0, _] = weights.config.output_shapes(h, w)[0];
+    let [h0, w0, _] = net.config().output_shapes(h, w)[0];
     Ok(exec.crop(a, h0, w0))
 }
 
@@ -356,13 +354,13 @@ pub fn run_features<E: Executor>(
 /// As [`run_network`].
 pub fn run_block1<E: Executor>(
     exec: &mut E,
-    weights: &NetworkWeights,
+    net: &PreparedNetwork,
     image: ArrayView3<f32>,
 ) -> Result<E::Map> {
-    let mut outs = run_first_blocks(exec, weights, image, 1)?;
+    let mut outs = run_first_blocks(exec, net, image, 1)?;
     let Some(out) = outs.pop() else { unreachable!("one block was run") };
     let (h, w, _) = image.dim();
-    let [h0, w0, _] = weights.config.output_shapes(h, w)[0];
+    let [h0, w0, _] = net.config().output_shapes(h, w)[0];
     Ok(exec.crop(out, h0, w0))
 }
 
@@ -378,6 +376,9 @@ fn to_host(t: Tensor, backend: &dyn Backend) -> Result<Array3<f32>> {
 #[derive(Debug)]
 pub struct FeatureNet {
     weights: NetworkWeights,
+    /// The layers prepared by each backend this network has run on (one per backend name; the
+    /// weights never change, so they never go stale).
+    prepared: Mutex<Vec<std::sync::Arc<PreparedNetwork>>>,
     /// Host buffers left over by the last forward pass, reused by the next one (SPEC.md §8.9): at
     /// most the few intermediates of one pass, never the maps a pass returns.
     spares: Mutex<Vec<Tensor>>,
@@ -386,7 +387,11 @@ pub struct FeatureNet {
 impl Clone for FeatureNet {
     /// The same weights, with an empty buffer arena.
     fn clone(&self) -> Self {
-        FeatureNet { weights: self.weights.clone(), spares: Mutex::new(Vec::new()) }
+        FeatureNet {
+            weights: self.weights.clone(),
+            prepared: Mutex::new(Vec::new()),
+            spares: Mutex::new(Vec::new()),
+        }
     }
 }
 
@@ -397,7 +402,21 @@ impl FeatureNet {
     /// [`crate::Error::InvalidArgument`] if a tensor's shape disagrees with the configuration.
     pub fn new(weights: NetworkWeights) -> Result<Self> {
         weights.validate()?;
-        Ok(FeatureNet { weights, spares: Mutex::new(Vec::new()) })
+        Ok(FeatureNet { weights, prepared: Mutex::new(Vec::new()), spares: Mutex::new(Vec::new()) })
+    }
+
+    /// The layers prepared by `backend` (on its first use with this network; then shared).
+    ///
+    /// # Errors
+    /// The backend's preparation errors.
+    pub fn prepared(&self, backend: &dyn Backend) -> Result<std::sync::Arc<PreparedNetwork>> {
+        let mut all = self.prepared.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(p) = all.iter().find(|p| p.backend() == backend.name()) {
+            return Ok(p.clone());
+        }
+        let p = std::sync::Arc::new(PreparedNetwork::new(&self.weights, backend)?);
+        all.push(p.clone());
+        Ok(p)
     }
 
     /// The configuration.
@@ -433,7 +452,8 @@ impl FeatureNet {
         image: ArrayView3<f32>,
         backend: &dyn Backend,
     ) -> Result<ForwardOutput<Tensor>> {
-        self.with_arena(backend, |exec| run_network(exec, &self.weights, image))
+        let net = self.prepared(backend)?;
+        self.with_arena(backend, |exec| run_network(exec, &net, image))
     }
 
     /// The features alone (`forward(..).aggregated[0]`, the same bits) as a host map: what
@@ -450,7 +470,8 @@ impl FeatureNet {
     /// # Errors
     /// As [`FeatureNet::forward`].
     pub fn features_tensor(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<Tensor> {
-        self.with_arena(backend, |exec| run_features(exec, &self.weights, image))
+        let net = self.prepared(backend)?;
+        self.with_arena(backend, |exec| run_features(exec, &net, image))
     }
 
     /// Block 1's output alone (`forward(..).blocks[0]`, the same bits) as a host map, without
@@ -460,7 +481,8 @@ impl FeatureNet {
     /// # Errors
     /// As [`FeatureNet::forward`].
     pub fn block1(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<Array3<f32>> {
-        let t = self.with_arena(backend, |exec| run_block1(exec, &self.weights, image))?;
+        let net = self.prepared(backend)?;
+        let t = self.with_arena(backend, |exec| run_block1(exec, &net, image))?;
         to_host(t, backend)
     }
 

@@ -8,10 +8,9 @@ use ndarray::{Array3, ArrayView3};
 
 use super::network::{run_features, Executor, PooledExecutor};
 use super::FeatureNet;
-use crate::backend::{Backend, Tensor};
+use crate::backend::{Backend, PreparedLayer, Tensor};
 use crate::error::Result;
 use crate::ops::Activation;
-use crate::ops::LayerParams;
 use crate::ops::{concat_conv_geometry, conv_geometry, deconv_geometry};
 
 /// Accumulated time and FLOPs of one kind of operation.
@@ -63,8 +62,8 @@ impl Executor for ProfileExecutor<'_> {
     ) -> Result<Vec<Tensor>> {
         self.record("image pyramid".into(), 0.0, |e| e.pyramid(config, image, max_level))
     }
-    fn conv(&mut self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
-        let g = conv_geometry(x.dim(), l, stride)?;
+    fn conv(&mut self, x: &Tensor, l: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor> {
+        let g = conv_geometry(x.dim(), l.params(), stride)?;
         let kind = format!("conv s{stride} {}->{}", g.c_in(), g.c_out());
         self.record(kind, g.flops(), |e| e.conv(x, l, stride, act))
     }
@@ -72,23 +71,23 @@ impl Executor for ProfileExecutor<'_> {
         &mut self,
         a: &Tensor,
         b: &Tensor,
-        l: &LayerParams,
+        l: &PreparedLayer,
         stride: usize,
         act: Activation,
     ) -> Result<Tensor> {
-        let g = concat_conv_geometry(a.dim(), b.dim(), l, stride)?;
+        let g = concat_conv_geometry(a.dim(), b.dim(), l.params(), stride)?;
         let kind = format!("concat + conv s{stride} {}->{}", g.c_in(), g.c_out());
         self.record(kind, g.flops(), |e| e.concat_conv(a, b, l, stride, act))
     }
-    fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+    fn deconv(&mut self, x: &Tensor, l: &PreparedLayer) -> Result<Tensor> {
         // Each input pixel's 4 outputs sum 9, 6, 6 and 4 taps: 25 products per input pixel and pair
         // of channels.
-        let g = deconv_geometry(x.dim(), l)?;
+        let g = deconv_geometry(x.dim(), l.params())?;
         let flops = 2.0 * 25.0 * (g.c_in() * g.c_out() * g.h() * g.w()) as f64;
         self.record("deconv 5x5 s2".into(), flops, |e| e.deconv(x, l))
     }
-    fn deconv_add(&mut self, x: &Tensor, l: &LayerParams, skip: &Tensor) -> Result<Tensor> {
-        let g = deconv_geometry(x.dim(), l)?;
+    fn deconv_add(&mut self, x: &Tensor, l: &PreparedLayer, skip: &Tensor) -> Result<Tensor> {
+        let g = deconv_geometry(x.dim(), l.params())?;
         let flops = 2.0 * 25.0 * (g.c_in() * g.c_out() * g.h() * g.w()) as f64;
         self.record("deconv 5x5 s2 + add".into(), flops, |e| e.deconv_add(x, l, skip))
     }
@@ -118,11 +117,12 @@ pub fn profile_forward(
     image: ArrayView3<f32>,
     runs: usize,
 ) -> Result<(Vec<(String, OpTotals)>, f64)> {
+    let prepared = net.prepared(backend)?;
     let mut exec = ProfileExecutor::new(backend);
     let runs = runs.max(1);
     let start = Instant::now();
     for _ in 0..runs {
-        std::hint::black_box(run_features(&mut exec, net.weights(), image)?);
+        std::hint::black_box(run_features(&mut exec, &prepared, image)?);
         // The arena carries over from pass to pass, as in `FeatureNet::features`.
     }
     let total = start.elapsed().as_secs_f64() * 1e3 / runs as f64;

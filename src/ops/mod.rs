@@ -18,11 +18,13 @@ pub(crate) mod gemm;
 pub mod geometry;
 pub mod input;
 pub mod layer;
-pub mod pack_cache;
+pub mod prepared;
 
 pub use config::NetworkConfig;
-pub use conv2d::{conv2d, conv2d_concat_into, conv2d_into, Conv2dImpl};
-pub use deconv2d::{deconv2d, deconv2d_into, Deconv2dImpl};
+pub use conv2d::{
+    conv2d, conv2d_concat_into, conv2d_concat_prepared_into, conv2d_into, conv2d_prepared_into, Conv2dImpl,
+};
+pub use deconv2d::{deconv2d, deconv2d_into, deconv2d_prepared_into, Deconv2dImpl};
 pub use downsample::{
     add, concat_channels, concat_channels_backward, concat_channels_into, downsample2x,
     downsample2x_backward, downsample2x_reference,
@@ -30,6 +32,7 @@ pub use downsample::{
 pub use geometry::{Conv2dGeometry, Deconv2dGeometry, DownsampleGeometry};
 pub use input::{image_pyramid, pad_edge, padded_input};
 pub use layer::{concat_conv_geometry, conv_geometry, deconv_geometry, LayerParams};
+pub use prepared::{PreparedConv, PreparedDeconv};
 
 use crate::error::{Error, Result};
 

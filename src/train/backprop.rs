@@ -13,10 +13,10 @@
 
 use ndarray::{s, Array3, ArrayView3};
 
-use crate::backend::{CpuBackend, Tensor};
+use crate::backend::{CpuBackend, PreparedLayer, Tensor};
 use crate::error::{Error, Result};
 use crate::nn::network::{run_network, BackendExecutor, Executor};
-use crate::nn::{ForwardOutput, NetworkWeights};
+use crate::nn::{ForwardOutput, NetworkWeights, PreparedNetwork};
 use crate::ops::conv2d::{conv2d_backward_input_with, conv2d_backward_weight, relu_backward, Conv2dImpl};
 use crate::ops::deconv2d::{deconv2d_backward_input, deconv2d_backward_weight};
 use crate::ops::Activation;
@@ -63,11 +63,11 @@ impl Executor for TapeExecutor<'_> {
     ) -> Result<Vec<Tensor>> {
         self.inner.pyramid(config, image, max_level)
     }
-    fn conv(&mut self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
+    fn conv(&mut self, x: &Tensor, l: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor> {
         self.conv_inputs.push(x.clone());
         self.inner.conv(x, l, stride, act)
     }
-    fn deconv(&mut self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+    fn deconv(&mut self, x: &Tensor, l: &PreparedLayer) -> Result<Tensor> {
         self.inner.deconv(x, l)
     }
     fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
@@ -97,10 +97,23 @@ pub fn forward_with_tape(
     image: ArrayView3<f32>,
     cpu: &CpuBackend,
 ) -> Result<(ForwardOutput, Tape)> {
+    forward_with_tape_prepared(&PreparedNetwork::new(weights, cpu)?, image, cpu)
+}
+
+/// [`forward_with_tape`] on layers already prepared by the CPU backend (a training step prepares
+/// its weights once for all its images).
+///
+/// # Errors
+/// As [`forward_with_tape`]; [`Error::Unsupported`] for layers another backend prepared.
+pub fn forward_with_tape_prepared(
+    net: &PreparedNetwork,
+    image: ArrayView3<f32>,
+    cpu: &CpuBackend,
+) -> Result<(ForwardOutput, Tape)> {
     let mut exec =
         TapeExecutor { inner: BackendExecutor(cpu), conv_inputs: Vec::new(), uncropped: Vec::new() };
-    let out = run_network(&mut exec, weights, image)?;
-    let n = weights.config.blocks;
+    let out = run_network(&mut exec, net, image)?;
+    let n = net.config().blocks;
     // run_network runs conv1, conv2, conv3 of each block in order, then crops the n block outputs
     // and the n aggregated maps.
     assert_eq!((exec.conv_inputs.len(), exec.uncropped.len()), (3 * n, 2 * n), "tape of {n} blocks");

@@ -10,8 +10,8 @@ use rayon::prelude::*;
 use crate::backend::CpuBackend;
 use crate::error::{Error, Result};
 use crate::geometry::{PinholeCamera, Pose, Warp};
-use crate::nn::{ForwardOutput, NetworkWeights};
-use crate::train::backprop::{backward, forward_with_tape, Tape};
+use crate::nn::{ForwardOutput, NetworkWeights, PreparedNetwork};
+use crate::train::backprop::{backward, forward_with_tape_prepared, Tape};
 use crate::train::loss::{scale_loss_multi, LiveView, LossConfig, LossSums};
 use crate::util::rng::hash64;
 
@@ -195,8 +195,11 @@ pub fn pair_step_timed(
     // on how they interleave), reference first.
     let images: Vec<ArrayView3<f32>> =
         std::iter::once(pair.ref_rgb.view()).chain(live_images.iter().map(|(img, _, _)| *img)).collect();
-    let mut outs =
-        images.par_iter().map(|img| forward_with_tape(weights, *img, cpu)).collect::<Result<Vec<_>>>()?;
+    let net = PreparedNetwork::new(weights, cpu)?;
+    let mut outs = images
+        .par_iter()
+        .map(|img| forward_with_tape_prepared(&net, *img, cpu))
+        .collect::<Result<Vec<_>>>()?;
     let live_out = outs.split_off(1);
     let Some((out_r, tape_r)) = outs.pop() else { unreachable!("the reference's forward") };
     times.forward = ms(t);

@@ -22,7 +22,7 @@ use std::sync::{Arc, Mutex, OnceLock, Weak};
 use ndarray::{Array3, ArrayView2, ArrayView3};
 use wgpu::util::DeviceExt;
 
-use super::{Backend, DeviceBuffer, Tensor, VolumeBuilder};
+use super::{Backend, DeviceBuffer, LayerOp, PreparedLayer, Tensor, VolumeBuilder};
 use crate::costvolume::WtaDepth;
 use crate::dtam::{DtamParams, DtamReport, DtamResult};
 use crate::error::{Error, Result};
@@ -37,8 +37,6 @@ const NAME: &str = "gpu";
 const WORKGROUP: u32 = 64;
 /// Workgroups along x before a dispatch wraps to the next y row (under WebGPU's 65 535).
 const MAX_GROUPS_X: u32 = 32_768;
-/// Packed layers kept on the device before the cache starts over.
-const WEIGHT_CACHE_LAYERS: usize = 256;
 
 fn unsupported(what: impl Into<String>) -> Error {
     Error::Unsupported { backend: NAME.into(), what: what.into() }
@@ -58,7 +56,8 @@ impl DeviceBuffer for GpuBuffer {
     }
 }
 
-/// The wgpu backend: one device and queue, compiled pipelines and packed layer weights cached.
+/// The wgpu backend: one device and queue, and its compiled pipelines. Layer weights live in the
+/// prepared layers its callers own ([`Backend::prepare_layer`]).
 pub struct GpuBackend {
     /// This backend itself (it lives in an `Arc`), for the cost-volume builders that outlive a call.
     me: Weak<GpuBackend>,
@@ -69,8 +68,6 @@ pub struct GpuBackend {
     f64: bool,
     max_binding: u64,
     pipelines: Mutex<HashMap<(&'static str, &'static str), wgpu::ComputePipeline>>,
-    /// Packed `[c_out, ky, kx, c_in] ++ bias` weights by their bits (content-keyed: no stale hits).
-    weights: Mutex<HashMap<Vec<u32>, Arc<wgpu::Buffer>>>,
 }
 
 impl std::fmt::Debug for GpuBackend {
@@ -126,7 +123,6 @@ impl GpuBackend {
             f64,
             max_binding,
             pipelines: Mutex::new(HashMap::new()),
-            weights: Mutex::new(HashMap::new()),
         }))
     }
 
@@ -381,22 +377,14 @@ impl GpuBackend {
         self.queue.submit([encoder.finish()]);
         Ok(())
     }
+}
 
-    /// A layer's weights repacked to `[c_out, ky, kx, c_in]` with the bias appended, on the device
-    /// (cached by content: the network's layers are uploaded once per process).
-    fn layer_weights(&self, packed: Vec<f32>) -> Arc<wgpu::Buffer> {
-        let key: Vec<u32> = packed.iter().map(|v| v.to_bits()).collect();
-        let mut cache = self.weights.lock().expect("weight cache poisoned");
-        if let Some(b) = cache.get(&key) {
-            return b.clone();
-        }
-        if cache.len() >= WEIGHT_CACHE_LAYERS {
-            cache.clear();
-        }
-        let b = Arc::new(self.storage_init(&packed));
-        cache.insert(key, b.clone());
-        b
-    }
+/// A layer prepared by the GPU backend: its weights `[c_out, ky, kx, c_in]` followed by the bias,
+/// on the device, and where the bias starts.
+#[derive(Debug)]
+struct GpuLayer {
+    weights: wgpu::Buffer,
+    bias_offset: usize,
 }
 
 /// `u32` kernel parameters from sizes (callers checked the element count fits).
@@ -443,50 +431,55 @@ impl Backend for GpuBackend {
         self.wait()
     }
 
-    fn conv3x3(&self, x: &Tensor, l: &LayerParams, stride: usize, act: Activation) -> Result<Tensor> {
-        let xb = self.buffer(x)?;
-        let g = conv_geometry(x.dim(), l, stride)?;
-        let (h, w, c_in) = x.dim();
-        let [h_out, w_out, c_out] = g.output_shape();
-        let mut packed = Vec::with_capacity(c_out * 9 * c_in + c_out);
+    fn prepare_layer(&self, layer: Arc<LayerParams>, op: LayerOp) -> Result<PreparedLayer> {
+        let l = &*layer;
+        if l.weight.ndim() != 4 || l.bias.ndim() != 1 {
+            return Err(Error::invalid_argument("layer", "expected a 4-d weight and a 1-d bias"));
+        }
+        // Weights `[c_out, ky, kx, c_in]` with the bias appended (SPEC.md §15.2).
+        let (c_out, c_in, k) = match op {
+            LayerOp::Conv3x3 => (l.weight.shape()[0], l.weight.shape()[1], 3),
+            LayerOp::Deconv5x5s2 => (l.weight.shape()[1], l.weight.shape()[0], 5),
+        };
+        let mut packed = Vec::with_capacity(c_out * k * k * c_in + c_out);
         for o in 0..c_out {
-            for ky in 0..3 {
-                for kx in 0..3 {
-                    packed.extend((0..c_in).map(|c| l.weight[[o, c, ky, kx]]));
+            for ky in 0..k {
+                for kx in 0..k {
+                    packed.extend((0..c_in).map(|c| match op {
+                        LayerOp::Conv3x3 => l.weight[[o, c, ky, kx]],
+                        LayerOp::Deconv5x5s2 => l.weight[[c, o, ky, kx]],
+                    }));
                 }
             }
         }
-        let bias_offset = packed.len();
         packed.extend(l.bias.iter());
         self.check_size(packed.len())?;
-        let wt = self.layer_weights(packed);
+        let buffer = GpuLayer { weights: self.storage_init(&packed), bias_offset: c_out * k * k * c_in };
+        Ok(PreparedLayer::new(NAME, op, layer, Arc::new(buffer)))
+    }
+
+    fn conv3x3(&self, x: &Tensor, l: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor> {
+        let xb = self.buffer(x)?;
+        let wt: &GpuLayer = l.data(NAME, LayerOp::Conv3x3)?;
+        let g = conv_geometry(x.dim(), l.params(), stride)?;
+        let (h, w, c_in) = x.dim();
+        let [h_out, w_out, c_out] = g.output_shape();
         let out = self.alloc((h_out, w_out, c_out))?;
         let relu = usize::from(matches!(act, Activation::Relu));
-        let p = params([h_out * w_out * c_out, h, w, c_in, w_out, c_out, stride, relu, bias_offset]);
-        self.dispatch("conv3x3", kernels::CONV3X3, &p, &[&xb.buffer, &wt], &out)?;
+        let p = params([h_out * w_out * c_out, h, w, c_in, w_out, c_out, stride, relu, wt.bias_offset]);
+        self.dispatch("conv3x3", kernels::CONV3X3, &p, &[&xb.buffer, &wt.weights], &out)?;
         Ok(out)
     }
 
-    fn deconv5x5s2(&self, x: &Tensor, l: &LayerParams) -> Result<Tensor> {
+    fn deconv5x5s2(&self, x: &Tensor, l: &PreparedLayer) -> Result<Tensor> {
         let xb = self.buffer(x)?;
-        let g = deconv_geometry(x.dim(), l)?;
+        let wt: &GpuLayer = l.data(NAME, LayerOp::Deconv5x5s2)?;
+        let g = deconv_geometry(x.dim(), l.params())?;
         let (h, w, c_in) = x.dim();
         let [h_out, w_out, c_out] = g.output_shape();
-        let mut packed = Vec::with_capacity(c_out * 25 * c_in + c_out);
-        for o in 0..c_out {
-            for ky in 0..5 {
-                for kx in 0..5 {
-                    packed.extend((0..c_in).map(|c| l.weight[[c, o, ky, kx]]));
-                }
-            }
-        }
-        let bias_offset = packed.len();
-        packed.extend(l.bias.iter());
-        self.check_size(packed.len())?;
-        let wt = self.layer_weights(packed);
         let out = self.alloc((h_out, w_out, c_out))?;
-        let p = params([h_out * w_out * c_out, h, w, c_in, c_out, bias_offset]);
-        self.dispatch("deconv5x5s2", kernels::DECONV5X5S2, &p, &[&xb.buffer, &wt], &out)?;
+        let p = params([h_out * w_out * c_out, h, w, c_in, c_out, wt.bias_offset]);
+        self.dispatch("deconv5x5s2", kernels::DECONV5X5S2, &p, &[&xb.buffer, &wt.weights], &out)?;
         Ok(out)
     }
 

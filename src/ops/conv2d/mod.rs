@@ -57,7 +57,8 @@ pub use winograd::{
 };
 
 use crate::error::Result;
-use crate::ops::pack_cache::{packed_conv, packed_winograd};
+use crate::ops::prepared::PreparedConv;
+use crate::ops::LayerParams;
 use crate::ops::{concat_channels, default_lanes, expect_len, expect_shape, Activation, Conv2dGeometry};
 
 /// Which conv2d implementation to run. Every variant is always compiled and always tested.
@@ -173,8 +174,9 @@ pub fn conv2d(
 }
 
 /// [`conv2d`] into a caller-provided output slice (`[h_out, w_out, c_out]`, row-major, every value
-/// overwritten; its previous contents do not matter). The fast implementations take their packed
-/// weights from [`crate::ops::pack_cache`], so a layer is repacked once, not once per call.
+/// overwritten; its previous contents do not matter). The weights are packed for this call; a
+/// caller that runs a layer repeatedly prepares it once ([`PreparedConv`], the CPU backend's
+/// prepared layers) and calls [`conv2d_prepared_into`].
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] if an array's shape or `out`'s length disagrees with `geom`.
@@ -187,15 +189,38 @@ pub fn conv2d_into(
     activation: Activation,
     out: &mut [f32],
 ) -> Result<()> {
+    let layer = PreparedConv::new(std::sync::Arc::new(LayerParams {
+        weight: weight.to_owned(),
+        bias: bias.to_owned(),
+    }));
+    conv2d_prepared_into(imp, geom, input, &layer, activation, out)
+}
+
+/// [`conv2d_into`] with the layer's packed weights from `layer` (packed on first use, SPEC.md
+/// §7.9).
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] if an array's shape or `out`'s length disagrees with `geom`.
+pub fn conv2d_prepared_into(
+    imp: Conv2dImpl,
+    geom: &Conv2dGeometry,
+    input: ArrayView3<f32>,
+    layer: &PreparedConv,
+    activation: Activation,
+    out: &mut [f32],
+) -> Result<()> {
     expect_shape("conv2d input", input.shape(), &geom.input_shape())?;
     expect_len("conv2d output", out.len(), geom.output_shape().iter().product())?;
     match imp {
         Conv2dImpl::Reference => {
+            let l = layer.layer();
+            expect_shape("conv2d weight", l.weight.shape(), &geom.weight_shape())?;
+            expect_shape("conv2d bias", l.bias.shape(), &[geom.c_out()])?;
             let r = conv2d_reference(
                 geom,
                 input.mapv(f64::from).view(),
-                weight.mapv(f64::from).view(),
-                bias.mapv(f64::from).view(),
+                l.weight.mapv(f64::from).view(),
+                l.bias.mapv(f64::from).view(),
                 activation,
             )?;
             for (o, v) in out.iter_mut().zip(r.iter()) {
@@ -204,7 +229,7 @@ pub fn conv2d_into(
             Ok(())
         }
         Conv2dImpl::Im2colGemm => {
-            let packed = packed_conv(geom, weight, bias)?;
+            let packed = layer.packed(geom)?;
             let input = input.as_standard_layout();
             let lanes = default_lanes(im2col::n_blocks(geom));
             let mut scratch = vec![0.0; lanes * scratch_len(geom)];
@@ -212,14 +237,14 @@ pub fn conv2d_into(
             conv2d_im2col(&packed, x, activation, &mut scratch, out)
         }
         Conv2dImpl::Direct => {
-            let packed = packed_conv(geom, weight, bias)?;
+            let packed = layer.packed(geom)?;
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
             conv2d_direct(&packed, x, activation, out).map(|_| ())
         }
         Conv2dImpl::WinogradF2 | Conv2dImpl::WinogradF4 => {
             let tile = imp.winograd_tile().unwrap_or(WinogradTile::F2x2);
-            let packed = packed_winograd(tile, geom, weight, bias)?;
+            let packed = layer.winograd(tile, geom)?;
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
             conv2d_winograd(&packed, x, activation, out).map(|_| ())
@@ -246,15 +271,35 @@ pub fn conv2d_concat_into(
     activation: Activation,
     out: &mut [f32],
 ) -> Result<()> {
+    let layer = PreparedConv::new(std::sync::Arc::new(LayerParams {
+        weight: weight.to_owned(),
+        bias: bias.to_owned(),
+    }));
+    conv2d_concat_prepared_into(imp, geom, a, b, &layer, activation, out)
+}
+
+/// [`conv2d_concat_into`] with the layer's packed weights from `layer` (SPEC.md §7.9).
+///
+/// # Errors
+/// As [`conv2d_concat_into`].
+pub fn conv2d_concat_prepared_into(
+    imp: Conv2dImpl,
+    geom: &Conv2dGeometry,
+    a: ArrayView3<f32>,
+    b: ArrayView3<f32>,
+    layer: &PreparedConv,
+    activation: Activation,
+    out: &mut [f32],
+) -> Result<()> {
     let [h, w, c_in] = geom.input_shape();
     let (ca, cb) = (a.dim().2, b.dim().2);
     expect_shape("conv2d concat input a", a.shape(), &[h, w, ca])?;
     expect_shape("conv2d concat input b", b.shape(), &[h, w, c_in.saturating_sub(ca)])?;
     if imp != Conv2dImpl::Direct || ca == 0 || cb == 0 {
         let x = concat_channels(a, b)?;
-        return conv2d_into(imp, geom, x.view(), weight, bias, activation, out);
+        return conv2d_prepared_into(imp, geom, x.view(), layer, activation, out);
     }
-    let packed = packed_conv(geom, weight, bias)?;
+    let packed = layer.packed(geom)?;
     let (a, b) = (a.as_standard_layout(), b.as_standard_layout());
     let (Some(sa), Some(sb)) = (a.as_slice(), b.as_slice()) else {
         unreachable!("standard-layout arrays are contiguous")

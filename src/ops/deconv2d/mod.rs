@@ -43,7 +43,8 @@ pub use winograd::{
 
 use crate::error::Result;
 use crate::ops::conv2d::{OutputLayout, WinogradKernel, WinogradTile, WINOGRAD_MIN_C_IN};
-use crate::ops::pack_cache::{packed_deconv, packed_deconv_winograd};
+use crate::ops::prepared::PreparedDeconv;
+use crate::ops::LayerParams;
 use crate::ops::{default_lanes, expect_len, expect_shape, Deconv2dGeometry};
 
 /// Which transposed-convolution implementation to run. Every variant is always compiled and tested.
@@ -128,8 +129,8 @@ pub fn deconv2d(
 /// [`deconv2d`] into a caller-provided output slice (`[2h, 2w, c_out]`, row-major, every value
 /// overwritten), plus `skip` (same length) when given: `out = skip + deconv` (the U-Net sum, one
 /// f32 addition per value, fused into the store by [`Deconv2dImpl::Direct`], a second pass
-/// otherwise; the same bits either way). The fast implementations take their packed weights from
-/// [`crate::ops::pack_cache`].
+/// otherwise; the same bits either way). The weights are packed for this call; a caller that runs
+/// a layer repeatedly prepares it once ([`PreparedDeconv`]) and calls [`deconv2d_prepared_into`].
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] if an array's shape or a slice's length disagrees with `geom`.
@@ -142,6 +143,26 @@ pub fn deconv2d_into(
     skip: Option<&[f32]>,
     out: &mut [f32],
 ) -> Result<()> {
+    let layer = PreparedDeconv::new(std::sync::Arc::new(LayerParams {
+        weight: weight.to_owned(),
+        bias: bias.to_owned(),
+    }));
+    deconv2d_prepared_into(imp, geom, input, &layer, skip, out)
+}
+
+/// [`deconv2d_into`] with the layer's packed weights from `layer` (packed on first use, SPEC.md
+/// §7.9).
+///
+/// # Errors
+/// As [`deconv2d_into`].
+pub fn deconv2d_prepared_into(
+    imp: Deconv2dImpl,
+    geom: &Deconv2dGeometry,
+    input: ArrayView3<f32>,
+    layer: &PreparedDeconv,
+    skip: Option<&[f32]>,
+    out: &mut [f32],
+) -> Result<()> {
     expect_shape("deconv2d input", input.shape(), &geom.input_shape())?;
     expect_len("deconv2d output", out.len(), geom.output_shape().iter().product())?;
     if let Some(s) = skip {
@@ -149,31 +170,34 @@ pub fn deconv2d_into(
     }
     match imp {
         Deconv2dImpl::Reference => {
+            let l = layer.layer();
+            expect_shape("deconv2d weight", l.weight.shape(), &geom.weight_shape())?;
+            expect_shape("deconv2d bias", l.bias.shape(), &[geom.c_out()])?;
             let r = deconv2d_reference(
                 geom,
                 input.mapv(f64::from).view(),
-                weight.mapv(f64::from).view(),
-                bias.mapv(f64::from).view(),
+                l.weight.mapv(f64::from).view(),
+                l.bias.mapv(f64::from).view(),
             )?;
             for (o, v) in out.iter_mut().zip(r.iter()) {
                 *o = *v as f32;
             }
         }
         Deconv2dImpl::Direct if direct::supported(geom) => {
-            let packed = packed_deconv(geom, weight, bias)?;
+            let packed = layer.packed(geom)?;
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
             return deconv2d_direct(&packed, x, skip, out);
         }
         Deconv2dImpl::WinogradF2 | Deconv2dImpl::WinogradF4 => {
             let tile = imp.winograd_tile().unwrap_or(WinogradTile::F2x2);
-            let packed = packed_deconv_winograd(tile, geom, weight, bias)?;
+            let packed = layer.winograd(tile, geom)?;
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
             return deconv2d_winograd(&packed, x, skip, out).map(|_| ());
         }
         Deconv2dImpl::ParityGemm | Deconv2dImpl::Direct => {
-            let packed = packed_deconv(geom, weight, bias)?;
+            let packed = layer.packed(geom)?;
             let input = input.as_standard_layout();
             let lanes = default_lanes(geom.h());
             let mut scratch = vec![0.0; lanes * scratch_len(geom)];

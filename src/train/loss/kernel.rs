@@ -331,10 +331,10 @@ mod avx512 {
                 }
                 run = Some(cell);
             }
-            for t in 0..4 {
-                let cw = _mm512_set1_ps(-coef * tap.w[t]);
-                acc[t][0] = _mm512_add_ps(acc[t][0], _mm512_mul_ps(cw, r0));
-                acc[t][1] = _mm512_add_ps(acc[t][1], _mm512_mul_ps(cw, r1));
+            for (a, &wt) in acc.iter_mut().zip(&tap.w) {
+                let cw = _mm512_set1_ps(-coef * wt);
+                a[0] = _mm512_add_ps(a[0], _mm512_mul_ps(cw, r0));
+                a[1] = _mm512_add_ps(a[1], _mm512_mul_ps(cw, r1));
             }
         }
         if run.is_some() {

@@ -1,0 +1,154 @@
+//! One layer's weights packed for the fast kernels, owned by whoever prepared the layer (SPEC.md
+//! §7.9): the CPU backend's prepared layers ([`crate::backend::Backend::prepare_layer`]) hold
+//! them for as long as the network they belong to lives, so a layer is packed once per network,
+//! not once per call, and no process-wide cache exists.
+//!
+//! Each packing (the GEMM / direct layout, and the Winograd transforms F(2x2) and F(4x4)) is made
+//! the first time an implementation needs it, from the geometry of that call, and re-targeted to
+//! the geometry of every later call ([`PackedConv2d::with_geometry`] and its siblings: no copy of
+//! the weights). Packing is a pure function of the weights (a permutation, or the fixed f64
+//! Winograd weight transform), so a packing made once and one made per call give the same bits.
+//! The weights of a prepared layer never change: training prepares its network again after each
+//! optimiser step.
+
+use std::sync::{Arc, OnceLock};
+
+use crate::error::Result;
+use crate::ops::conv2d::{PackedConv2d, PackedWinograd, WinogradTile};
+use crate::ops::deconv2d::winograd::{equivalent_geometry, pack_deconv_winograd};
+use crate::ops::deconv2d::PackedDeconv2d;
+use crate::ops::geometry::{Conv2dGeometry, Deconv2dGeometry};
+use crate::ops::{expect_shape, LayerParams};
+
+/// The index of a Winograd tile in the prepared layers' arrays.
+fn tile_index(tile: WinogradTile) -> usize {
+    match tile {
+        WinogradTile::F2x2 => 0,
+        WinogradTile::F4x4 => 1,
+    }
+}
+
+/// `cell`'s packing re-targeted by `retarget`, or `pack()` stored there first. Two threads that
+/// both find the cell empty both pack (the same values) and one of them stores.
+fn once<P: Clone>(
+    cell: &OnceLock<P>,
+    pack: impl FnOnce() -> Result<P>,
+    retarget: impl FnOnce(&P) -> Result<P>,
+) -> Result<P> {
+    if let Some(p) = cell.get() {
+        return retarget(p);
+    }
+    let p = pack()?;
+    let _ = cell.set(p.clone());
+    Ok(p)
+}
+
+/// A 3x3 convolution layer (`weight [c_out, c_in, 3, 3]`, `bias [c_out]`) with its packings.
+#[derive(Clone, Debug)]
+pub struct PreparedConv {
+    layer: Arc<LayerParams>,
+    gemm: OnceLock<PackedConv2d>,
+    winograd: [OnceLock<PackedWinograd>; 2],
+}
+
+impl PreparedConv {
+    /// The layer, nothing packed yet.
+    pub fn new(layer: Arc<LayerParams>) -> Self {
+        PreparedConv { layer, gemm: OnceLock::new(), winograd: [OnceLock::new(), OnceLock::new()] }
+    }
+
+    /// The layer's parameters.
+    pub fn layer(&self) -> &LayerParams {
+        &self.layer
+    }
+
+    /// Checks the weight and bias against `geom`.
+    fn check(&self, geom: &Conv2dGeometry) -> Result<()> {
+        expect_shape("conv2d weight", self.layer.weight.shape(), &geom.weight_shape())?;
+        expect_shape("conv2d bias", self.layer.bias.shape(), &[geom.c_out()])
+    }
+
+    /// The GEMM / direct packing ([`PackedConv2d`]) for `geom`.
+    ///
+    /// # Errors
+    /// Weight or bias shapes that disagree with `geom`.
+    pub fn packed(&self, geom: &Conv2dGeometry) -> Result<PackedConv2d> {
+        self.check(geom)?;
+        let l = &self.layer;
+        once(
+            &self.gemm,
+            || PackedConv2d::new(geom, l.weight.view(), l.bias.view()),
+            |p| p.with_geometry(geom),
+        )
+    }
+
+    /// The Winograd packing ([`PackedWinograd`]) of `tile` for `geom`.
+    ///
+    /// # Errors
+    /// Shapes that disagree with `geom`; a stride-2 geometry.
+    pub fn winograd(&self, tile: WinogradTile, geom: &Conv2dGeometry) -> Result<PackedWinograd> {
+        self.check(geom)?;
+        let l = &self.layer;
+        once(
+            &self.winograd[tile_index(tile)],
+            || PackedWinograd::new(tile, geom, l.weight.view(), l.bias.view()),
+            |p| p.with_geometry(geom),
+        )
+    }
+}
+
+/// A 5x5 stride-2 transposed convolution layer (`weight [c_in, c_out, 5, 5]`, `bias [c_out]`)
+/// with its packings.
+#[derive(Clone, Debug)]
+pub struct PreparedDeconv {
+    layer: Arc<LayerParams>,
+    gemm: OnceLock<PackedDeconv2d>,
+    winograd: [OnceLock<PackedWinograd>; 2],
+}
+
+impl PreparedDeconv {
+    /// The layer, nothing packed yet.
+    pub fn new(layer: Arc<LayerParams>) -> Self {
+        PreparedDeconv { layer, gemm: OnceLock::new(), winograd: [OnceLock::new(), OnceLock::new()] }
+    }
+
+    /// The layer's parameters.
+    pub fn layer(&self) -> &LayerParams {
+        &self.layer
+    }
+
+    /// Checks the weight and bias against `geom`.
+    fn check(&self, geom: &Deconv2dGeometry) -> Result<()> {
+        expect_shape("deconv2d weight", self.layer.weight.shape(), &geom.weight_shape())?;
+        expect_shape("deconv2d bias", self.layer.bias.shape(), &[geom.c_out()])
+    }
+
+    /// The parity packing ([`PackedDeconv2d`]) for `geom`.
+    ///
+    /// # Errors
+    /// Weight or bias shapes that disagree with `geom`.
+    pub fn packed(&self, geom: &Deconv2dGeometry) -> Result<PackedDeconv2d> {
+        self.check(geom)?;
+        let l = &self.layer;
+        once(
+            &self.gemm,
+            || PackedDeconv2d::new(geom, l.weight.view(), l.bias.view()),
+            |p| p.with_geometry(geom),
+        )
+    }
+
+    /// The Winograd packing of the equivalent convolution (SPEC.md §7.3) of `tile` for `geom`.
+    ///
+    /// # Errors
+    /// Weight or bias shapes that disagree with `geom`.
+    pub fn winograd(&self, tile: WinogradTile, geom: &Deconv2dGeometry) -> Result<PackedWinograd> {
+        self.check(geom)?;
+        let l = &self.layer;
+        let g = equivalent_geometry(geom)?;
+        once(
+            &self.winograd[tile_index(tile)],
+            || pack_deconv_winograd(tile, geom, l.weight.view(), l.bias.view()),
+            |p| p.with_geometry(&g),
+        )
+    }
+}

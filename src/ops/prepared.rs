@@ -11,7 +11,7 @@
 //! The weights of a prepared layer never change: training prepares its network again after each
 //! optimiser step.
 
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex};
 
 use crate::error::Result;
 use crate::ops::conv2d::{PackedConv2d, PackedWinograd, WinogradTile};
@@ -28,33 +28,56 @@ fn tile_index(tile: WinogradTile) -> usize {
     }
 }
 
-/// `cell`'s packing re-targeted by `retarget`, or `pack()` stored there first. Two threads that
-/// both find the cell empty both pack (the same values) and one of them stores.
-fn once<P: Clone>(
-    cell: &OnceLock<P>,
-    pack: impl FnOnce() -> Result<P>,
-    retarget: impl FnOnce(&P) -> Result<P>,
-) -> Result<P> {
-    if let Some(p) = cell.get() {
-        return retarget(p);
+/// A packing made on first use, behind a lock: a thread that finds it being made waits for it
+/// instead of making it again (the two images of a training pair run at once on one network).
+#[derive(Debug)]
+struct Slot<P>(Mutex<Option<P>>);
+
+impl<P> Default for Slot<P> {
+    fn default() -> Self {
+        Slot(Mutex::new(None))
     }
-    let p = pack()?;
-    let _ = cell.set(p.clone());
-    Ok(p)
+}
+
+impl<P: Clone> Clone for Slot<P> {
+    fn clone(&self) -> Self {
+        Slot(Mutex::new(self.0.lock().unwrap_or_else(|e| e.into_inner()).clone()))
+    }
+}
+
+impl<P: Clone> Slot<P> {
+    /// The slot's packing re-targeted by `retarget`, or `pack()` stored there first.
+    fn get(&self, pack: impl FnOnce() -> Result<P>, retarget: impl FnOnce(&P) -> Result<P>) -> Result<P> {
+        let mut slot = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(p) = slot.as_ref() {
+            return retarget(p);
+        }
+        let p = pack()?;
+        *slot = Some(p.clone());
+        Ok(p)
+    }
 }
 
 /// A 3x3 convolution layer (`weight [c_out, c_in, 3, 3]`, `bias [c_out]`) with its packings.
 #[derive(Clone, Debug)]
 pub struct PreparedConv {
     layer: Arc<LayerParams>,
-    gemm: OnceLock<PackedConv2d>,
-    winograd: [OnceLock<PackedWinograd>; 2],
+    gemm: Slot<PackedConv2d>,
+    winograd: [Slot<PackedWinograd>; 2],
+    /// The layer whose convolution is this one's input gradient at stride 1 (SPEC.md §13.2): the
+    /// weights flipped and transposed, zero bias; made on first use.
+    backward_input: Slot<Arc<PreparedConv>>,
 }
 
 impl PreparedConv {
     /// The layer, nothing packed yet.
     pub fn new(layer: Arc<LayerParams>) -> Self {
-        PreparedConv { layer, gemm: OnceLock::new(), winograd: [OnceLock::new(), OnceLock::new()] }
+        PreparedConv {
+            layer,
+            gemm: Slot::default(),
+            winograd: Default::default(),
+            backward_input: Slot::default(),
+        }
     }
 
     /// The layer's parameters.
@@ -75,11 +98,23 @@ impl PreparedConv {
     pub fn packed(&self, geom: &Conv2dGeometry) -> Result<PackedConv2d> {
         self.check(geom)?;
         let l = &self.layer;
-        once(
-            &self.gemm,
-            || PackedConv2d::new(geom, l.weight.view(), l.bias.view()),
-            |p| p.with_geometry(geom),
-        )
+        self.gemm.get(|| PackedConv2d::new(geom, l.weight.view(), l.bias.view()), |p| p.with_geometry(geom))
+    }
+
+    /// The layer of this one's stride-1 input gradient: weights `w'[c, o, ky, kx] = w[o, c, 2 - ky,
+    /// 2 - kx]`, zero bias (the transposed convolution as a convolution, SPEC.md §13.2), made on
+    /// first use and then shared.
+    pub fn backward_input(&self) -> Arc<PreparedConv> {
+        let made = self.backward_input.get(
+            || {
+                let l = &self.layer;
+                let weight = crate::ops::conv2d::backward_fast::flipped_transposed(l.weight.view());
+                let bias = ndarray::Array1::zeros(l.weight.shape()[1]);
+                Ok(Arc::new(PreparedConv::new(Arc::new(LayerParams { weight, bias }))))
+            },
+            |p| Ok(p.clone()),
+        );
+        made.unwrap_or_else(|_| unreachable!("making the flipped layer cannot fail"))
     }
 
     /// The Winograd packing ([`PackedWinograd`]) of `tile` for `geom`.
@@ -89,8 +124,7 @@ impl PreparedConv {
     pub fn winograd(&self, tile: WinogradTile, geom: &Conv2dGeometry) -> Result<PackedWinograd> {
         self.check(geom)?;
         let l = &self.layer;
-        once(
-            &self.winograd[tile_index(tile)],
+        self.winograd[tile_index(tile)].get(
             || PackedWinograd::new(tile, geom, l.weight.view(), l.bias.view()),
             |p| p.with_geometry(geom),
         )
@@ -102,14 +136,14 @@ impl PreparedConv {
 #[derive(Clone, Debug)]
 pub struct PreparedDeconv {
     layer: Arc<LayerParams>,
-    gemm: OnceLock<PackedDeconv2d>,
-    winograd: [OnceLock<PackedWinograd>; 2],
+    gemm: Slot<PackedDeconv2d>,
+    winograd: [Slot<PackedWinograd>; 2],
 }
 
 impl PreparedDeconv {
     /// The layer, nothing packed yet.
     pub fn new(layer: Arc<LayerParams>) -> Self {
-        PreparedDeconv { layer, gemm: OnceLock::new(), winograd: [OnceLock::new(), OnceLock::new()] }
+        PreparedDeconv { layer, gemm: Slot::default(), winograd: Default::default() }
     }
 
     /// The layer's parameters.
@@ -130,11 +164,7 @@ impl PreparedDeconv {
     pub fn packed(&self, geom: &Deconv2dGeometry) -> Result<PackedDeconv2d> {
         self.check(geom)?;
         let l = &self.layer;
-        once(
-            &self.gemm,
-            || PackedDeconv2d::new(geom, l.weight.view(), l.bias.view()),
-            |p| p.with_geometry(geom),
-        )
+        self.gemm.get(|| PackedDeconv2d::new(geom, l.weight.view(), l.bias.view()), |p| p.with_geometry(geom))
     }
 
     /// The Winograd packing of the equivalent convolution (SPEC.md §7.3) of `tile` for `geom`.
@@ -145,10 +175,7 @@ impl PreparedDeconv {
         self.check(geom)?;
         let l = &self.layer;
         let g = equivalent_geometry(geom)?;
-        once(
-            &self.winograd[tile_index(tile)],
-            || pack_deconv_winograd(tile, geom, l.weight.view(), l.bias.view()),
-            |p| p.with_geometry(&g),
-        )
+        self.winograd[tile_index(tile)]
+            .get(|| pack_deconv_winograd(tile, geom, l.weight.view(), l.bias.view()), |p| p.with_geometry(&g))
     }
 }

@@ -13,14 +13,16 @@
 
 use ndarray::{s, Array3, ArrayView3};
 
-use crate::backend::{CpuBackend, PreparedLayer, Tensor};
+use crate::backend::{CpuBackend, LayerOp, PreparedLayer, Tensor};
 use crate::error::{Error, Result};
 use crate::nn::network::{run_network, BackendExecutor, Executor};
 use crate::nn::{ForwardOutput, NetworkWeights, PreparedNetwork};
-use crate::ops::conv2d::{conv2d_backward_input_with, conv2d_backward_weight, relu_backward, Conv2dImpl};
+use crate::ops::conv2d::backward_fast::conv2d_backward_input_prepared;
+use crate::ops::conv2d::{conv2d_backward_weight, relu_backward, Conv2dImpl};
 use crate::ops::deconv2d::{deconv2d_backward_input, deconv2d_backward_weight};
 use crate::ops::Activation;
 use crate::ops::LayerParams;
+use crate::ops::PreparedConv;
 use crate::ops::{conv_geometry, deconv_geometry};
 
 /// What one block's backward pass needs, at padded size.
@@ -169,7 +171,31 @@ pub fn backward(
     d_features: Option<ArrayView3<f32>>,
     grads: &mut NetworkWeights,
 ) -> Result<()> {
+    let net = PreparedNetwork::new(weights, &CpuBackend::default())?;
+    backward_prepared(&net, weights, tape, d_blocks, d_features, grads)
+}
+
+/// [`backward`] with `weights`' layers prepared by the CPU backend (`net`, as the forward pass
+/// used them): the stride-1 input gradients take their flipped layers from it, made and packed once
+/// per prepared network instead of once per call (SPEC.md §7.9). The same bits.
+///
+/// # Errors
+/// As [`backward`]; [`Error::Unsupported`] for layers another backend prepared.
+pub fn backward_prepared(
+    net: &PreparedNetwork,
+    weights: &NetworkWeights,
+    tape: &Tape,
+    d_blocks: &[Option<ArrayView3<f32>>],
+    d_features: Option<ArrayView3<f32>>,
+    grads: &mut NetworkWeights,
+) -> Result<()> {
     let config = &weights.config;
+    let cpu_layer = |k: usize, i: usize| -> Result<&PreparedConv> {
+        let l = net.blocks.get(k).map(|b| &b[i]).ok_or_else(|| {
+            Error::invalid_argument("backward", "the prepared network has fewer blocks than the weights")
+        })?;
+        l.data::<PreparedConv>("cpu", LayerOp::Conv3x3)
+    };
     let n = config.blocks;
     if d_blocks.len() != n || tape.blocks.len() != n || grads.blocks.len() != n {
         return Err(Error::invalid_argument(
@@ -200,32 +226,28 @@ pub fn backward(
         let g3 = conv_geometry(t.x2.dim(), &block.conv3, 1)?;
         let (d_w, d_b) = conv2d_backward_weight(&g3, t.x2.view(), d_out[k].view())?;
         accumulate(&mut gb.conv3, &d_w, &d_b);
-        let d_x2 = conv2d_backward_input_with(
+        let d_x2 = conv2d_backward_input_prepared(
             Conv2dImpl::fastest_for(&g3),
             &g3,
             d_out[k].view(),
-            block.conv3.weight.view(),
+            cpu_layer(k, 2)?,
         )?;
         let d_x2 = relu_backward(t.x2.view(), d_x2.view())?;
         let g2 = conv_geometry(t.x1.dim(), &block.conv2, 1)?;
         let (d_w, d_b) = conv2d_backward_weight(&g2, t.x1.view(), d_x2.view())?;
         accumulate(&mut gb.conv2, &d_w, &d_b);
-        let d_x1 = conv2d_backward_input_with(
-            Conv2dImpl::fastest_for(&g2),
-            &g2,
-            d_x2.view(),
-            block.conv2.weight.view(),
-        )?;
+        let d_x1 =
+            conv2d_backward_input_prepared(Conv2dImpl::fastest_for(&g2), &g2, d_x2.view(), cpu_layer(k, 1)?)?;
         let d_x1 = relu_backward(t.x1.view(), d_x1.view())?;
         let g1 = conv_geometry(t.input.dim(), &block.conv1, config.block_stride(k))?;
         let (d_w, d_b) = conv2d_backward_weight(&g1, t.input.view(), d_x1.view())?;
         accumulate(&mut gb.conv1, &d_w, &d_b);
         if k > 0 {
-            let d_in = conv2d_backward_input_with(
+            let d_in = conv2d_backward_input_prepared(
                 Conv2dImpl::fastest_for(&g1),
                 &g1,
                 d_x1.view(),
-                block.conv1.weight.view(),
+                cpu_layer(k, 0)?,
             )?;
             // The concat's backward: the first C channels belong to the previous block's output.
             let prev = d_in.slice(s![.., .., ..config.channels]);

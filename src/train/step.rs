@@ -11,7 +11,7 @@ use crate::backend::CpuBackend;
 use crate::error::{Error, Result};
 use crate::geometry::{PinholeCamera, Pose, Warp};
 use crate::nn::{ForwardOutput, NetworkWeights, PreparedNetwork};
-use crate::train::backprop::{backward, forward_with_tape_prepared, Tape};
+use crate::train::backprop::{backward_prepared, forward_with_tape_prepared, Tape};
 use crate::train::loss::{scale_loss_multi, LiveView, LossConfig, LossSums};
 use crate::util::rng::hash64;
 
@@ -185,6 +185,27 @@ pub fn pair_step_timed(
     grads: Option<(&mut NetworkWeights, f32)>,
     times: &mut StepTimes,
 ) -> Result<PairLoss> {
+    let net = PreparedNetwork::new(weights, cpu)?;
+    pair_step_prepared(weights, &net, pair, loss, sup, cpu, grads, times)
+}
+
+/// [`pair_step_timed`] on `weights`' layers already prepared by the CPU backend (`net`): a batch
+/// prepares them once for all its pairs, so every layer is packed once per optimiser step
+/// (SPEC.md §7.9, §13.6).
+///
+/// # Errors
+/// As [`pair_step`].
+#[allow(clippy::too_many_arguments)]
+fn pair_step_prepared(
+    weights: &NetworkWeights,
+    net: &PreparedNetwork,
+    pair: &TrainingPair,
+    loss: &LossConfig,
+    sup: &Supervision,
+    cpu: &CpuBackend,
+    grads: Option<(&mut NetworkWeights, f32)>,
+    times: &mut StepTimes,
+) -> Result<PairLoss> {
     pair.validate()?;
     *times = StepTimes::default();
     let t = Instant::now();
@@ -195,10 +216,9 @@ pub fn pair_step_timed(
     // on how they interleave), reference first.
     let images: Vec<ArrayView3<f32>> =
         std::iter::once(pair.ref_rgb.view()).chain(live_images.iter().map(|(img, _, _)| *img)).collect();
-    let net = PreparedNetwork::new(weights, cpu)?;
     let mut outs = images
         .par_iter()
-        .map(|img| forward_with_tape_prepared(&net, *img, cpu))
+        .map(|img| forward_with_tape_prepared(net, *img, cpu))
         .collect::<Result<Vec<_>>>()?;
     let live_out = outs.split_off(1);
     let Some((out_r, tape_r)) = outs.pop() else { unreachable!("the reference's forward") };
@@ -260,7 +280,7 @@ pub fn pair_step_timed(
                 let dr: Vec<Option<Array3<f32>>> = db.iter().map(scaled).collect();
                 let dfr = scaled(df);
                 let mut gi = weights.zeros_like();
-                backward(weights, tape, &views(&dr), dfr.as_ref().map(|a| a.view()), &mut gi)?;
+                backward_prepared(net, weights, tape, &views(&dr), dfr.as_ref().map(|a| a.view()), &mut gi)?;
                 Ok(gi)
             })
             .collect::<Result<Vec<_>>>()?;
@@ -288,12 +308,14 @@ pub fn batch_step(
     cpu: &CpuBackend,
 ) -> Result<(Vec<PairLoss>, NetworkWeights)> {
     let scale = 1.0 / batch as f32;
+    let net = PreparedNetwork::new(weights, cpu)?;
     let per_pair = (0..batch)
         .into_par_iter()
         .map(|b| {
             let p = pair(b)?;
             let mut g = weights.zeros_like();
-            let l = pair_step(weights, &p, loss, sup, cpu, Some((&mut g, scale)))?;
+            let mut times = StepTimes::default();
+            let l = pair_step_prepared(weights, &net, &p, loss, sup, cpu, Some((&mut g, scale)), &mut times)?;
             Ok((l, g))
         })
         .collect::<Result<Vec<_>>>()?;

@@ -21,12 +21,15 @@ use rayon::prelude::*;
 use super::backward::tap_target;
 use super::im2col::im2col_rows;
 use super::weight_grad;
-use super::{conv2d, Conv2dImpl};
+use super::{conv2d_prepared_into, Conv2dImpl};
 use crate::error::Result;
 use crate::ops::gemm::{rows_per_chunk, sgemm, sum_of_chunks, MatRef};
 use crate::ops::geometry::{Conv2dGeometry, CONV_KERNEL};
+use crate::ops::prepared::PreparedConv;
+use crate::ops::LayerParams;
 use crate::ops::{expect_shape, Activation};
 use crate::util::alloc::with_scratch;
+use std::sync::Arc;
 
 /// Output pixels per chunk of the weight gradient's reduction (fixed: the chunks decide the
 /// summation order).
@@ -58,6 +61,32 @@ pub fn conv2d_backward_input(
     conv2d_backward_input_with(Conv2dImpl::Direct, geom, d_out, weight)
 }
 
+/// [`conv2d_backward_input_with`] for a prepared layer: at stride 1 the flipped layer is made and
+/// packed once per prepared layer ([`PreparedConv::backward_input`]), not per call (training runs
+/// every image of a step through the same prepared network). The same bits.
+///
+/// # Errors
+/// As [`conv2d_backward_input_with`].
+pub fn conv2d_backward_input_prepared(
+    imp: Conv2dImpl,
+    geom: &Conv2dGeometry,
+    d_out: ArrayView3<f32>,
+    layer: &PreparedConv,
+) -> Result<Array3<f32>> {
+    if geom.stride() != 1 {
+        return conv2d_backward_input_with(imp, geom, d_out, layer.layer().weight.view());
+    }
+    expect_shape("conv2d_backward d_out", d_out.shape(), &geom.output_shape())?;
+    expect_shape("conv2d_backward weight", layer.layer().weight.shape(), &geom.weight_shape())?;
+    let [h_out, w_out, c_out] = geom.output_shape();
+    let transposed = Conv2dGeometry::new(h_out, w_out, c_out, geom.c_in(), 1)?;
+    let imp = if imp.supports(&transposed) { imp } else { Conv2dImpl::Direct };
+    let mut out = crate::util::alloc::zeroed_map(transposed.output_shape());
+    let Some(y) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
+    conv2d_prepared_into(imp, &transposed, d_out, &layer.backward_input(), Activation::None, y)?;
+    Ok(out)
+}
+
 /// Gradient with respect to the input, f32. Stride 1: the forward convolution `imp` (falling back
 /// to [`Conv2dImpl::Direct`] where `imp` cannot run it) of `g` with [`flipped_transposed`]
 /// weights, zero bias; its error budget is `imp`'s (SPEC.md §7.5, §7.11) with `K = 9 c_out`.
@@ -76,11 +105,11 @@ pub fn conv2d_backward_input_with(
     let [h_out, w_out, c_out] = geom.output_shape();
     let (w, c_in, s) = (geom.w(), geom.c_in(), geom.stride());
     if s == 1 {
-        let transposed = Conv2dGeometry::new(h_out, w_out, c_out, c_in, 1)?;
-        let imp = if imp.supports(&transposed) { imp } else { Conv2dImpl::Direct };
-        let zero_bias = Array1::zeros(c_in);
-        let flipped = flipped_transposed(weight);
-        return conv2d(imp, &transposed, d_out, flipped.view(), zero_bias.view(), Activation::None);
+        let layer = PreparedConv::new(Arc::new(LayerParams {
+            weight: weight.to_owned(),
+            bias: Array1::zeros(c_out),
+        }));
+        return conv2d_backward_input_prepared(imp, geom, d_out, &layer);
     }
     let k = geom.k();
     // Wm [c_out, k]: Wm[o, (3 ky + kx) c_in + c] = w[o, c, ky, kx].

@@ -146,12 +146,21 @@ fn eval_runs_dsift_wta_and_b1_tv_on_the_rendered_fixture() {
     let out = Command::new(env!("CARGO_BIN_EXE_densefeat"))
         .args(["eval", "--sequence", FIXTURE, "--keyframes", "20:1:20", "--window", "3,3"])
         .args(["--bins", "32", "--level", "1", "--iterations", "60", "--methods", "dsift-wta,b1-tv"])
-        .args(["--truncate-dsift", "none", "--out"])
+        .args(["--truncate-dsift", "none", "--figure", "--out"])
         .arg(dir.path())
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    // The feature figure (issue 32 item 2): keyframe, ground truth and the two methods, 160x120
+    // each, in one row of four cells of (160 + 6) x (120 + 22 + 6) pixels under a 40 pixel title.
+    let fig = image::open(dir.path().join("figure_kf00020.png")).unwrap().to_rgb8();
+    assert_eq!(fig.dimensions(), (4 * 166 + 6, 148 + 40));
+    // The ground-truth tile is coloured (the fixture's depth is valid everywhere): no black pixel.
+    let gt_black = (0..160u32)
+        .flat_map(|x| (0..120u32).map(move |y| (x, y)))
+        .filter(|&(x, y)| fig.get_pixel(6 + 166 + x, 40 + 22 + y).0 == [0, 0, 0]);
+    assert_eq!(gt_black.count(), 0);
     let csv = std::fs::read_to_string(dir.path().join("table.csv")).unwrap();
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
     let col = header.iter().position(|c| *c == "delta_1.25").unwrap();

@@ -92,3 +92,49 @@ fn log_axis_rejects_non_positive_x() {
     let err = grid_of_plots_png(&dir.path().join("g.png"), "t", &[]).unwrap_err();
     assert!(matches!(err, Error::InvalidArgument { .. }), "{err:?}");
 }
+
+#[test]
+fn picture_grid_copies_every_tile_below_its_caption() {
+    use densefeat::plot::{image_grid_png, Tile};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("grid.png");
+    // Three tiles of distinct solid colours, one smaller, in rows of two.
+    let tile = |w: usize, h: usize, c: [u8; 3], caption: &str| Tile {
+        width: w,
+        height: h,
+        rgb: std::iter::repeat_n(c, w * h).flatten().collect(),
+        caption: caption.into(),
+    };
+    let tiles = [
+        tile(30, 20, [200, 0, 0], "red"),
+        tile(30, 20, [0, 200, 0], "green"),
+        tile(10, 8, [0, 0, 200], "blue"),
+    ];
+    image_grid_png(&path, "three tiles", &tiles, 2).unwrap();
+    let img = image::open(&path).unwrap().to_rgb8();
+    // Cells of (30 + 6) x (20 + 22 + 6) pixels, a 6 pixel margin left, a 40 pixel title band.
+    assert_eq!(img.dimensions(), (2 * 36 + 6, 2 * 48 + 40));
+    let at = |x: u32, y: u32| img.get_pixel(x, y).0;
+    // Each tile's pixels, whole, at its cell's origin under the caption band.
+    for (i, t) in tiles.iter().enumerate() {
+        let (x0, y0) = (6 + 36 * (i as u32 % 2), 40 + 48 * (i as u32 / 2) + 22);
+        let want = t.rgb[0..3].to_vec();
+        for (x, y) in [(x0, y0), (x0 + t.width as u32 - 1, y0 + t.height as u32 - 1)] {
+            assert_eq!(at(x, y).to_vec(), want, "tile {i} at ({x}, {y})");
+        }
+        // Just right of and below the tile: background or the next cell, never the tile's colour.
+        assert_ne!(at(x0 + t.width as u32, y0).to_vec(), want);
+        assert_ne!(at(x0, y0 + t.height as u32).to_vec(), want);
+        // The caption band has dark text pixels.
+        let dark =
+            (x0..x0 + 30).flat_map(|x| (y0 - 20..y0).map(move |y| (x, y))).any(|(x, y)| at(x, y)[0] < 100);
+        assert!(dark, "tile {i}: no caption text");
+    }
+    // Bad tiles and layouts are refused, naming the tile.
+    let mut bad = tiles.clone();
+    bad[1].rgb.pop();
+    let e = image_grid_png(&path, "bad", &bad, 2).unwrap_err();
+    assert!(e.to_string().contains("tile 1"), "{e}");
+    assert!(image_grid_png(&path, "none", &[], 2).is_err());
+    assert!(image_grid_png(&path, "no columns", &tiles, 0).is_err());
+}

@@ -66,16 +66,22 @@ pub fn run(args: DemoArgs) -> Result<()> {
     super::validate::mapping_preflight(&seq, &cfg, &[args.keyframe], &kinds, "demo")?;
     let mut staging = densefeat::io::Staging::new();
     let out = staging.dir(&args.out)?;
-    let table = run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &out, true, || EvalOptions {
-        min_confidence: args.mapping.min_confidence,
-        lambda_per_kind: args.mapping.lambda.is_none(),
-        ..EvalOptions::default()
-    })?;
+    let table =
+        run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &out, (true, true), || EvalOptions {
+            min_confidence: args.mapping.min_confidence,
+            lambda_per_kind: args.mapping.lambda.is_none(),
+            ..EvalOptions::default()
+        })?;
     staging.commit()?;
     print_table(&table, &args.out);
     let out = args.out.canonicalize().unwrap_or(args.out.clone());
     println!(
         "pictures: {}/kf_{:05}_{{rgb,learned}}/ (depth_*_color.png, cloud_*.ply, keyframe.png)",
+        out.display(),
+        args.keyframe
+    );
+    println!(
+        "figure: {}/figure_kf{:05}.png (every method's depth beside the ground truth)",
         out.display(),
         args.keyframe
     );

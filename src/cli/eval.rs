@@ -8,7 +8,8 @@ use clap::Args;
 use densefeat::error::{Error, Result};
 use densefeat::io::{write_atomic_with, Staging};
 use densefeat::mapping::evaluate::{evaluate, EvalOptions, EvalTable, Method};
-use densefeat::mapping::keyframe::Regularizer;
+use densefeat::mapping::figure::{write_feature_figure, FigureEntry};
+use densefeat::mapping::keyframe::{KeyframeResult, Regularizer};
 use densefeat::mapping::{write_outputs_with, FeatureKind};
 use densefeat::plot::{line_plot_png, Series};
 use densefeat::sequence::Sequence;
@@ -53,6 +54,10 @@ pub struct EvalArgs {
     /// (`confidence_sweep.csv`: coverage and accuracy against the threshold).
     #[arg(long, value_delimiter = ',')]
     pub confidence_sweep: Vec<f32>,
+    /// Also write `figure_kfNNNNN.png` per keyframe: its image, the ground truth and every method's
+    /// depth on one colour scale, each captioned with its rms, δ<1.1 and δ<1.25 (the paper's Fig. 4).
+    #[arg(long)]
+    pub figure: bool,
     /// Output folder (table.csv, table.md, per_keyframe.csv, timings.md; normals_error.csv with
     /// `--normals learned`).
     #[arg(long)]
@@ -71,8 +76,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
     lambdas.sort_by(f64::total_cmp);
     let mut staging = Staging::new();
     let out = staging.dir(&args.out)?;
-    let table =
-        run_eval(&seq, &args.mapping, &keyframes, &args.methods, &out, args.save_depth, || EvalOptions {
+    let table = run_eval(
+        &seq,
+        &args.mapping,
+        &keyframes,
+        &args.methods,
+        &out,
+        (args.save_depth, args.figure),
+        || EvalOptions {
             weights: args.weights.clone(),
             lambda_learned: args.lambda_learned,
             lambda_per_kind: args.mapping.lambda.is_none(),
@@ -80,7 +91,8 @@ pub fn run(args: EvalArgs) -> Result<()> {
             min_confidence: args.mapping.min_confidence,
             confidence_sweep: args.confidence_sweep.clone(),
             ..EvalOptions::default()
-        })?;
+        },
+    )?;
     let mut sweep_csv = None;
     if !table.confidence_sweep.is_empty() {
         let mut csv = String::from("method,min_confidence,rms,delta_1.25,abs_rel,coverage\n");
@@ -187,7 +199,7 @@ pub fn run_eval(
     keyframes: &[usize],
     methods: &[Method],
     out: &Path,
-    save_depth: bool,
+    (save_depth, figure): (bool, bool),
     options: impl FnOnce() -> EvalOptions,
 ) -> Result<EvalTable> {
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
@@ -202,6 +214,9 @@ pub fn run_eval(
             .collect::<Result<_>>()?;
     }
     let bar = progress_bar();
+    // With `figure`: per keyframe, its first reconstruction (image, ground truth, colour range) and
+    // every method's entry.
+    let mut figures: Vec<(KeyframeResult, Vec<FigureEntry>)> = Vec::new();
     let result = evaluate(
         seq,
         &base,
@@ -214,12 +229,29 @@ pub fn run_eval(
                 let dir = out.join(format!("kf_{:05}_{}", r.keyframe, r.features));
                 write_outputs_with(r, &dir, mapping.min_confidence)?;
             }
+            if figure {
+                let entries = methods
+                    .iter()
+                    .filter(|m| m.feature_name() == r.features)
+                    .filter_map(|&m| FigureEntry::of(m, r));
+                match figures.iter_mut().find(|(f, _)| f.keyframe == r.keyframe) {
+                    Some((_, e)) => e.extend(entries),
+                    None => figures.push((r.clone(), entries.collect())),
+                }
+            }
             Ok(())
         },
         |k, s, d, t| show_stage(&bar, &format!("keyframe {k}: "), s, d, t),
     );
     bar.finish_and_clear();
     let table = result?;
+    for (r, mut entries) in figures {
+        entries.sort_by_key(|e| methods.iter().position(|&m| m == e.method));
+        let path = out.join(format!("figure_kf{:05}.png", r.keyframe));
+        let title =
+            format!("{}: keyframe {}, {} live frames", seq.root.display(), r.keyframe, r.live_frames.len());
+        write_feature_figure(&path, &title, &r, &entries)?;
+    }
     write_text(&out.join("table.md"), &table.markdown())?;
     write_text(&out.join("table.csv"), &table.csv())?;
     write_text(&out.join("timings.md"), &table.timings_markdown())?;

@@ -9,7 +9,7 @@ use crate::error::{Error, Result};
 use crate::eval::DepthMetrics;
 use crate::mapping::features::FeatureExtractor;
 use crate::mapping::keyframe::{
-    reconstruct_with, KeyframeConfig, KeyframeResult, Regularizer, Stage, StageTimings,
+    reconstruct_with, DepthEstimate, KeyframeConfig, KeyframeResult, Regularizer, Stage, StageTimings,
 };
 use crate::mapping::FeatureKind;
 use crate::sequence::Sequence;
@@ -111,6 +111,18 @@ impl Method {
     /// Whether it runs DTAM.
     pub fn tv(self) -> bool {
         matches!(self, Method::RgbTv | Method::LearnedTv | Method::B1Tv | Method::DsiftTv | Method::Patch7Tv)
+    }
+
+    /// This method's estimate in a reconstruction of its feature kind: the Huber-TV one, the
+    /// normal-prior one or winner-take-all (`None` when that solve was not run).
+    pub fn estimate(self, result: &KeyframeResult) -> Option<&DepthEstimate> {
+        if self.tv() {
+            result.tv.as_ref()
+        } else if self.normals() {
+            result.normals.as_ref()
+        } else {
+            Some(&result.wta)
+        }
     }
 }
 
@@ -259,12 +271,8 @@ pub fn evaluate(
             }
             for &i in &wanted {
                 let m = methods[i];
-                let estimate = if m.tv() {
-                    result.tv.as_ref().expect("TV was run")
-                } else if m.normals() {
-                    result.normals.as_ref().expect("the normal prior was run")
-                } else {
-                    &result.wta
+                let Some(estimate) = m.estimate(&result) else {
+                    unreachable!("the regulariser was chosen to run every asked method")
                 };
                 per_keyframe.push((k, m, result.metrics(estimate)?));
                 per_keyframe_conf.push((m, result.metrics_at(estimate, options.min_confidence)?));

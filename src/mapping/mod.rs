@@ -6,6 +6,7 @@
 pub mod costcurve;
 pub mod evaluate;
 pub mod features;
+pub mod figure;
 pub mod keyframe;
 pub mod keyframe_select;
 pub mod normals;

@@ -200,7 +200,7 @@ pub fn colour_range(result: &KeyframeResult) -> (f64, f64) {
 }
 
 /// Colour of depth `z` on the map: turbo of `(1/z - 1/far) / (1/near - 1/far)` (near red, far blue).
-fn depth_colour(z: f64, near: f64, far: f64) -> [f32; 3] {
+pub(crate) fn depth_colour(z: f64, near: f64, far: f64) -> [f32; 3] {
     let (lo, hi) = (1.0 / far, 1.0 / near);
     turbo((1.0 / z - lo) / (hi - lo))
 }

@@ -9,6 +9,8 @@
 //!
 //! - [`line_plot_png`]: one chart, [`PLOT_SIZE`] pixels.
 //! - [`grid_of_plots_png`]: a grid of [`Panel`]s under one title, [`PANEL_SIZE`] pixels each.
+//! - [`image_grid_png`]: a grid of pictures ([`Tile`]s), each with a caption above it, under one
+//!   title (the feature figure of `eval --figure`).
 //!
 //! Non-finite points are skipped (a gap in the data is not an error); axis ranges cover every
 //! finite point and marker. A logarithmic x axis plots `log10 x` and labels the ticks with `x`.
@@ -156,6 +158,91 @@ pub fn grid_of_plots_png(path: &Path, title: &str, rows: &[Vec<Panel>]) -> Resul
         Ok(())
     })
     .map_err(|e| Error::bad_file(path, e))?;
+    write_png(path, &buf, size)
+}
+
+/// One picture of an [`image_grid_png`]: `width x height` RGB pixels, row-major, and its caption.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Tile {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// `width · height · 3` bytes, RGB, row-major.
+    pub rgb: Vec<u8>,
+    /// Text above the picture (one line).
+    pub caption: String,
+}
+
+/// Height of a tile's caption band, pixels.
+const CAPTION_BAND: u32 = 22;
+/// Gap between tiles, pixels.
+const TILE_GAP: u32 = 6;
+
+/// Write `tiles` in rows of `cols` (the last row may be shorter), each under its caption, the whole
+/// under `title`, to `path` (PNG, atomically). Each cell is as large as the largest tile.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for no tile, `cols == 0`, a tile whose bytes do not match its size,
+/// more than 400 tiles or a picture above 2¹⁴ pixels a side; write errors name `path`.
+pub fn image_grid_png(path: &Path, title: &str, tiles: &[Tile], cols: usize) -> Result<()> {
+    if tiles.is_empty() || cols == 0 || tiles.len() > MAX_PANELS {
+        return Err(Error::invalid_argument(
+            "picture grid",
+            format!("{} tiles in {cols} columns: need 1 to {MAX_PANELS} tiles and a column", tiles.len()),
+        ));
+    }
+    const MAX_SIDE: usize = 1 << 14;
+    for (i, t) in tiles.iter().enumerate() {
+        if t.rgb.len() != t.width * t.height * 3
+            || t.width == 0
+            || t.height == 0
+            || t.width > MAX_SIDE
+            || t.height > MAX_SIDE
+        {
+            return Err(Error::invalid_argument(
+                "picture grid",
+                format!(
+                    "tile {i} ({:?}): {} bytes for {}x{} pixels",
+                    t.caption,
+                    t.rgb.len(),
+                    t.width,
+                    t.height
+                ),
+            ));
+        }
+    }
+    let cols = cols.min(tiles.len());
+    let rows = tiles.len().div_ceil(cols);
+    // Invariant: at most 400 tiles of at most 2^14 pixels a side, so the sizes fit in u32.
+    let cell_w = tiles.iter().map(|t| t.width).max().unwrap_or(1) as u32 + TILE_GAP;
+    let cell_h = tiles.iter().map(|t| t.height).max().unwrap_or(1) as u32 + CAPTION_BAND + TILE_GAP;
+    let size = (cell_w * cols as u32 + TILE_GAP, cell_h * rows as u32 + TITLE_BAND);
+    let mut buf = vec![255u8; (size.0 as usize) * (size.1 as usize) * 3];
+    let origin = |i: usize| {
+        let (r, c) = ((i / cols) as u32, (i % cols) as u32);
+        (TILE_GAP + c * cell_w, TITLE_BAND + r * cell_h)
+    };
+    draw(&mut buf, size, |root| {
+        root.draw(&Text::new(title.to_string(), (10, 8), (FAMILY, 18).into_font().color(&BLACK)))
+            .map_err(s)?;
+        for (i, t) in tiles.iter().enumerate() {
+            let (x, y) = origin(i);
+            let font = (FAMILY, 14).into_font().color(&BLACK);
+            root.draw(&Text::new(t.caption.clone(), (x as i32, y as i32 + 3), font)).map_err(s)?;
+        }
+        Ok(())
+    })
+    .map_err(|e| Error::bad_file(path, e))?;
+    let stride = size.0 as usize * 3;
+    for (i, t) in tiles.iter().enumerate() {
+        let (x, y) = origin(i);
+        let (x, y) = (x as usize, (y + CAPTION_BAND) as usize);
+        for (row, src) in t.rgb.chunks_exact(t.width * 3).enumerate() {
+            let start = (y + row) * stride + x * 3;
+            buf[start..start + src.len()].copy_from_slice(src);
+        }
+    }
     write_png(path, &buf, size)
 }
 

@@ -3,7 +3,7 @@
 //!
 //! - Input gradient, stride 1: the transposed operation is itself a stride-1 3x3 convolution of
 //!   `g` with the flipped, transposed weights `w'[c, o, ky, kx] = w[o, c, 2 - ky, 2 - kx]`, run by
-//!   the forward's [`conv2d`] (any [`Conv2dImpl`]: direct, Winograd, im2col).
+//!   the forward's [`super::conv2d()`] (any [`Conv2dImpl`]: direct, Winograd, im2col).
 //! - Input gradient, stride 2: `D = G Wm` (`[pixels_out, c_out] x [c_out, 9 c_in]`, one sgemm per
 //!   block of output rows), then every input value gathers its (at most 9) entries of `D`, taps in
 //!   row-major order.

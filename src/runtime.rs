@@ -4,20 +4,123 @@
 use crate::error::{Error, Result};
 
 /// Environment variable that, set to any value, makes [`has_avx512f`] answer `false`, so that the
-/// AVX2 / portable paths can be run and timed on an AVX-512 machine (SPEC.md §7.7).
+/// AVX2 / portable paths can be run and timed on an AVX-512 machine (SPEC.md §7.7). The same as
+/// `DENSEFEAT_CPU_LEVEL=avx2`.
 pub const NO_AVX512_ENV: &str = "DENSEFEAT_NO_AVX512";
 
-/// Whether the CPU has AVX-512F and [`NO_AVX512_ENV`] is not set (always `false` off x86-64).
-/// Every kernel with an AVX-512 path asks here (the cost volume, the direct convolution and
-/// transposed convolution, the training loss and weight gradients, DTAM, the feature upsampling):
-/// no other AVX-512F probe exists in the crate (a test scans the source). The environment is read
-/// once per process.
+/// Environment variable capping the [`CpuFeatureLevel`] every kernel uses: `portable`, `avx2` or
+/// `avx512` (a level above the CPU's is the CPU's). The binary refuses any other value up front
+/// ([`check_cpu_level_env`]).
+pub const CPU_LEVEL_ENV: &str = "DENSEFEAT_CPU_LEVEL";
+
+/// The SIMD level the kernels may use (issue 33 item 3; rav1e's `CpuFeatureLevel` is the model):
+/// the CPU's, capped by [`CPU_LEVEL_ENV`] and [`NO_AVX512_ENV`], chosen once per process
+/// ([`CpuFeatureLevel::get`]). Every kernel with a SIMD path asks [`has_avx512f`] or
+/// [`has_avx2_fma`], which read this one value; no other CPU-feature probe exists in the crate (a
+/// test scans the source). Levels are ordered: each includes the ones below it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum CpuFeatureLevel {
+    /// Plain Rust (whatever the compiler vectorises for the build's baseline target).
+    Portable,
+    /// AVX2 and FMA (x86-64).
+    Avx2,
+    /// AVX-512F, with AVX2 and FMA (x86-64).
+    Avx512,
+}
+
+impl CpuFeatureLevel {
+    /// Every level, lowest first.
+    pub const ALL: [CpuFeatureLevel; 3] =
+        [CpuFeatureLevel::Portable, CpuFeatureLevel::Avx2, CpuFeatureLevel::Avx512];
+
+    /// The name [`CPU_LEVEL_ENV`] takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            CpuFeatureLevel::Portable => "portable",
+            CpuFeatureLevel::Avx2 => "avx2",
+            CpuFeatureLevel::Avx512 => "avx512",
+        }
+    }
+
+    /// The level called `name`, if any.
+    pub fn parse(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|l| l.name() == name)
+    }
+
+    /// What the CPU offers, ignoring the environment (always [`CpuFeatureLevel::Portable`] off
+    /// x86-64).
+    pub fn detected() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let avx2 =
+                std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma");
+            if avx2 && std::arch::is_x86_feature_detected!("avx512f") {
+                CpuFeatureLevel::Avx512
+            } else if avx2 {
+                CpuFeatureLevel::Avx2
+            } else {
+                CpuFeatureLevel::Portable
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            CpuFeatureLevel::Portable
+        }
+    }
+
+    /// The level of this process: [`CpuFeatureLevel::detected`] capped by [`CPU_LEVEL_ENV`]
+    /// (an unknown value caps nothing; the binary refuses it before any work) and by
+    /// [`NO_AVX512_ENV`]. Read once per process.
+    pub fn get() -> Self {
+        static LEVEL: std::sync::OnceLock<CpuFeatureLevel> = std::sync::OnceLock::new();
+        *LEVEL.get_or_init(|| {
+            let mut level = Self::detected();
+            if let Some(cap) = std::env::var(CPU_LEVEL_ENV).ok().and_then(|v| Self::parse(&v)) {
+                level = level.min(cap);
+            }
+            if std::env::var_os(NO_AVX512_ENV).is_some() {
+                level = level.min(CpuFeatureLevel::Avx2);
+            }
+            level
+        })
+    }
+}
+
+/// Checks [`CPU_LEVEL_ENV`]: unset or one of `portable`, `avx2`, `avx512`.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] naming the variable and the accepted values.
+pub fn check_cpu_level_env() -> Result<()> {
+    match std::env::var(CPU_LEVEL_ENV) {
+        Err(std::env::VarError::NotPresent) => Ok(()),
+        Ok(v) if CpuFeatureLevel::parse(&v).is_some() => Ok(()),
+        Ok(v) => {
+            Err(Error::invalid_argument(CPU_LEVEL_ENV, format!("{v:?}: expected portable, avx2 or avx512")))
+        }
+        Err(e) => Err(Error::invalid_argument(CPU_LEVEL_ENV, e.to_string())),
+    }
+}
+
+/// Whether the kernels may use AVX-512F: [`CpuFeatureLevel::get`] is [`CpuFeatureLevel::Avx512`]
+/// (so `false` with [`NO_AVX512_ENV`] set, and always off x86-64). Every kernel with an AVX-512
+/// path asks here (the cost volume, the direct convolution and transposed convolution, the training
+/// loss and weight gradients, DTAM, the feature upsampling).
 pub fn has_avx512f() -> bool {
+    CpuFeatureLevel::get() >= CpuFeatureLevel::Avx512
+}
+
+/// Whether the kernels may use AVX-512F with its BW, VL and DQ extensions (the cost volume's
+/// kernel): [`has_avx512f`] and the CPU has the three (probed once).
+pub fn has_avx512_bw_vl_dq() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        static DISABLED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        std::arch::is_x86_feature_detected!("avx512f")
-            && !*DISABLED.get_or_init(|| std::env::var_os(NO_AVX512_ENV).is_some())
+        static EXT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        has_avx512f()
+            && *EXT.get_or_init(|| {
+                std::arch::is_x86_feature_detected!("avx512bw")
+                    && std::arch::is_x86_feature_detected!("avx512vl")
+                    && std::arch::is_x86_feature_detected!("avx512dq")
+            })
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -25,17 +128,10 @@ pub fn has_avx512f() -> bool {
     }
 }
 
-/// Whether the CPU has AVX2 and FMA (always `false` off x86-64): the direct convolution's kernel
-/// for CPUs without AVX-512.
+/// Whether the kernels may use AVX2 and FMA: [`CpuFeatureLevel::get`] is at least
+/// [`CpuFeatureLevel::Avx2`] (always `false` off x86-64).
 pub fn has_avx2_fma() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    CpuFeatureLevel::get() >= CpuFeatureLevel::Avx2
 }
 
 /// `threads`, or every core the process may use when it is 0 (for flags whose help says

@@ -606,13 +606,58 @@ fn no_avx512_env_switches_every_avx512_dispatch() {
             } else if path.extension().is_some_and(|e| e == "rs") && !path.ends_with("runtime.rs") {
                 files += 1;
                 let text = std::fs::read_to_string(&path).unwrap();
-                assert!(
-                    !text.contains(&format!("is_x86_feature_detected!({:?})", "avx512f")),
-                    "{} probes AVX-512F itself; use runtime::has_avx512f",
-                    path.display()
-                );
+                for feature in ["avx512f", "avx512bw", "avx512vl", "avx512dq", "avx2", "fma"] {
+                    assert!(
+                        !text.contains(&format!("is_x86_feature_detected!({feature:?})")),
+                        "{} probes {feature} itself; use runtime::has_avx512f / has_avx2_fma",
+                        path.display()
+                    );
+                }
             }
         }
     }
     assert!(files > 50, "read {files} source files");
+}
+
+/// `DENSEFEAT_CPU_LEVEL` caps the one CPU-feature level every kernel reads (issue 33 item 3): with
+/// `portable` no kernel may use AVX2 or AVX-512 (a child process of this test binary, as above),
+/// and the binary refuses an unknown level up front, naming the variable.
+#[test]
+fn cpu_level_env_caps_every_dispatch_and_bad_values_are_refused() {
+    use densefeat::runtime::{has_avx2_fma, has_avx512f, CpuFeatureLevel, CPU_LEVEL_ENV};
+    const NAME: &str = "cpu_level_env_caps_every_dispatch_and_bad_values_are_refused";
+    if std::env::var(CPU_LEVEL_ENV).as_deref() == Ok("portable") {
+        assert_eq!(CpuFeatureLevel::get(), CpuFeatureLevel::Portable);
+        assert!(!has_avx512f() && !has_avx2_fma());
+        assert!(!densefeat::dtam::Dispatch::Auto.use_avx512());
+        return;
+    }
+    assert!(CpuFeatureLevel::get() <= CpuFeatureLevel::detected());
+    for l in CpuFeatureLevel::ALL {
+        assert_eq!(CpuFeatureLevel::parse(l.name()), Some(l));
+    }
+    assert_eq!(CpuFeatureLevel::parse("sse2"), None);
+    let full = match module_path!().split_once("::") {
+        Some((_, module)) => format!("{module}::{NAME}"),
+        None => NAME.to_string(),
+    };
+    let out = std::process::Command::new(std::env::current_exe().unwrap())
+        .args([full.as_str(), "--exact", "--test-threads", "1"])
+        .env(CPU_LEVEL_ENV, "portable")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && stdout.contains("1 passed"), "child run: {stdout}");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["synth", "--seed", "3", "--frames", "2", "--out"])
+        .arg(std::env::temp_dir().join("densefeat_cpu_level_never_written"))
+        .env(CPU_LEVEL_ENV, "sse9")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains(CPU_LEVEL_ENV) && err.contains("portable, avx2 or avx512"),
+        "{err}"
+    );
+    assert!(!std::env::temp_dir().join("densefeat_cpu_level_never_written").exists());
 }

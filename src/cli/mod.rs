@@ -74,6 +74,7 @@ pub enum Command {
 /// # Errors
 /// Whatever the subcommand returns.
 pub fn run(cli: Cli) -> Result<()> {
+    densefeat::runtime::check_cpu_level_env()?;
     match cli.command {
         Command::Inspect(args) => inspect::run(args),
         Command::Train(args) => train::run(args),

@@ -28,10 +28,7 @@ const BLOCK: usize = 16;
 
 /// Whether this CPU runs the kernel (AVX-512F, BW for the `u16` count update, VL, DQ).
 pub(super) fn available() -> bool {
-    crate::runtime::has_avx512f()
-        && is_x86_feature_detected!("avx512bw")
-        && is_x86_feature_detected!("avx512vl")
-        && is_x86_feature_detected!("avx512dq")
+    crate::runtime::has_avx512_bw_vl_dq()
 }
 
 /// Whether every flat corner offset `(y·W + x)·C + ch` of a `W x H x C` map fits an `i32` index.

@@ -570,6 +570,23 @@ fn shipped_weights_are_built_in_and_rgb_matches_their_grid() {
     assert!("sift".parse::<FeatureKind>().is_err());
 }
 
+/// Runs the test `name` of this module again, alone, in a child process of this test binary with
+/// `var=value` set (the CPU level is read once per process), and asserts that it passed.
+fn rerun_in_child(name: &str, var: &str, value: &str) {
+    // The harness names a test by its module path inside the test crate (`dtam::NAME`).
+    let full = match module_path!().split_once("::") {
+        Some((_, module)) => format!("{module}::{name}"),
+        None => name.to_string(),
+    };
+    let out = std::process::Command::new(std::env::current_exe().unwrap())
+        .args([full.as_str(), "--exact", "--test-threads", "1"])
+        .env(var, value)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && stdout.contains("1 passed"), "child run with {var}={value}: {stdout}");
+}
+
 /// `DENSEFEAT_NO_AVX512` reaches every AVX-512 dispatch, DTAM's and the feature upsampling's
 /// included (issue 33): every AVX-512F probe in the library is `runtime::has_avx512f`, which the
 /// variable switches off. Checked in a child process of this test binary (the variable is read
@@ -583,18 +600,7 @@ fn no_avx512_env_switches_every_avx512_dispatch() {
         assert!(!densefeat::dtam::Dispatch::Auto.use_avx512());
         return;
     }
-    // The harness names a test by its module path inside the test crate (`dtam::NAME`).
-    let full = match module_path!().split_once("::") {
-        Some((_, module)) => format!("{module}::{NAME}"),
-        None => NAME.to_string(),
-    };
-    let out = std::process::Command::new(std::env::current_exe().unwrap())
-        .args([full.as_str(), "--exact", "--test-threads", "1"])
-        .env(NO_AVX512_ENV, "1")
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && stdout.contains("1 passed"), "child run: {stdout}");
+    rerun_in_child(NAME, NO_AVX512_ENV, "1");
     // The source: no other AVX-512F probe.
     let mut stack = vec![std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("src")];
     let mut files = 0;
@@ -637,17 +643,7 @@ fn cpu_level_env_caps_every_dispatch_and_bad_values_are_refused() {
         assert_eq!(CpuFeatureLevel::parse(l.name()), Some(l));
     }
     assert_eq!(CpuFeatureLevel::parse("sse2"), None);
-    let full = match module_path!().split_once("::") {
-        Some((_, module)) => format!("{module}::{NAME}"),
-        None => NAME.to_string(),
-    };
-    let out = std::process::Command::new(std::env::current_exe().unwrap())
-        .args([full.as_str(), "--exact", "--test-threads", "1"])
-        .env(CPU_LEVEL_ENV, "portable")
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && stdout.contains("1 passed"), "child run: {stdout}");
+    rerun_in_child(NAME, CPU_LEVEL_ENV, "portable");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_densefeat"))
         .args(["synth", "--seed", "3", "--frames", "2", "--out"])
         .arg(std::env::temp_dir().join("densefeat_cpu_level_never_written"))

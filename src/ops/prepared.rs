@@ -13,6 +13,8 @@
 
 use std::sync::{Arc, Mutex};
 
+use ndarray::{ArrayView1, ArrayView4};
+
 use crate::error::Result;
 use crate::ops::conv2d::{PackedConv2d, PackedWinograd, WinogradTile};
 use crate::ops::deconv2d::winograd::{equivalent_geometry, pack_deconv_winograd};
@@ -80,13 +82,27 @@ impl PreparedConv {
         }
     }
 
+    /// A copy of `weight` and `bias` (the plain ops' per-call layer), nothing packed yet.
+    pub fn from_views(weight: ArrayView4<f32>, bias: ArrayView1<f32>) -> Self {
+        Self::new(Arc::new(LayerParams { weight: weight.to_owned(), bias: bias.to_owned() }))
+    }
+
+    /// The layer whose stride-1 convolution is the input gradient of a convolution with `weight`
+    /// (`[c_out, c_in, 3, 3]`): weights `w'[c, o, ky, kx] = w[o, c, 2 - ky, 2 - kx]`, zero bias
+    /// (the transposed convolution as a convolution, SPEC.md §13.2).
+    pub fn transposed_of(weight: ArrayView4<f32>) -> Self {
+        let weight = crate::ops::conv2d::backward_fast::flipped_transposed(weight);
+        let bias = ndarray::Array1::zeros(weight.shape()[0]);
+        Self::new(Arc::new(LayerParams { weight, bias }))
+    }
+
     /// The layer's parameters.
     pub fn layer(&self) -> &LayerParams {
         &self.layer
     }
 
     /// Checks the weight and bias against `geom`.
-    fn check(&self, geom: &Conv2dGeometry) -> Result<()> {
+    pub(crate) fn check(&self, geom: &Conv2dGeometry) -> Result<()> {
         expect_shape("conv2d weight", self.layer.weight.shape(), &geom.weight_shape())?;
         expect_shape("conv2d bias", self.layer.bias.shape(), &[geom.c_out()])
     }
@@ -101,19 +117,11 @@ impl PreparedConv {
         self.gemm.get(|| PackedConv2d::new(geom, l.weight.view(), l.bias.view()), |p| p.with_geometry(geom))
     }
 
-    /// The layer of this one's stride-1 input gradient: weights `w'[c, o, ky, kx] = w[o, c, 2 - ky,
-    /// 2 - kx]`, zero bias (the transposed convolution as a convolution, SPEC.md §13.2), made on
-    /// first use and then shared.
+    /// [`PreparedConv::transposed_of`] this layer's weights, made on first use and then shared.
     pub fn backward_input(&self) -> Arc<PreparedConv> {
-        let made = self.backward_input.get(
-            || {
-                let l = &self.layer;
-                let weight = crate::ops::conv2d::backward_fast::flipped_transposed(l.weight.view());
-                let bias = ndarray::Array1::zeros(l.weight.shape()[1]);
-                Ok(Arc::new(PreparedConv::new(Arc::new(LayerParams { weight, bias }))))
-            },
-            |p| Ok(p.clone()),
-        );
+        let made = self
+            .backward_input
+            .get(|| Ok(Arc::new(Self::transposed_of(self.layer.weight.view()))), |p| Ok(p.clone()));
         made.unwrap_or_else(|_| unreachable!("making the flipped layer cannot fail"))
     }
 
@@ -146,13 +154,18 @@ impl PreparedDeconv {
         PreparedDeconv { layer, gemm: Slot::default(), winograd: Default::default() }
     }
 
+    /// A copy of `weight` and `bias` (the plain ops' per-call layer), nothing packed yet.
+    pub fn from_views(weight: ArrayView4<f32>, bias: ArrayView1<f32>) -> Self {
+        Self::new(Arc::new(LayerParams { weight: weight.to_owned(), bias: bias.to_owned() }))
+    }
+
     /// The layer's parameters.
     pub fn layer(&self) -> &LayerParams {
         &self.layer
     }
 
     /// Checks the weight and bias against `geom`.
-    fn check(&self, geom: &Deconv2dGeometry) -> Result<()> {
+    pub(crate) fn check(&self, geom: &Deconv2dGeometry) -> Result<()> {
         expect_shape("deconv2d weight", self.layer.weight.shape(), &geom.weight_shape())?;
         expect_shape("deconv2d bias", self.layer.bias.shape(), &[geom.c_out()])
     }

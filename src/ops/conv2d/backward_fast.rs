@@ -26,10 +26,8 @@ use crate::error::Result;
 use crate::ops::gemm::{rows_per_chunk, sgemm, sum_of_chunks, MatRef};
 use crate::ops::geometry::{Conv2dGeometry, CONV_KERNEL};
 use crate::ops::prepared::PreparedConv;
-use crate::ops::LayerParams;
 use crate::ops::{expect_shape, Activation};
 use crate::util::alloc::with_scratch;
-use std::sync::Arc;
 
 /// Output pixels per chunk of the weight gradient's reduction (fixed: the chunks decide the
 /// summation order).
@@ -78,12 +76,24 @@ pub fn conv2d_backward_input_prepared(
     }
     expect_shape("conv2d_backward d_out", d_out.shape(), &geom.output_shape())?;
     expect_shape("conv2d_backward weight", layer.layer().weight.shape(), &geom.weight_shape())?;
+    stride1_input_gradient(imp, geom, d_out, &layer.backward_input())
+}
+
+/// The stride-1 input gradient: `imp` (falling back to [`Conv2dImpl::Direct`] where it cannot
+/// run) on the transposed geometry with the flipped layer `flipped`
+/// ([`PreparedConv::transposed_of`]). Shapes checked by the caller.
+fn stride1_input_gradient(
+    imp: Conv2dImpl,
+    geom: &Conv2dGeometry,
+    d_out: ArrayView3<f32>,
+    flipped: &PreparedConv,
+) -> Result<Array3<f32>> {
     let [h_out, w_out, c_out] = geom.output_shape();
     let transposed = Conv2dGeometry::new(h_out, w_out, c_out, geom.c_in(), 1)?;
     let imp = if imp.supports(&transposed) { imp } else { Conv2dImpl::Direct };
     let mut out = crate::util::alloc::zeroed_map(transposed.output_shape());
     let Some(y) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
-    conv2d_prepared_into(imp, &transposed, d_out, &layer.backward_input(), Activation::None, y)?;
+    conv2d_prepared_into(imp, &transposed, d_out, flipped, Activation::None, y)?;
     Ok(out)
 }
 
@@ -105,11 +115,7 @@ pub fn conv2d_backward_input_with(
     let [h_out, w_out, c_out] = geom.output_shape();
     let (w, c_in, s) = (geom.w(), geom.c_in(), geom.stride());
     if s == 1 {
-        let layer = PreparedConv::new(Arc::new(LayerParams {
-            weight: weight.to_owned(),
-            bias: Array1::zeros(c_out),
-        }));
-        return conv2d_backward_input_prepared(imp, geom, d_out, &layer);
+        return stride1_input_gradient(imp, geom, d_out, &PreparedConv::transposed_of(weight));
     }
     let k = geom.k();
     // Wm [c_out, k]: Wm[o, (3 ky + kx) c_in + c] = w[o, c, ky, kx].

@@ -58,7 +58,6 @@ pub use winograd::{
 
 use crate::error::Result;
 use crate::ops::prepared::PreparedConv;
-use crate::ops::LayerParams;
 use crate::ops::{concat_channels, default_lanes, expect_len, expect_shape, Activation, Conv2dGeometry};
 
 /// Which conv2d implementation to run. Every variant is always compiled and always tested.
@@ -189,10 +188,7 @@ pub fn conv2d_into(
     activation: Activation,
     out: &mut [f32],
 ) -> Result<()> {
-    let layer = PreparedConv::new(std::sync::Arc::new(LayerParams {
-        weight: weight.to_owned(),
-        bias: bias.to_owned(),
-    }));
+    let layer = PreparedConv::from_views(weight, bias);
     conv2d_prepared_into(imp, geom, input, &layer, activation, out)
 }
 
@@ -213,9 +209,8 @@ pub fn conv2d_prepared_into(
     expect_len("conv2d output", out.len(), geom.output_shape().iter().product())?;
     match imp {
         Conv2dImpl::Reference => {
+            layer.check(geom)?;
             let l = layer.layer();
-            expect_shape("conv2d weight", l.weight.shape(), &geom.weight_shape())?;
-            expect_shape("conv2d bias", l.bias.shape(), &[geom.c_out()])?;
             let r = conv2d_reference(
                 geom,
                 input.mapv(f64::from).view(),
@@ -271,10 +266,7 @@ pub fn conv2d_concat_into(
     activation: Activation,
     out: &mut [f32],
 ) -> Result<()> {
-    let layer = PreparedConv::new(std::sync::Arc::new(LayerParams {
-        weight: weight.to_owned(),
-        bias: bias.to_owned(),
-    }));
+    let layer = PreparedConv::from_views(weight, bias);
     conv2d_concat_prepared_into(imp, geom, a, b, &layer, activation, out)
 }
 

@@ -44,7 +44,6 @@ pub use winograd::{
 use crate::error::Result;
 use crate::ops::conv2d::{OutputLayout, WinogradKernel, WinogradTile, WINOGRAD_MIN_C_IN};
 use crate::ops::prepared::PreparedDeconv;
-use crate::ops::LayerParams;
 use crate::ops::{default_lanes, expect_len, expect_shape, Deconv2dGeometry};
 
 /// Which transposed-convolution implementation to run. Every variant is always compiled and tested.
@@ -143,10 +142,7 @@ pub fn deconv2d_into(
     skip: Option<&[f32]>,
     out: &mut [f32],
 ) -> Result<()> {
-    let layer = PreparedDeconv::new(std::sync::Arc::new(LayerParams {
-        weight: weight.to_owned(),
-        bias: bias.to_owned(),
-    }));
+    let layer = PreparedDeconv::from_views(weight, bias);
     deconv2d_prepared_into(imp, geom, input, &layer, skip, out)
 }
 
@@ -170,9 +166,8 @@ pub fn deconv2d_prepared_into(
     }
     match imp {
         Deconv2dImpl::Reference => {
+            layer.check(geom)?;
             let l = layer.layer();
-            expect_shape("deconv2d weight", l.weight.shape(), &geom.weight_shape())?;
-            expect_shape("deconv2d bias", l.bias.shape(), &[geom.c_out()])?;
             let r = deconv2d_reference(
                 geom,
                 input.mapv(f64::from).view(),

@@ -8,9 +8,10 @@ use crate::backend::CpuBackend;
 use crate::error::Result;
 use crate::geometry::PinholeCamera;
 use crate::mapping::normals::{normals_at_level, normals_from_depth};
+use crate::nn::PreparedNetwork;
 use crate::normals_net::head::{head_backward, head_forward, normal_loss, NormalLossSums};
 use crate::normals_net::{NormalNet, NormalNetWeights};
-use crate::train::backprop::{backward, forward_with_tape};
+use crate::train::backprop::{backward_prepared, forward_with_tape_prepared};
 use crate::train::step::TrainingPair;
 
 /// One training frame: a crop, its depth and its camera.
@@ -41,7 +42,8 @@ impl NormalSample {
 
 /// The frame's loss; with `grads = Some((g, weight))`, adds the gradient of `weight · mean ℓ` to
 /// `g`: the loss's gradient at the head's output, the head's backward into `g.head` and
-/// `d_features`, then [`backward`] through the trunk into `g.trunk`.
+/// `d_features`, then [`backward_prepared`] through the trunk into `g.trunk` (the trunk prepared
+/// once for both passes).
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] for mismatched shapes.
@@ -54,7 +56,8 @@ pub fn sample_step(
     let level = weights.trunk.config.block_level(0) as u32;
     let camera = sample.camera.at_level(level);
     let gt = sample.gt_normals(level);
-    let (out, tape) = forward_with_tape(&weights.trunk, sample.rgb.view(), cpu)?;
+    let trunk = PreparedNetwork::new(&weights.trunk, cpu)?;
+    let (out, tape) = forward_with_tape_prepared(&trunk, sample.rgb.view(), cpu)?;
     let features = &out.aggregated[0];
     let raw = head_forward(&weights.head, features.view())?;
     let weight = grads.as_ref().map_or(1.0, |g| g.1);
@@ -64,7 +67,7 @@ pub fn sample_step(
         g.head.weight += &d_head.weight;
         g.head.bias += &d_head.bias;
         let d_blocks = vec![None; weights.trunk.config.blocks];
-        backward(&weights.trunk, &tape, &d_blocks, Some(d_features.view()), &mut g.trunk)?;
+        backward_prepared(&trunk, &weights.trunk, &tape, &d_blocks, Some(d_features.view()), &mut g.trunk)?;
     }
     Ok(sums)
 }

@@ -307,7 +307,7 @@ fn normal_prior_without_normals_is_refused_naming_the_missing_predictor() {
     let mut cfg = KeyframeConfig::new(2, 0.5, 10.0);
     cfg.regularizer = Regularizer::Normals;
     let e = reconstruct(&seq, &cfg, |_, _, _| ()).unwrap_err().to_string();
-    assert!(e.contains("--normals") && e.contains("not shipped yet"), "{e}");
+    assert!(e.contains("--normals learned") && e.contains("--normals gt"), "{e}");
     // A folder without the keyframe's file: the error names both candidate files.
     let dir = tempfile::tempdir().unwrap();
     cfg.normals = Some(NormalsSource::Dir(dir.path().to_path_buf()));

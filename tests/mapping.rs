@@ -259,6 +259,7 @@ fn a_lambda_sweep_reaches_the_normal_prior_rows_without_tv() {
     let seq = fixture();
     let mut base = eval_config();
     base.dtam.lambda = 100.0;
+    base.lambda_normals = 100.0;
     base.normals = Some(NormalsSource::GroundTruth);
     let options = EvalOptions { lambda_sweep: vec![30.0, 100.0], ..EvalOptions::default() };
     let methods = [Method::RgbNormals, Method::LearnedTv, Method::LearnedNormals];
@@ -278,6 +279,34 @@ fn a_lambda_sweep_reaches_the_normal_prior_rows_without_tv() {
     let at_100 = table.sweep.iter().find(|(m, l, _)| *m == Method::RgbNormals && *l == 100.0).unwrap().2;
     assert_eq!(own.rms.to_bits(), at_100.rms.to_bits());
     assert_eq!(own.delta_1_25.to_bits(), at_100.delta_1_25.to_bits());
+    // The normal prior solves at its own λ (SPEC.md §10.1a), not the Huber-TV one.
+    base.lambda_normals = 30.0;
+    let methods = [Method::RgbNormals];
+    let again = evaluate(&seq, &base, &[20], &methods, &options, |_| Ok(()), |_, _, _, _| {}).unwrap();
+    let own = again.rows.iter().find(|r| r.method == Method::RgbNormals).unwrap().metrics;
+    let at_30 = table.sweep.iter().find(|(m, l, _)| *m == Method::RgbNormals && *l == 30.0).unwrap().2;
+    assert_eq!(own.rms.to_bits(), at_30.rms.to_bits());
+    assert_ne!(own.rms.to_bits(), at_100.rms.to_bits());
+}
+
+#[test]
+fn the_normal_prior_has_its_own_default_lambda_per_feature_kind() {
+    use densefeat::mapping::features::{LAMBDA_LEARNED_NORMALS, LAMBDA_RGB_NORMALS};
+    assert_eq!(FeatureKind::Rgb.default_lambda_normals(), LAMBDA_RGB_NORMALS);
+    assert_eq!(FeatureKind::Learned(None).default_lambda_normals(), LAMBDA_LEARNED_NORMALS);
+    // Kinds without a normal-prior sweep keep their smoothness λ.
+    for k in [FeatureKind::B1(None), FeatureKind::Dsift, FeatureKind::Patch7] {
+        assert_eq!(k.default_lambda_normals(), k.default_lambda());
+    }
+    // A non-positive prior λ is refused naming λ, before any work, only when the prior runs.
+    let seq = fixture();
+    let mut cfg = eval_config();
+    cfg.lambda_normals = -1.0;
+    assert!(reconstruct(&seq, &cfg, |_, _, _| {}).is_ok());
+    cfg.regularizer = densefeat::mapping::keyframe::Regularizer::Normals;
+    cfg.normals = Some(densefeat::mapping::normals::NormalsSource::GroundTruth);
+    let (name, what) = invalid_argument(reconstruct(&seq, &cfg, |_, _, _| {}).unwrap_err());
+    assert!(name.contains("lambda"), "{name}: {what}");
 }
 
 #[test]

@@ -11,7 +11,7 @@ use densefeat::geometry::PinholeCamera;
 use densefeat::nn::NetworkWeights;
 use densefeat::normals_net::head::{
     head_backward, head_backward_reference, head_forward, head_forward_reference, normal_loss,
-    normal_loss_f64, orient, pixel_terms, ray,
+    normal_loss_f64, orient, pixel_terms, ray, RAW_NORM_FLOOR,
 };
 use densefeat::normals_net::{upsample_normals, NormalNet, NormalNetWeights, HEAD_SEED};
 use densefeat::ops::LayerParams;
@@ -60,8 +60,10 @@ fn camera(h: usize, w: usize) -> PinholeCamera {
 fn pixel_gradient_matches_central_difference() {
     let mut r = rng(1);
     let mut checked = 0;
-    for _ in 0..200 {
-        let raw = [2.0 * r(), 2.0 * r(), 2.0 * r()];
+    for i in 0..400 {
+        // Half the probes below the floor of the loss's linear regime, half above (SPEC.md §13.11).
+        let scale = if i % 2 == 0 { 2.0 } else { 10.0 * RAW_NORM_FLOOR };
+        let raw = [scale * r(), scale * r(), scale * r()];
         let d = [0.5 * r(), 0.5 * r(), 1.0];
         let g = unit([r(), r(), -1.0]);
         // Away from the orientation's kink (rᵀd = 0).
@@ -71,28 +73,43 @@ fn pixel_gradient_matches_central_difference() {
         if cos_rd < 0.05 {
             continue;
         }
-        let t = pixel_terms(raw, d, g).unwrap();
+        let t = pixel_terms(raw, d, g, RAW_NORM_FLOOR).unwrap();
         let h = 1e-6;
         for k in 0..3 {
             let (mut p, mut m) = (raw, raw);
             p[k] += h;
             m[k] -= h;
-            let numeric =
-                (pixel_terms(p, d, g).unwrap().loss - pixel_terms(m, d, g).unwrap().loss) / (2.0 * h);
+            let numeric = (pixel_terms(p, d, g, RAW_NORM_FLOOR).unwrap().loss
+                - pixel_terms(m, d, g, RAW_NORM_FLOOR).unwrap().loss)
+                / (2.0 * h);
             assert!(
                 (numeric - t.d_raw[k]).abs() <= 1e-6 * (1.0 + t.d_raw[k].abs()),
                 "component {k}: numeric {numeric:e}, analytic {:e}",
                 t.d_raw[k]
             );
         }
-        // The loss is 1 - cos of the angle it reports.
-        assert!((t.loss - (1.0 - t.angle_deg.to_radians().cos())).abs() < 1e-12);
+        let norm = (raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2]).sqrt();
+        if norm >= RAW_NORM_FLOOR {
+            // The loss is 1 - cos of the angle it reports.
+            assert!((t.loss - (1.0 - t.angle_deg.to_radians().cos())).abs() < 1e-12);
+        } else {
+            // Linear below the floor (s rᵀg / R_FLOOR = cos · ‖r‖ / R_FLOOR), the unit n's angle reported.
+            let cos = t.angle_deg.to_radians().cos();
+            assert!((t.loss - (1.0 - cos * norm / RAW_NORM_FLOOR)).abs() < 1e-9, "{t:?}");
+            let g_norm = t.d_raw.iter().map(|v| v * v).sum::<f64>().sqrt();
+            assert!((g_norm - 1.0 / RAW_NORM_FLOOR).abs() < 1e-12, "the gradient is g / R_FLOOR: {g_norm}");
+        }
         checked += 1;
     }
-    assert!(checked > 150, "{checked}");
+    assert!(checked > 300, "{checked}");
+    // Continuous at the floor: just below and just above give the same loss.
+    let (d, g) = ([0.1, -0.2, 1.0], unit([0.3, 0.1, -1.0]));
+    let dir = unit([0.2, 0.4, -1.0]);
+    let at = |k: f64| pixel_terms([k * dir[0], k * dir[1], k * dir[2]], d, g, RAW_NORM_FLOOR).unwrap().loss;
+    assert!((at(RAW_NORM_FLOOR * (1.0 - 1e-12)) - at(RAW_NORM_FLOOR * (1.0 + 1e-12))).abs() < 1e-9);
     // No ground truth, or a zero prediction: no term.
-    assert!(pixel_terms([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [f64::NAN, 0.0, 1.0]).is_none());
-    assert!(pixel_terms([0.0; 3], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]).is_none());
+    assert!(pixel_terms([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [f64::NAN, 0.0, 1.0], 0.0).is_none());
+    assert!(pixel_terms([0.0; 3], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0], RAW_NORM_FLOOR).is_none());
 }
 
 /// A random head `[3, c, 3, 3]` and bias in f64.
@@ -124,10 +141,10 @@ fn reference_head_and_loss_gradients_match_central_differences() {
     let (wt, b) = head64(c, 4);
     let loss = |f: &Array3<f64>, wt: &Array4<f64>, b: &Array1<f64>| {
         let raw = head_forward_reference(wt.view(), b.view(), f.view()).unwrap();
-        (normal_loss_f64(raw.view(), gt.view(), &cam, 1.0).unwrap().0.mean(), signs(&raw, &cam))
+        (normal_loss_f64(raw.view(), gt.view(), &cam, 1.0, 0.0).unwrap().0.mean(), signs(&raw, &cam))
     };
     let raw = head_forward_reference(wt.view(), b.view(), features.view()).unwrap();
-    let (sums, d_raw) = normal_loss_f64(raw.view(), gt.view(), &cam, 1.0).unwrap();
+    let (sums, d_raw) = normal_loss_f64(raw.view(), gt.view(), &cam, 1.0, 0.0).unwrap();
     assert!(sums.pixels > 40, "{}", sums.pixels);
     let (d_f, d_w, d_b) = head_backward_reference(wt.view(), features.view(), d_raw.view()).unwrap();
     let hstep = 1e-6;
@@ -193,8 +210,8 @@ fn fast_head_and_loss_match_the_f64_reference() {
         )
         .unwrap_or_else(|e| panic!("forward {h}x{w}x{c}: {e}"));
         // Loss on the same raw values: the same per-pixel maths, the gradient rounded once.
-        let (s32, d32) = normal_loss(fast.view(), gt.view(), &cam, 0.5).unwrap();
-        let (s64, d64) = normal_loss_f64(to64(&fast).view(), gt.view(), &cam, 0.5).unwrap();
+        let (s32, d32) = normal_loss(fast.view(), gt.view(), &cam, 0.5, 0.0).unwrap();
+        let (s64, d64) = normal_loss_f64(to64(&fast).view(), gt.view(), &cam, 0.5, 0.0).unwrap();
         assert_eq!(s32, s64);
         assert_eq!(d32, to32(&d64));
         // Backward on the same d_raw: within 2 K ε of the magnitudes (K = 27 for the input
@@ -261,7 +278,7 @@ fn predictor_gradient_matches_a_directional_difference() {
     let peak = raw.iter().fold(0.0f32, |m, v| m.max(v.abs()));
     weights.head.bias[2] = -3.0 * peak;
     let mut grads = weights.zeros_like();
-    let sums = sample_step(&weights, &sample, &cpu, Some((&mut grads, 1.0))).unwrap();
+    let sums = sample_step(&weights, &sample, &cpu, Some((&mut grads, 1.0)), 0.0).unwrap();
     assert!(sums.pixels > 100, "{}", sums.pixels);
     let mut r = rng(11);
     let mut dir = weights.zeros_like();
@@ -292,7 +309,7 @@ fn predictor_gradient_matches_a_directional_difference() {
             l.weight.zip_mut_with(&v.weight, |a, b| *a += (s * f64::from(*b)) as f32);
             l.bias.zip_mut_with(&v.bias, |a, b| *a += (s * f64::from(*b)) as f32);
         }
-        sample_step(&w, &sample, &cpu, None).unwrap().mean()
+        sample_step(&w, &sample, &cpu, None, 0.0).unwrap().mean()
     };
     let part = |head: bool| -> f64 {
         let n = grads.layers().len();
@@ -340,7 +357,8 @@ fn batch_gradient_is_independent_of_thread_count() {
     let cpu = CpuBackend::default();
     let run = |n: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
-        pool.install(|| normals_batch_step(&weights, 3, |b| Ok(frames[b].clone()), &cpu)).unwrap()
+        pool.install(|| normals_batch_step(&weights, 3, |b| Ok(frames[b].clone()), &cpu, RAW_NORM_FLOOR))
+            .unwrap()
     };
     let (l1, g1) = run(1);
     for n in [2, 3, 8] {
@@ -420,6 +438,8 @@ fn tiny_cfg(steps: usize) -> NormalsTrainConfig {
         val_every: 2,
         val_per_source: 2,
         ckpt_every: 2,
+        // The tiny trunk's outputs are far below the shipped one's scale: no floor.
+        raw_norm_floor: 0.0,
         frame_cache_mb: 64,
     }
 }
@@ -511,6 +531,7 @@ fn bad_flags_are_refused_naming_the_flag() {
         (vec!["--crop", "12"], "--crop"),
         (vec!["--resume", "/no/such/checkpoint.safetensors"], "--resume"),
         (vec!["--synthetic-style", "cartoon"], "style"),
+        (vec!["--raw-norm-floor=-1"], "--raw-norm-floor"),
     ] {
         let mut args = vec!["train-normals", "--out", out, "--synthetic-scenes", "1"];
         args.extend(extra);
@@ -519,12 +540,10 @@ fn bad_flags_are_refused_naming_the_flag() {
         assert!(err.starts_with("error: ") && err.contains(flag), "{args:?}: {err}");
     }
     assert!(!Path::new(out).exists(), "nothing is written on a bad flag");
-    // --normals learned: no predictor is shipped yet, and --normal-weights needs it.
+    // --normal-weights needs --normals learned and a file.
     let seq = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");
     let base =
         ["reconstruct", "--sequence", seq, "--keyframe", "10", "--regularizer", "normals", "--out", out];
-    let (ok, err) = densefeat(&[&base[..], &["--normals", "learned"]].concat());
-    assert!(!ok && err.contains("--normals") && err.contains("shipped"), "{err}");
     let (ok, err) =
         densefeat(&[&base[..], &["--normals", "gt", "--normal-weights", "x.safetensors"]].concat());
     assert!(!ok && err.contains("--normal-weights"), "{err}");
@@ -576,4 +595,29 @@ fn eval_reports_the_predictors_angular_error_per_keyframe() {
         // Mean and median angles in [0, 180]; every pixel of the 320x240 fixture has depth.
         assert!((0.0..=180.0).contains(&r[1]) && (0.0..=180.0).contains(&r[2]) && r[3] > 50_000.0, "{csv}");
     }
+}
+
+#[test]
+fn the_shipped_predictor_is_the_normal_priors_default() {
+    // The compiled-in file loads as a predictor of the shipped features' shape.
+    let w = densefeat::mapping::normals::load_predictor(None).unwrap();
+    assert_eq!(w.trunk.config, densefeat::mapping::features::load_weights(None).unwrap().config);
+    // `reconstruct --regularizer normals` without --normals runs with it and reports its error.
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("o");
+    let seq = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");
+    let o = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+        .args(["reconstruct", "--sequence", seq, "--keyframe", "10", "--window", "2,2", "--level", "1"])
+        .args(["--bins", "32", "--regularizer", "normals", "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let line =
+        stdout.lines().find(|l| l.contains("predicted normals (--normals learned)")).unwrap_or_else(|| {
+            panic!("{stdout}");
+        });
+    let mean: f64 = line.split("mean ").nth(1).and_then(|s| s.split('°').next()).unwrap().parse().unwrap();
+    assert!((0.0..90.0).contains(&mean), "{line}");
+    assert!(stdout.contains("  normals: "), "the prior's metrics: {stdout}");
 }

@@ -443,3 +443,31 @@ fn reconstruct_killed_anywhere_leaves_old_or_new_outputs() {
     assert_eq!(by["remove-old"], "new");
     eprintln!("kill points: {seen:?}");
 }
+
+#[test]
+fn an_output_folder_holding_the_working_directory_is_refused_before_work() {
+    // Found running `train-normals --out .` (2026-12-03): the first checkpoint swapped the folder
+    // out from under the process, and the next one failed on its vanished working directory.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    std::fs::create_dir_all(out.join("inner")).unwrap();
+    std::fs::write(out.join("keep.txt"), "old").unwrap();
+    for (cwd, arg) in [(out.clone(), "."), (out.clone(), s(&out)), (out.join("inner"), s(&out))] {
+        let o = bin()
+            .current_dir(&cwd)
+            .args(["synth", "--seed", "3", "--frames", "2", "--size", "32x24", "--quiet", "--out", arg])
+            .output()
+            .unwrap();
+        assert!(!o.status.success(), "--out {arg} from {}", cwd.display());
+        assert!(stderr(&o).contains("working directory"), "{}", stderr(&o));
+        assert_eq!(names(&out), ["inner", "keep.txt"], "--out {arg}: the folder was touched");
+        assert_eq!(names(dir.path()), ["run"], "staging left behind");
+    }
+    // From outside, the same folder is fine.
+    let o = bin()
+        .current_dir(dir.path())
+        .args(["synth", "--seed", "3", "--frames", "2", "--size", "32x24", "--quiet", "--out", "run"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+}

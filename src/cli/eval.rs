@@ -29,7 +29,8 @@ pub struct EvalArgs {
     #[arg(long)]
     pub keyframes: String,
     /// Comma-separated methods: FEATURES-wta or FEATURES-tv with FEATURES rgb, learned, b1 (block 1
-    /// of the network alone), dsift (dense SIFT) or patch7 (affine-warped 7x7 patches), SPEC.md §9a.
+    /// of the network alone), dsift (dense SIFT) or patch7 (affine-warped 7x7 patches), SPEC.md §9a;
+    /// and rgb-normals, learned-normals (the surface-normal prior, SPEC.md §10.2; with --normals).
     #[arg(long, default_value = "rgb-wta,rgb-tv,learned-wta,learned-tv", value_delimiter = ',')]
     pub methods: Vec<Method>,
     /// Weights of the learned and block-1 features (default: the shipped ones).

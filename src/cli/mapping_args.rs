@@ -52,16 +52,17 @@ pub struct MappingArgs {
     /// Normals of the surface-normal prior (`--regularizer normals`, eval's `-normals` methods,
     /// SPEC.md §10.2): `gt` (from the keyframe's ground-truth depth) or a folder of `NNNNN.npy`
     /// (keyframe index) or `<frame name>.npy` files, `[H, W, 3]` f32 camera-frame unit normals at
-    /// the input resolution; or `learned`: the built-in predictor (SPEC.md §13.11) with
-    /// `--normal-weights FILE` (no trained predictor is shipped yet, so the flag is required).
+    /// the input resolution; or `learned`: the built-in predictor (SPEC.md §13.11; the default: the
+    /// shipped weights, or `--normal-weights FILE`).
     #[arg(long)]
     pub normals: Option<NormalsSource>,
     /// Weights of the built-in normal predictor for `--normals learned` (a `normalnet.safetensors`
-    /// written by `densefeat train-normals`); default: the shipped file, once one ships.
+    /// written by `densefeat train-normals`); default: the shipped `fixtures/weights/normalnet.safetensors`.
     #[arg(long)]
     pub normal_weights: Option<std::path::PathBuf>,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1);
-    /// default: per feature type, chosen on validation (SPEC §10.1a: rgb 300, learned 30, others 100).
+    /// default: per feature type, chosen on validation (SPEC §10.1a: rgb 300, learned 30, others 100;
+    /// the normal prior's solve: rgb 300, learned 300).
     #[arg(long)]
     pub lambda: Option<f64>,
     /// Huber threshold ε, 1/m.
@@ -195,7 +196,7 @@ impl MappingArgs {
     }
 
     /// `--normals` with `--normal-weights` applied: `learned` takes the file; without `--normals`,
-    /// `learned` (the shipped predictor) once one ships, else none.
+    /// `learned` (the shipped predictor; none in a build without one).
     ///
     /// # Errors
     /// [`Error::InvalidArgument`] naming `--normal-weights` when it is given without
@@ -236,7 +237,7 @@ impl MappingArgs {
         regularizer: Regularizer,
     ) -> Result<KeyframeConfig> {
         let depth_range = resolve_depth_range(self.depth_range, seq, keyframe)?;
-        let lambda = features.default_lambda();
+        let (lambda, lambda_normals) = (features.default_lambda(), features.default_lambda_normals());
         Ok(KeyframeConfig {
             keyframe,
             past: self.window.0,
@@ -259,6 +260,7 @@ impl MappingArgs {
                 max_iterations: self.max_iterations,
                 tolerance: self.tolerance,
             },
+            lambda_normals: self.lambda.unwrap_or(lambda_normals),
             max_memory_mb: self.max_memory_mb,
             level: self.level.unwrap_or(0),
             min_evidence: self.min_evidence,

@@ -92,6 +92,10 @@ pub struct TrainNormalsArgs {
     /// Write the outputs every N steps.
     #[arg(long, default_value_t = 50)]
     pub ckpt_every: usize,
+    /// The loss is linear in the head's raw output below this norm (a bounded gradient for pixels
+    /// with a near-zero output, SPEC.md §13.11; 0: none).
+    #[arg(long, default_value_t = densefeat::normals_net::head::RAW_NORM_FLOOR)]
+    pub raw_norm_floor: f64,
     /// Resume from this checkpoint (the configuration must match).
     #[arg(long)]
     pub resume: Option<PathBuf>,
@@ -130,6 +134,12 @@ impl TrainNormalsArgs {
             if v == 0 {
                 return Err(validate::flag(name, "0: must be at least 1"));
             }
+        }
+        if !(self.raw_norm_floor >= 0.0 && self.raw_norm_floor.is_finite()) {
+            return Err(validate::flag(
+                "raw-norm-floor",
+                format!("{}: must be a number >= 0", self.raw_norm_floor),
+            ));
         }
         if let Some(p) = self.resume.as_deref().filter(|p| !p.is_file()) {
             return Err(validate::flag("resume", format!("{}: no such file", p.display())));
@@ -173,6 +183,7 @@ impl TrainNormalsArgs {
             val_every: self.val_every,
             val_per_source: self.val_per_source,
             ckpt_every: self.ckpt_every,
+            raw_norm_floor: self.raw_norm_floor,
             frame_cache_mb: self.frame_cache_mb,
         })
     }

@@ -176,8 +176,8 @@ fn normals_preflight(
     let Some(source) = &cfg.normals else {
         return Err(flag(
             "normals",
-            "missing: the normal prior needs --normals gt, --normals DIR or --normals learned \
-             --normal-weights FILE (a trained normal predictor is not shipped yet)",
+            "missing: the normal prior needs --normals learned (the built-in predictor), --normals gt or \
+             --normals DIR",
         ));
     };
     if let NormalsSource::Learned(weights) = source {

@@ -69,6 +69,19 @@ impl Staging {
         if target.exists() && !target.is_dir() {
             return Err(Error::io(out, std::io::Error::other("exists and is not a folder")));
         }
+        // The folder is swapped out as a whole at the commit (and at every checkpoint of `train`):
+        // a working directory inside it would be pulled from under this process, and every
+        // relative path it still has to read would break.
+        let cwd = std::env::current_dir().and_then(|d| d.canonicalize());
+        if target.is_dir() && cwd.is_ok_and(|d| d.starts_with(&target)) {
+            return Err(Error::io(
+                out,
+                std::io::Error::other(
+                    "is the working directory or contains it: the command replaces the whole folder; \
+                     run it from outside (e.g. --out ../NAME from inside NAME)",
+                ),
+            ));
+        }
         if target.is_dir() {
             check_writable_tree(&target, out)?;
         }

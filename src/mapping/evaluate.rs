@@ -238,10 +238,12 @@ pub fn evaluate(
         cfg.features = methods[first].features(options.weights.as_deref());
         if options.lambda_per_kind {
             cfg.dtam.lambda = cfg.features.default_lambda();
+            cfg.lambda_normals = cfg.features.default_lambda_normals();
         }
         if methods[first].learned() {
             if let Some(l) = options.lambda_learned {
                 cfg.dtam.lambda = l;
+                cfg.lambda_normals = l;
             }
         }
         let tv = wanted.iter().any(|&i| methods[i].tv());

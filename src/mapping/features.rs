@@ -50,6 +50,14 @@ pub const LAMBDA_RGB: f64 = 300.0;
 /// DTAM's default `λ` for the learned features (SPEC.md §10.1a; validation sweep of 2026-12-03).
 pub const LAMBDA_LEARNED: f64 = 30.0;
 
+/// The normal prior's default `λ` with RGB (SPEC.md §10.1a; validation sweep with the built-in
+/// predictor's normals).
+pub const LAMBDA_RGB_NORMALS: f64 = 300.0;
+
+/// The normal prior's default `λ` with the learned features (SPEC.md §10.1a; validation sweep with
+/// the built-in predictor's normals).
+pub const LAMBDA_LEARNED_NORMALS: f64 = 300.0;
+
 /// Which features to match.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum FeatureKind {
@@ -117,6 +125,18 @@ impl FeatureKind {
             FeatureKind::B1(_) | FeatureKind::Dsift | FeatureKind::Patch7 => {
                 crate::dtam::MAPPING_DEFAULTS.lambda
             }
+        }
+    }
+
+    /// The default `λ` of the surface-normal prior's solve for this kind (SPEC.md §10.1a), chosen
+    /// on the validation scenes with the built-in predictor's normals: RGB [`LAMBDA_RGB_NORMALS`],
+    /// the learned features [`LAMBDA_LEARNED_NORMALS`]; the other kinds keep their
+    /// [`FeatureKind::default_lambda`].
+    pub fn default_lambda_normals(&self) -> f64 {
+        match self {
+            FeatureKind::Rgb => LAMBDA_RGB_NORMALS,
+            FeatureKind::Learned(_) => LAMBDA_LEARNED_NORMALS,
+            FeatureKind::B1(_) | FeatureKind::Dsift | FeatureKind::Patch7 => self.default_lambda(),
         }
     }
 

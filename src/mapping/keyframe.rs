@@ -153,8 +153,11 @@ pub struct KeyframeConfig {
     /// Where the normal prior's normals come from (`--normals`; needed by [`Regularizer::Normals`]).
     pub normals: Option<NormalsSource>,
     /// DTAM parameters in the normalised units of [`DtamParams::normalised`] (used with
-    /// [`Regularizer::Tv`]).
+    /// [`Regularizer::Tv`]; the normal prior's solve takes them with [`KeyframeConfig::lambda_normals`]).
     pub dtam: DtamParams,
+    /// `λ` of the normal prior's solve ([`Regularizer::Normals`]), which wants its own (SPEC.md
+    /// §10.1a): every other DTAM parameter is [`KeyframeConfig::dtam`]'s.
+    pub lambda_normals: f64,
     /// Refuse to start when [`memory_estimate`] exceeds this many MiB.
     pub max_memory_mb: usize,
     /// Pyramid level of the output grid (0 = the input resolution).
@@ -197,6 +200,7 @@ impl KeyframeConfig {
             regularizer: Regularizer::Tv,
             normals: None,
             dtam: crate::dtam::MAPPING_DEFAULTS,
+            lambda_normals: crate::dtam::MAPPING_DEFAULTS.lambda,
             max_memory_mb: DEFAULT_MAX_MEMORY_MB,
             level: 0,
             min_evidence: DEFAULT_MIN_EVIDENCE,
@@ -241,12 +245,14 @@ impl KeyframeConfig {
         if self.regularizer != Regularizer::None {
             self.dtam.validate()?;
         }
+        if self.regularizer.normals() {
+            DtamParams { lambda: self.lambda_normals, ..self.dtam }.validate()?;
+        }
         if self.regularizer.normals() && self.normals.is_none() {
             return Err(Error::invalid_argument(
                 "--regularizer normals",
-                "needs --normals gt (from the keyframe's ground-truth depth), --normals DIR (NNNNN.npy \
-                 normal maps) or --normals learned --normal-weights FILE (the built-in predictor; no \
-                 trained weights: those are not shipped yet)",
+                "needs --normals learned (the built-in predictor: the command line's default), --normals \
+                 gt (from the keyframe's ground-truth depth) or --normals DIR (NNNNN.npy normal maps)",
             ));
         }
         if !(0.0..=1.0).contains(&self.min_evidence) {
@@ -633,7 +639,7 @@ pub fn reconstruct_with(
             (tv, dtam) = (Some(e), Some(report));
         }
         if let Some(q) = slope.as_ref().filter(|_| cfg.regularizer.normals()) {
-            let (e, report) = run(cfg.dtam.lambda, Some(q))?;
+            let (e, report) = run(cfg.lambda_normals, Some(q))?;
             if dtam.is_none() {
                 dtam = Some(report.clone());
             }

@@ -204,8 +204,8 @@ pub fn load_predictor(weights: Option<&Path>) -> Result<NormalNetWeights> {
         }
         (None, None) => Err(Error::invalid_argument(
             "--normals",
-            "learned: no trained normal predictor is shipped yet; give --normal-weights FILE (a \
-             normalnet.safetensors written by densefeat train-normals), or use --normals gt|DIR",
+            "learned: this build has no trained normal predictor built in; give --normal-weights FILE \
+             (a normalnet.safetensors written by densefeat train-normals), or use --normals gt|DIR",
         )),
     }
 }

@@ -241,7 +241,7 @@ impl MapConfig {
         let c = self.keyframe_config(k);
         format!(
             "sequence={} keyframe={} window={},{} features={:?} near={} far={} bins={} regularizer={:?} \
-             normals={:?} dtam={:?} level={} min_evidence={} min_confidence={} backend={}",
+             normals={:?} dtam={:?} lambda_normals={} level={} min_evidence={} min_confidence={} backend={}",
             seq.root.canonicalize().unwrap_or(seq.root.clone()).display(),
             c.keyframe,
             c.past,
@@ -253,6 +253,7 @@ impl MapConfig {
             c.regularizer,
             c.normals,
             c.dtam,
+            c.lambda_normals,
             c.level,
             c.min_evidence,
             self.min_confidence,

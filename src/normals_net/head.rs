@@ -5,8 +5,10 @@
 //! Symbols: `r` the head's raw output at a pixel, `d = K_l⁻¹ũ` the pixel's ray at the head's level
 //! `l`, `s = -1` if `rᵀd > 0` else `+1`, `n = s r / ‖r‖` the prediction, `g` the ground-truth unit
 //! normal. Per pixel `ℓ = 1 - nᵀg`, `∂ℓ/∂r = -s (g - (r̂ᵀg) r̂) / ‖r‖` (`s` is piecewise constant:
-//! its kink, `rᵀd = 0`, is a set of measure zero). The loss is the mean of `ℓ` over the pixels with
-//! a ground-truth normal and `r ≠ 0`.
+//! its kink, `rᵀd = 0`, is a set of measure zero) where `‖r‖ >= τ`; below the floor `τ` (the
+//! trainer's [`RAW_NORM_FLOOR`], 0 for none) `ℓ = 1 - s rᵀg / τ`, `∂ℓ/∂r = -s g / τ` (the same
+//! value at the floor; a bounded gradient). The loss is the mean of `ℓ` over the pixels with a ground-truth
+//! normal and `r ≠ 0`; the reported angle is always that of the unit `n`.
 //!
 //! Two implementations share the per-pixel maths ([`pixel_terms`], f64): the fast one runs the
 //! convolution and its backward passes with the network's f32 kernels ([`head_forward`],
@@ -55,18 +57,32 @@ pub fn orient(r: [f64; 3], d: [f64; 3]) -> Option<([f64; 3], f64, f64)> {
     Some(([s * r[0] / norm, s * r[1] / norm, s * r[2] / norm], s, norm))
 }
 
-/// One pixel's loss, angle and gradient (module docs); `None` when `g` is not a finite non-zero
-/// vector (no ground truth) or `r` is zero.
-pub fn pixel_terms(r: [f64; 3], d: [f64; 3], g: [f64; 3]) -> Option<PixelTerms> {
+/// The training default of the raw-output norm below which the loss is linear in `r` (module docs,
+/// SPEC.md §13.11; `train-normals --raw-norm-floor`). It is in the units of the head's output: with
+/// the shipped trunk `‖r‖` has a median near 160 and 0.1 % of the pixels below 11, down to 0.8 (the
+/// first 2 800 steps of a run); `∂ℓ/∂r` grows as `1/‖r‖`, so without a floor a few such pixels
+/// dominated a batch's gradient (global norms up to 160 against 2-4), and two runs collapsed
+/// (2026-12-03: at step ~600 with lr 3e-4, ~1400 with 1e-4). The floor bounds one pixel's gradient
+/// at about 16 times a median pixel's.
+pub const RAW_NORM_FLOOR: f64 = 10.0;
+
+/// One pixel's loss, angle and gradient with floor `floor` (module docs; 0: none); `None` when `g`
+/// is not a finite non-zero vector (no ground truth) or `r` is zero.
+pub fn pixel_terms(r: [f64; 3], d: [f64; 3], g: [f64; 3], floor: f64) -> Option<PixelTerms> {
     if g.iter().any(|v| !v.is_finite()) || dot(g, g) == 0.0 {
         return None;
     }
     let (n, s, norm) = orient(r, d)?;
     let cos = dot(n, g);
+    let angle_deg = cos.clamp(-1.0, 1.0).acos().to_degrees();
+    if norm < floor {
+        let d_raw = std::array::from_fn(|k| -s * g[k] / floor);
+        return Some(PixelTerms { loss: 1.0 - s * dot(r, g) / floor, angle_deg, d_raw });
+    }
     let unit = [r[0] / norm, r[1] / norm, r[2] / norm];
     let along = dot(unit, g);
     let d_raw = std::array::from_fn(|k| -s * (g[k] - along * unit[k]) / norm);
-    Some(PixelTerms { loss: 1.0 - cos, angle_deg: cos.clamp(-1.0, 1.0).acos().to_degrees(), d_raw })
+    Some(PixelTerms { loss: 1.0 - cos, angle_deg, d_raw })
 }
 
 /// Sums of a loss evaluation.
@@ -102,8 +118,8 @@ impl NormalLossSums {
 }
 
 /// The loss of raw head outputs `raw [h, w, 3]` against ground-truth normals `gt [h, w, 3]` (NaN:
-/// none) on `camera`'s grid, and the gradient of `weight · mean ℓ` with respect to `raw` (f64).
-/// Pixels in row-major order, serially.
+/// none) on `camera`'s grid with [`pixel_terms`]'s `floor`, and the gradient of `weight · mean ℓ`
+/// with respect to `raw` (f64). Pixels in row-major order, serially.
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] if the shapes disagree with each other or the camera.
@@ -112,6 +128,7 @@ pub fn normal_loss_f64<T: Copy + Into<f64>>(
     gt: ArrayView3<f32>,
     camera: &PinholeCamera,
     weight: f64,
+    floor: f64,
 ) -> Result<(NormalLossSums, Array3<f64>)> {
     let (h, w, c) = raw.dim();
     crate::ops::expect_shape("normal loss gt", gt.shape(), &[h, w, 3])?;
@@ -122,7 +139,7 @@ pub fn normal_loss_f64<T: Copy + Into<f64>>(
         for x in 0..w {
             let r = std::array::from_fn(|k| raw[[y, x, k]].into());
             let g = std::array::from_fn(|k| f64::from(gt[[y, x, k]]));
-            let Some(t) = pixel_terms(r, ray(camera, x, y), g) else { continue };
+            let Some(t) = pixel_terms(r, ray(camera, x, y), g, floor) else { continue };
             sums.pixels += 1;
             sums.loss += t.loss;
             sums.angle_deg += t.angle_deg;
@@ -145,8 +162,9 @@ pub fn normal_loss(
     gt: ArrayView3<f32>,
     camera: &PinholeCamera,
     weight: f64,
+    floor: f64,
 ) -> Result<(NormalLossSums, Array3<f32>)> {
-    let (sums, grad) = normal_loss_f64(raw, gt, camera, weight)?;
+    let (sums, grad) = normal_loss_f64(raw, gt, camera, weight, floor)?;
     Ok((sums, grad.mapv(|v| v as f32)))
 }
 

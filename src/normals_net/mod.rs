@@ -19,10 +19,12 @@ pub use head::{NormalLossSums, PixelTerms};
 pub use predict::{upsample_normals, NormalNet};
 pub use weights::{NormalNetWeights, HEAD_SEED, NORMALNET_FORMAT};
 
-/// The shipped trained predictor's bytes (`fixtures/weights/normalnet.safetensors`, compiled in),
-/// when one ships: none yet. When trained weights are committed under that name, this becomes
-/// `Some(include_bytes!("../../fixtures/weights/normalnet.safetensors"))`.
-pub const SHIPPED_NORMAL_WEIGHTS: Option<&[u8]> = None;
+/// The shipped trained predictor's bytes (`fixtures/weights/normalnet.safetensors`, compiled in;
+/// its model card is `fixtures/weights/MODEL_CARD_normalnet.md`). `Option` so that a build without
+/// a trained predictor stays expressible: every caller handles `None` with an error naming
+/// `--normal-weights`.
+pub const SHIPPED_NORMAL_WEIGHTS: Option<&[u8]> =
+    Some(include_bytes!("../../fixtures/weights/normalnet.safetensors"));
 
 /// The name [`SHIPPED_NORMAL_WEIGHTS`] is reported under.
 pub const SHIPPED_NORMAL_WEIGHTS_NAME: &str = "fixtures/weights/normalnet.safetensors (built in)";

@@ -40,7 +40,8 @@ impl NormalSample {
     }
 }
 
-/// The frame's loss; with `grads = Some((g, weight))`, adds the gradient of `weight · mean ℓ` to
+/// The frame's loss with raw-norm floor `floor` ([`crate::normals_net::head::pixel_terms`]); with
+/// `grads = Some((g, weight))`, adds the gradient of `weight · mean ℓ` to
 /// `g`: the loss's gradient at the head's output, the head's backward into `g.head` and
 /// `d_features`, then [`backward_prepared`] through the trunk into `g.trunk` (the trunk prepared
 /// once for both passes).
@@ -52,6 +53,7 @@ pub fn sample_step(
     sample: &NormalSample,
     cpu: &CpuBackend,
     grads: Option<(&mut NormalNetWeights, f64)>,
+    floor: f64,
 ) -> Result<NormalLossSums> {
     let level = weights.trunk.config.block_level(0) as u32;
     let camera = sample.camera.at_level(level);
@@ -61,7 +63,7 @@ pub fn sample_step(
     let features = &out.aggregated[0];
     let raw = head_forward(&weights.head, features.view())?;
     let weight = grads.as_ref().map_or(1.0, |g| g.1);
-    let (sums, d_raw) = normal_loss(raw.view(), gt.view(), &camera, weight)?;
+    let (sums, d_raw) = normal_loss(raw.view(), gt.view(), &camera, weight, floor)?;
     if let Some((g, _)) = grads {
         let (d_features, d_head) = head_backward(&weights.head, features.view(), d_raw.view())?;
         g.head.weight += &d_head.weight;
@@ -84,6 +86,7 @@ pub fn normals_batch_step(
     batch: usize,
     sample: impl Fn(usize) -> Result<NormalSample> + Sync,
     cpu: &CpuBackend,
+    floor: f64,
 ) -> Result<(Vec<NormalLossSums>, NormalNetWeights)> {
     let weight = 1.0 / batch as f64;
     let per = (0..batch)
@@ -91,7 +94,7 @@ pub fn normals_batch_step(
         .map(|b| {
             let s = sample(b)?;
             let mut g = weights.zeros_like();
-            let l = sample_step(weights, &s, cpu, Some((&mut g, weight)))?;
+            let l = sample_step(weights, &s, cpu, Some((&mut g, weight)), floor)?;
             Ok((l, g))
         })
         .collect::<Result<Vec<_>>>()?;
@@ -104,7 +107,8 @@ pub fn normals_batch_step(
     Ok((losses, grads))
 }
 
-/// Validation: the mean over frames of each frame's mean loss, and the mean angular error
+/// Validation: the mean over frames of each frame's mean loss (of the unit predictions, no floor),
+/// and the mean angular error
 /// (degrees) over every valid pixel of every frame. The frames run at once, their sums are taken
 /// in frame order.
 ///
@@ -118,7 +122,7 @@ pub fn validate_normals(weights: &NormalNetWeights, samples: &[NormalSample]) ->
         .map(|s| {
             let n = net.head_normals(s.rgb.view(), &s.camera)?;
             let (sums, _) =
-                normal_loss(n.view(), s.gt_normals(level).view(), &s.camera.at_level(level), 1.0)?;
+                normal_loss(n.view(), s.gt_normals(level).view(), &s.camera.at_level(level), 1.0, 0.0)?;
             Ok(sums)
         })
         .collect::<Result<Vec<_>>>()?;

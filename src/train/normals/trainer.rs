@@ -40,6 +40,8 @@ pub struct NormalsTrainConfig {
     pub val_per_source: usize,
     /// Write the outputs every this many steps (and at the last).
     pub ckpt_every: usize,
+    /// The loss's raw-norm floor ([`crate::normals_net::head::RAW_NORM_FLOOR`] by default; 0: none).
+    pub raw_norm_floor: f64,
     /// Frame cache, MiB (not in the fingerprint: it never changes a result).
     pub frame_cache_mb: usize,
 }
@@ -49,7 +51,7 @@ impl NormalsTrainConfig {
     /// match it).
     pub fn fingerprint(&self, trunk: &NetworkWeights) -> String {
         format!(
-            "normals: init_trunk={} network={:?} head_seed={} seed={} steps={} batch={} optim={:?} data={:?}",
+            "normals: init_trunk={} network={:?} head_seed={} seed={} steps={} batch={} optim={:?} data={:?} raw_norm_floor={}",
             self.init_trunk,
             trunk.config,
             self.head_seed,
@@ -57,7 +59,8 @@ impl NormalsTrainConfig {
             self.steps,
             self.batch,
             self.optim,
-            self.data
+            self.data,
+            self.raw_norm_floor
         )
     }
 }
@@ -70,6 +73,8 @@ pub struct NormalRunPaths {
     pub weights: PathBuf,
     /// `log.csv`.
     pub csv: PathBuf,
+    /// `best_normalnet.safetensors`: the weights at the validation with the lowest mean angle so far.
+    pub best: PathBuf,
 }
 
 impl NormalRunPaths {
@@ -79,6 +84,7 @@ impl NormalRunPaths {
             checkpoint: out.join("checkpoint.safetensors"),
             weights: out.join("normalnet.safetensors"),
             csv: out.join("log.csv"),
+            best: out.join("best_normalnet.safetensors"),
         }
     }
 }
@@ -117,6 +123,12 @@ pub fn train_normals(
     progress: &mut dyn Progress,
 ) -> Result<NormalNetWeights> {
     cfg.optim.validate()?;
+    if !(cfg.raw_norm_floor >= 0.0 && cfg.raw_norm_floor.is_finite()) {
+        return Err(Error::invalid_argument(
+            "--raw-norm-floor",
+            format!("{}: must be a finite number >= 0", cfg.raw_norm_floor),
+        ));
+    }
     if cfg.batch == 0 || cfg.steps == 0 || cfg.val_every == 0 || cfg.ckpt_every == 0 {
         return Err(Error::invalid_argument(
             "train-normals",
@@ -150,6 +162,14 @@ pub fn train_normals(
     if resume.is_some() {
         csv_text.push_str(&rows_up_to(&paths.csv, step));
     }
+    // The lowest validation mean angle so far (from the log's rows, so a resume continues it), and
+    // the weights that reached a new one, written with the next checkpoint.
+    let mut best = csv_text
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split(',').nth(6).and_then(|v| v.parse::<f64>().ok()))
+        .fold(f64::INFINITY, f64::min);
+    let mut pending_best: Option<NormalNetWeights> = None;
     let cpu = CpuBackend::default();
     let last = stop_after.unwrap_or(cfg.steps).min(cfg.steps);
     progress.start(cfg.steps as u64, step as u64);
@@ -162,6 +182,7 @@ pub fn train_normals(
             cfg.batch,
             |b| data.train_pair(cfg.seed, step, b).map(Into::into),
             &cpu,
+            cfg.raw_norm_floor,
         )?;
         let lr = cfg.optim.lr_at(step, cfg.steps);
         let layers = AdamLayers {
@@ -193,6 +214,15 @@ pub fn train_normals(
             "{step},{lr:.3e},{loss:.6},{angle:.3},{grad_norm:.4},{vl},{va},{frames_per_s:.3},{:.1}\n",
             start.elapsed().as_secs_f64()
         ));
+        if let Some((_, a)) = val_res.filter(|&(_, a)| a < best) {
+            best = a;
+            let mut w = weights.clone();
+            w.trunk.provenance = format!(
+                "densefeat train-normals: step {step} of {} (best validation mean angle {a:.3} deg); {fingerprint}",
+                cfg.steps
+            );
+            pending_best = Some(w);
+        }
         if let Some((l, a)) = val_res {
             progress.line(&format!(
                 "step {step}: train loss {loss:.4} ({angle:.2}°), val loss {l:.4}, val mean angle {a:.2}°"
@@ -213,6 +243,9 @@ pub fn train_normals(
             }
             .save(&staged.checkpoint)?;
             w.save(&staged.weights)?;
+            if let Some(b) = pending_best.take() {
+                b.save(&staged.best)?;
+            }
             write_atomic(&staged.csv, csv_text.as_bytes())?;
             staging.commit()?;
         }

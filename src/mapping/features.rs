@@ -51,12 +51,12 @@ pub const LAMBDA_RGB: f64 = 300.0;
 pub const LAMBDA_LEARNED: f64 = 30.0;
 
 /// The normal prior's default `λ` with RGB (SPEC.md §10.1a; validation sweep with the built-in
-/// predictor's normals).
+/// predictor's normals, 2026-12-03).
 pub const LAMBDA_RGB_NORMALS: f64 = 300.0;
 
 /// The normal prior's default `λ` with the learned features (SPEC.md §10.1a; validation sweep with
-/// the built-in predictor's normals).
-pub const LAMBDA_LEARNED_NORMALS: f64 = 300.0;
+/// the built-in predictor's normals, 2026-12-03).
+pub const LAMBDA_LEARNED_NORMALS: f64 = 100.0;
 
 /// Which features to match.
 #[derive(Clone, Debug, PartialEq, Eq)]

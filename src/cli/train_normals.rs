@@ -135,12 +135,6 @@ impl TrainNormalsArgs {
                 return Err(validate::flag(name, "0: must be at least 1"));
             }
         }
-        if !(self.raw_norm_floor >= 0.0 && self.raw_norm_floor.is_finite()) {
-            return Err(validate::flag(
-                "raw-norm-floor",
-                format!("{}: must be a number >= 0", self.raw_norm_floor),
-            ));
-        }
         if let Some(p) = self.resume.as_deref().filter(|p| !p.is_file()) {
             return Err(validate::flag("resume", format!("{}: no such file", p.display())));
         }
@@ -152,7 +146,7 @@ impl TrainNormalsArgs {
             ..OptimConfig::default()
         };
         optim.validate().map_err(|e| validate::flag("lr/warmup/clip-norm/weight-decay", e.to_string()))?;
-        Ok(NormalsTrainConfig {
+        let cfg = NormalsTrainConfig {
             init_trunk: self
                 .init_trunk
                 .as_ref()
@@ -185,7 +179,9 @@ impl TrainNormalsArgs {
             ckpt_every: self.ckpt_every,
             raw_norm_floor: self.raw_norm_floor,
             frame_cache_mb: self.frame_cache_mb,
-        })
+        };
+        cfg.validate()?;
+        Ok(cfg)
     }
 
     /// The trunk to start from: `--init-trunk` or the built-in shipped features.

@@ -55,11 +55,23 @@ pub fn sample_step(
     grads: Option<(&mut NormalNetWeights, f64)>,
     floor: f64,
 ) -> Result<NormalLossSums> {
+    let trunk = PreparedNetwork::new(&weights.trunk, cpu)?;
+    sample_step_prepared(&trunk, weights, sample, cpu, grads, floor)
+}
+
+/// [`sample_step`] with the trunk already prepared (`trunk` of `weights.trunk`; a batch shares one).
+fn sample_step_prepared(
+    trunk: &PreparedNetwork,
+    weights: &NormalNetWeights,
+    sample: &NormalSample,
+    cpu: &CpuBackend,
+    grads: Option<(&mut NormalNetWeights, f64)>,
+    floor: f64,
+) -> Result<NormalLossSums> {
     let level = weights.trunk.config.block_level(0) as u32;
     let camera = sample.camera.at_level(level);
     let gt = sample.gt_normals(level);
-    let trunk = PreparedNetwork::new(&weights.trunk, cpu)?;
-    let (out, tape) = forward_with_tape_prepared(&trunk, sample.rgb.view(), cpu)?;
+    let (out, tape) = forward_with_tape_prepared(trunk, sample.rgb.view(), cpu)?;
     let features = &out.aggregated[0];
     let raw = head_forward(&weights.head, features.view())?;
     let weight = grads.as_ref().map_or(1.0, |g| g.1);
@@ -69,7 +81,7 @@ pub fn sample_step(
         g.head.weight += &d_head.weight;
         g.head.bias += &d_head.bias;
         let d_blocks = vec![None; weights.trunk.config.blocks];
-        backward_prepared(&trunk, &weights.trunk, &tape, &d_blocks, Some(d_features.view()), &mut g.trunk)?;
+        backward_prepared(trunk, &weights.trunk, &tape, &d_blocks, Some(d_features.view()), &mut g.trunk)?;
     }
     Ok(sums)
 }
@@ -89,12 +101,14 @@ pub fn normals_batch_step(
     floor: f64,
 ) -> Result<(Vec<NormalLossSums>, NormalNetWeights)> {
     let weight = 1.0 / batch as f64;
+    // One preparation of the trunk for every frame of the step.
+    let trunk = PreparedNetwork::new(&weights.trunk, cpu)?;
     let per = (0..batch)
         .into_par_iter()
         .map(|b| {
             let s = sample(b)?;
             let mut g = weights.zeros_like();
-            let l = sample_step(weights, &s, cpu, Some((&mut g, weight)), floor)?;
+            let l = sample_step_prepared(&trunk, weights, &s, cpu, Some((&mut g, weight)), floor)?;
             Ok((l, g))
         })
         .collect::<Result<Vec<_>>>()?;

@@ -47,6 +47,20 @@ pub struct NormalsTrainConfig {
 }
 
 impl NormalsTrainConfig {
+    /// Checks the settings [`train_normals`] needs before any data is read.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `--raw-norm-floor` for a negative or non-finite floor.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.raw_norm_floor >= 0.0 && self.raw_norm_floor.is_finite()) {
+            return Err(Error::invalid_argument(
+                "--raw-norm-floor",
+                format!("{}: must be a finite number >= 0", self.raw_norm_floor),
+            ));
+        }
+        Ok(())
+    }
+
     /// The settings that determine the weights, as text (stored in checkpoints; a resume must
     /// match it).
     pub fn fingerprint(&self, trunk: &NetworkWeights) -> String {
@@ -92,6 +106,13 @@ impl NormalRunPaths {
 const CSV_HEADER: &str =
     "step,lr,loss,mean_angle_deg,grad_norm,val_loss,val_mean_angle_deg,frames_per_s,elapsed_s";
 
+/// The validation mean angle as the log writes it (3 decimals), parsed back: the best-so-far is
+/// compared on this value, so a resumed run (which reads it from the log) decides as an
+/// uninterrupted one.
+fn logged_angle(a: f64) -> f64 {
+    format!("{a:.3}").parse().unwrap_or(a)
+}
+
 /// The CSV rows of an earlier run up to `step`.
 fn rows_up_to(csv: &Path, step: usize) -> String {
     let mut text = String::new();
@@ -123,12 +144,7 @@ pub fn train_normals(
     progress: &mut dyn Progress,
 ) -> Result<NormalNetWeights> {
     cfg.optim.validate()?;
-    if !(cfg.raw_norm_floor >= 0.0 && cfg.raw_norm_floor.is_finite()) {
-        return Err(Error::invalid_argument(
-            "--raw-norm-floor",
-            format!("{}: must be a finite number >= 0", cfg.raw_norm_floor),
-        ));
-    }
+    cfg.validate()?;
     if cfg.batch == 0 || cfg.steps == 0 || cfg.val_every == 0 || cfg.ckpt_every == 0 {
         return Err(Error::invalid_argument(
             "train-normals",
@@ -164,10 +180,11 @@ pub fn train_normals(
     }
     // The lowest validation mean angle so far (from the log's rows, so a resume continues it), and
     // the weights that reached a new one, written with the next checkpoint.
+    let val_column = CSV_HEADER.split(',').position(|c| c == "val_mean_angle_deg");
     let mut best = csv_text
         .lines()
         .skip(1)
-        .filter_map(|l| l.split(',').nth(6).and_then(|v| v.parse::<f64>().ok()))
+        .filter_map(|l| l.split(',').nth(val_column?).and_then(|v| v.parse::<f64>().ok()))
         .fold(f64::INFINITY, f64::min);
     let mut pending_best: Option<NormalNetWeights> = None;
     let cpu = CpuBackend::default();
@@ -214,7 +231,7 @@ pub fn train_normals(
             "{step},{lr:.3e},{loss:.6},{angle:.3},{grad_norm:.4},{vl},{va},{frames_per_s:.3},{:.1}\n",
             start.elapsed().as_secs_f64()
         ));
-        if let Some((_, a)) = val_res.filter(|&(_, a)| a < best) {
+        if let Some(a) = val_res.map(|(_, a)| logged_angle(a)).filter(|&a| a < best) {
             best = a;
             let mut w = weights.clone();
             w.trunk.provenance = format!(

@@ -42,6 +42,23 @@ args_b1s1=(
   --val-every 250 --val-per-source 4 --ckpt-every 100
 )
 
+# Issue 30 item 5, the multi-frame objective (SPEC.md §13.1b) on validation: two fine-tunes of the
+# shipped b1s2 weights that differ only in --live-frames (4 against the pair loss's 1), with the
+# chain's data, crops and loss sampling, fresh data draws (--seed 1) and a short schedule of their own.
+# tools/train_chain/validate.sh mf4 / mf1 then compares them with the mapper on the validation scenes.
+args_mf4=(
+  --data $D/hololens_000 --data $D/tartanair_hospital --data $D/tsdffusion_desk_box
+  --val-data $D/sun3d_studyroom_f0935 --val-fraction 0
+  --synthetic-scenes 64 --synthetic-style real --synthetic-fraction 0.5 --synthetic-val-scenes 4
+  --b1-stride 2 --crop 256x192 --bins 256
+  --init-weights fixtures/weights/featurenet_trained_b1s2.safetensors --live-frames 4
+  --steps 2500 --batch 4 --lr 1e-4 --warmup 100 --weight-decay 1e-4 --clip-norm 5000
+  --loss-sample-stride 2 --seed 1 --init-seed 0
+  --val-every 250 --val-per-source 4 --ckpt-every 100
+)
+args_mf1=("${args_mf4[@]}")
+for i in "${!args_mf1[@]}"; do [ "${args_mf1[$i]}" = "--live-frames" ] && args_mf1[$((i + 1))]=1; done
+
 case "${1:-}" in
   start)
     var="args_${name}[@]"

@@ -19,6 +19,11 @@ kept=docs/training/chain_$name
 weights=${2:-$run/weights.safetensors}
 bin=${BIN:-target/release/densefeat}
 [ -x "$bin" ] || cargo build --release
+# The plot at the end needs matplotlib: say so before the evaluations, not after them.
+python3 -c "import matplotlib" 2>/dev/null || {
+  echo "validate.sh: python3 cannot import matplotlib (needed for $kept/validation.png and the best-weights pick): pip install matplotlib" >&2
+  exit 1
+}
 mkdir -p runs/val "$kept"
 snap=runs/val/snap_$name.safetensors
 cp "$weights" "$snap"

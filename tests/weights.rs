@@ -244,6 +244,20 @@ fn rejects_non_finite_values() {
 }
 
 #[test]
+fn shipped_stride_1_weights_load_and_are_the_end_of_their_chain() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures/weights/featurenet_trained_b1s1.safetensors");
+    let w = NetworkWeights::load(&path).unwrap();
+    assert_eq!((w.config.blocks, w.config.channels, w.config.b1_stride), (5, 32, 1));
+    // The end of chain b1s1 (docs/training/README.md): 15 000 steps x 4 pairs.
+    assert!(w.provenance.starts_with("densefeat train: step 15000 of 15000"), "{}", w.provenance);
+    // Not the built-in default (b1s2), and trained, not the initialisation.
+    assert_ne!(std::fs::read(&path).unwrap(), densefeat::mapping::features::SHIPPED_WEIGHTS);
+    let init = densefeat::train::trainer::training_init(&w.config, 0).unwrap();
+    assert_ne!(w, init);
+}
+
+#[test]
 fn missing_file_is_an_io_error_naming_it() {
     let path = Path::new("/nonexistent/w.safetensors");
     match NetworkWeights::load(path) {

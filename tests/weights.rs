@@ -244,20 +244,6 @@ fn rejects_non_finite_values() {
 }
 
 #[test]
-fn shipped_stride_1_weights_load_and_are_the_end_of_their_chain() {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures/weights/featurenet_trained_b1s1.safetensors");
-    let w = NetworkWeights::load(&path).unwrap();
-    assert_eq!((w.config.blocks, w.config.channels, w.config.b1_stride), (5, 32, 1));
-    // The end of chain b1s1 (docs/training/README.md): 15 000 steps x 4 pairs.
-    assert!(w.provenance.starts_with("densefeat train: step 15000 of 15000"), "{}", w.provenance);
-    // Not the built-in default (b1s2), and trained, not the initialisation.
-    assert_ne!(std::fs::read(&path).unwrap(), densefeat::mapping::features::SHIPPED_WEIGHTS);
-    let init = densefeat::train::trainer::training_init(&w.config, 0).unwrap();
-    assert_ne!(w, init);
-}
-
-#[test]
 fn missing_file_is_an_io_error_naming_it() {
     let path = Path::new("/nonexistent/w.safetensors");
     match NetworkWeights::load(path) {
@@ -266,16 +252,30 @@ fn missing_file_is_an_io_error_naming_it() {
     }
 }
 
-#[test]
-fn shipped_trained_weights_load_and_are_the_built_in_default() {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures/weights/featurenet_trained_b1s2.safetensors");
+/// The shipped weights `fixtures/weights/NAME`, checked to be the end of their training chain
+/// (docs/training/README.md): 5 blocks of 32 channels at block-1 stride `b1_stride`, provenance
+/// "step `steps` of `steps`", and trained (not the initialisation). Returns the file's bytes.
+fn shipped_chain_end(name: &str, b1_stride: usize, steps: usize) -> Vec<u8> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/weights").join(name);
     let w = NetworkWeights::load(&path).unwrap();
-    assert_eq!((w.config.blocks, w.config.channels, w.config.b1_stride), (5, 32, 2));
-    // The end of chain b1s2 (docs/training/README.md): 37 500 steps x 4 pairs.
-    assert!(w.provenance.starts_with("densefeat train: step 37500 of 37500"), "{}", w.provenance);
-    assert_eq!(std::fs::read(&path).unwrap(), densefeat::mapping::features::SHIPPED_WEIGHTS);
-    // Trained, not the initialisation.
+    assert_eq!((w.config.blocks, w.config.channels, w.config.b1_stride), (5, 32, b1_stride));
+    let want = format!("densefeat train: step {steps} of {steps}");
+    assert!(w.provenance.starts_with(&want), "{}", w.provenance);
     let init = densefeat::train::trainer::training_init(&w.config, 0).unwrap();
     assert_ne!(w, init);
+    std::fs::read(&path).unwrap()
+}
+
+#[test]
+fn shipped_trained_weights_load_and_are_the_built_in_default() {
+    // Chain b1s2: 37 500 steps x 4 pairs.
+    let bytes = shipped_chain_end("featurenet_trained_b1s2.safetensors", 2, 37500);
+    assert_eq!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
+}
+
+#[test]
+fn shipped_stride_1_weights_load_and_are_the_end_of_their_chain() {
+    // Chain b1s1: 15 000 steps x 4 pairs; not the built-in default.
+    let bytes = shipped_chain_end("featurenet_trained_b1s1.safetensors", 1, 15000);
+    assert_ne!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
 }

@@ -41,7 +41,8 @@ pub struct TrainArgs {
     /// Probability that a pair is synthetic when --data is given too.
     #[arg(long, default_value_t = 0.5)]
     pub synthetic_fraction: f64,
-    /// Style of the synthetic scenes: `classic` or `real` (photo textures, realistic sensor).
+    /// Style of the synthetic scenes: `classic`, `real` (photo textures, realistic sensor) or
+    /// `mixed` (even seeds classic, odd seeds real).
     #[arg(long, default_value = "classic")]
     pub synthetic_style: String,
     /// Fraction of each sequence's frames, at its end, held out for validation.

@@ -36,7 +36,7 @@ pub struct TrainNormalsArgs {
     /// Probability that a frame is synthetic when --data is given too.
     #[arg(long, default_value_t = 0.5)]
     pub synthetic_fraction: f64,
-    /// Style of the synthetic scenes: `classic` or `real`.
+    /// Style of the synthetic scenes: `classic`, `real` or `mixed` (even seeds classic, odd seeds real).
     #[arg(long, default_value = "classic")]
     pub synthetic_style: String,
     /// Fraction of each training sequence's frames, at its end, held out for validation (0: the

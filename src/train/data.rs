@@ -77,8 +77,8 @@ pub struct DataConfig {
     pub synthetic_val_scenes: usize,
     /// Probability that a training pair is synthetic when sequences are given too.
     pub synthetic_fraction: f64,
-    /// Style of the synthetic scenes (SPEC.md §4b).
-    pub synthetic_style: Style,
+    /// Renderer style of the synthetic scenes (SPEC.md §4b, §13.5).
+    pub synthetic_style: SyntheticStyles,
     /// Fraction of each training sequence's frames, at its end, held out for validation (0 under
     /// the scene-level protocol of SPEC §3a, where validation comes from `val_sequences`).
     pub val_fraction: f64,
@@ -110,9 +110,66 @@ impl Default for DataConfig {
             synthetic_scenes: 64,
             synthetic_val_scenes: 4,
             synthetic_fraction: 0.5,
-            synthetic_style: Style::Classic,
+            synthetic_style: SyntheticStyles::One(Style::Classic),
             val_fraction: 0.2,
             live_frames: 1,
+        }
+    }
+}
+
+/// The renderer styles of the synthetic scenes (`--synthetic-style classic | real | mixed`,
+/// SPEC.md §13.5): one style for every scene, or both, by seed parity (even seeds classic, odd
+/// seeds realistic), so a mix is a pure function of the seed and resume stays exact.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum SyntheticStyles {
+    /// Every scene in this style.
+    One(Style),
+    /// Even seeds classic, odd seeds realistic.
+    Mixed,
+}
+
+impl SyntheticStyles {
+    /// The style of scene `seed`.
+    pub fn of(self, seed: u64) -> Style {
+        match self {
+            SyntheticStyles::One(s) => s,
+            SyntheticStyles::Mixed if seed % 2 == 0 => Style::Classic,
+            SyntheticStyles::Mixed => Style::Real,
+        }
+    }
+}
+
+// Written as `Classic`, `Real` or `Mixed`: the checkpoint fingerprint (SPEC.md §13.6) holds the data
+// settings' Debug text, and runs made when this field was a plain `Style` must stay resumable.
+impl std::fmt::Debug for SyntheticStyles {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SyntheticStyles::One(s) => write!(f, "{s:?}"),
+            SyntheticStyles::Mixed => f.write_str("Mixed"),
+        }
+    }
+}
+
+impl std::fmt::Display for SyntheticStyles {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SyntheticStyles::One(s) => write!(f, "{s}"),
+            SyntheticStyles::Mixed => f.write_str("mixed: even seeds classic, odd seeds real"),
+        }
+    }
+}
+
+impl std::str::FromStr for SyntheticStyles {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "mixed" => Ok(SyntheticStyles::Mixed),
+            _ => s.parse::<Style>().map(SyntheticStyles::One).map_err(|_| {
+                Error::invalid_argument(
+                    "--synthetic-style",
+                    format!("{s:?}: expected classic, real or mixed"),
+                )
+            }),
         }
     }
 }
@@ -251,7 +308,7 @@ impl DataSet {
             frames: SYNTH_FRAMES,
             width: cw.max(320),
             height: ch.max(240),
-            style: cfg.synthetic_style,
+            style: cfg.synthetic_style.of(SYNTH_TRAIN_SEED0),
             ..SceneConfig::default()
         };
         let mut sequences = Vec::new();
@@ -387,7 +444,8 @@ impl DataSet {
     /// A synthetic pair from scene `seed`: a random reference frame and a live frame passing the
     /// pair rule, plus `extra` further live frames that pass it too (drawn only when `extra > 0`).
     fn synthetic_pair(&self, seed: u64, rng: &mut SplitMix64, extra: usize) -> Result<Option<FrameTuple>> {
-        let scene = Scene::generate(&SceneConfig { seed, ..self.synth })?;
+        let style = self.cfg.synthetic_style.of(seed);
+        let scene = Scene::generate(&SceneConfig { seed, style, ..self.synth })?;
         let poses: Vec<Pose> = (0..scene.frames()).map(|i| scene.pose(i)).collect::<Result<_>>()?;
         let cam = scene.camera();
         let frame = |i: usize| self.cache.get(FrameKey::Synthetic(seed, i), || render(&scene, i));

@@ -71,6 +71,22 @@ for i in "${!args_mf4l[@]}"; do
   esac
 done
 
+# Issue 30 items 3 and 5 on validation: the chain's synthetic scenes were all realistic-style, while
+# half of the validation and test renders are classic-style (procedural textures, large white walls),
+# where the wide validation (tools/train_chain/wide_validation.sh) puts learned-TV's weakest scenes.
+# mx4 continues mf4l's multi-frame fine-tune from its final weights with both renderer styles
+# (--synthetic-style mixed: even seeds classic, odd seeds real; SPEC.md §13.5), 5 000 steps = 20 000
+# tuples, its own data draws (--seed 3).
+args_mx4=("${args_mf4[@]}")
+for i in "${!args_mx4[@]}"; do
+  case "${args_mx4[$i]}" in
+    --synthetic-style) args_mx4[$((i + 1))]=mixed ;;
+    --init-weights) args_mx4[$((i + 1))]=docs/training/chain_mf4l/best_weights.safetensors ;;
+    --steps) args_mx4[$((i + 1))]=5000 ;;
+    --seed) args_mx4[$((i + 1))]=3 ;;
+  esac
+done
+
 case "${1:-}" in
   start)
     var="args_${name}[@]"
@@ -83,7 +99,7 @@ case "${1:-}" in
       cp "$kept/checkpoint.safetensors" "$kept/log.csv" "$run/"
       resume=(--resume "$run/checkpoint.safetensors")
     fi
-    bin=target/release/densefeat
+    bin=${BIN:-target/release/densefeat}
     [ -x "$bin" ] || cargo build --release
     # A copy of the binary, so rebuilding the project does not touch the running trainer.
     cp "$bin" "$run/densefeat"

@@ -133,7 +133,7 @@ impl SyntheticStyles {
     pub fn of(self, seed: u64) -> Style {
         match self {
             SyntheticStyles::One(s) => s,
-            SyntheticStyles::Mixed if seed % 2 == 0 => Style::Classic,
+            SyntheticStyles::Mixed if seed.is_multiple_of(2) => Style::Classic,
             SyntheticStyles::Mixed => Style::Real,
         }
     }

@@ -390,7 +390,7 @@ fn mixed_synthetic_styles_alternate_by_seed_and_keep_old_fingerprints() {
     assert_eq!(mixed.of(100_000), Style::Classic);
     assert_eq!(mixed.of(100_001), Style::Real);
     assert_eq!("real".parse::<SyntheticStyles>().unwrap().of(100_000), Style::Real);
-    let err = "photo".parse::<SyntheticStyles>().err().expect("refused").to_string();
+    let err = "photo".parse::<SyntheticStyles>().expect_err("refused").to_string();
     assert!(err.contains("--synthetic-style") && err.contains("mixed"), "{err}");
     assert!(tiny().fingerprint().contains("synthetic_style: Classic,"), "{}", tiny().fingerprint());
     let cfg = TrainConfig { data: DataConfig { synthetic_style: mixed, ..tiny().data }, ..tiny() };

@@ -268,9 +268,19 @@ fn shipped_chain_end(name: &str, b1_stride: usize, steps: usize) -> Vec<u8> {
 
 #[test]
 fn shipped_trained_weights_load_and_are_the_built_in_default() {
-    // Chain b1s2: 37 500 steps x 4 pairs.
-    let bytes = shipped_chain_end("featurenet_trained_b1s2.safetensors", 2, 37500);
+    // Chain mf4l: 10 000 steps x 4 tuples of the multi-frame loss, fine-tuning chain b1s2's end.
+    let bytes = shipped_chain_end("featurenet_trained_mf4l.safetensors", 2, 10000);
     assert_eq!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
+    let w = NetworkWeights::from_safetensors_bytes(&bytes, Path::new("mf4l")).unwrap();
+    assert!(w.provenance.contains("live_frames: 4"), "{}", w.provenance);
+    assert!(w.provenance.contains("init_weights=fixtures/weights/featurenet_trained_b1s2.safetensors"));
+}
+
+#[test]
+fn shipped_pair_loss_weights_load_and_are_the_end_of_their_chain() {
+    // Chain b1s2: 37 500 steps x 4 pairs; the default until 2026-12-04 and mf4l's starting point.
+    let bytes = shipped_chain_end("featurenet_trained_b1s2.safetensors", 2, 37500);
+    assert_ne!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
 }
 
 #[test]

@@ -28,10 +28,10 @@ use std::sync::Arc;
 /// The weights shipped in `fixtures/weights/`, compiled into the binary so that the demo and
 /// `--features learned` need no file at run time.
 pub const SHIPPED_WEIGHTS: &[u8] =
-    include_bytes!("../../fixtures/weights/featurenet_trained_b1s2.safetensors");
+    include_bytes!("../../fixtures/weights/featurenet_trained_mf4l.safetensors");
 
 /// Name the shipped weights carry in messages.
-pub const SHIPPED_WEIGHTS_NAME: &str = "fixtures/weights/featurenet_trained_b1s2.safetensors (built in)";
+pub const SHIPPED_WEIGHTS_NAME: &str = "fixtures/weights/featurenet_trained_mf4l.safetensors (built in)";
 
 /// The weights at `path`, or the shipped ones compiled into the binary for `None`.
 ///

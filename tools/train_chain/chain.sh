@@ -18,6 +18,17 @@ run=runs/chain_$name
 kept=docs/training/chain_$name
 D=../shared/data
 
+# derive NEW BASE FLAG VALUE ...: the array NEW is BASE's arguments with each FLAG's value replaced.
+derive() {
+  local -n _new=$1 _base=$2
+  shift 2
+  _new=("${_base[@]}")
+  while [ $# -ge 2 ]; do
+    for i in "${!_new[@]}"; do [ "${_new[$i]}" = "$1" ] && _new[$((i + 1))]=$2; done
+    shift 2
+  done
+}
+
 args_b1s2=(
   --data $D/hololens_000 --data $D/tartanair_hospital --data $D/tsdffusion_desk_box
   --val-data $D/sun3d_studyroom_f0935 --val-fraction 0
@@ -56,20 +67,13 @@ args_mf4=(
   --loss-sample-stride 2 --seed 1 --init-seed 0
   --val-every 250 --val-per-source 4 --ckpt-every 100
 )
-args_mf1=("${args_mf4[@]}")
-for i in "${!args_mf1[@]}"; do [ "${args_mf1[$i]}" = "--live-frames" ] && args_mf1[$((i + 1))]=1; done
+derive args_mf1 args_mf4 --live-frames 1
 
 # The multi-frame objective's long run (issue 30 item 5): mf4 beat its 1-frame control mf1 on
 # validation (learned-TV 0.887 vs 0.882, WTA 0.842 vs 0.839; docs/training/README.md), so the same
 # fine-tune of the shipped b1s2 weights runs 4x longer (40 000 tuples of 1 reference + 4 live frames),
 # with its own data draws (--seed 2).
-args_mf4l=("${args_mf4[@]}")
-for i in "${!args_mf4l[@]}"; do
-  case "${args_mf4l[$i]}" in
-    --steps) args_mf4l[$((i + 1))]=10000 ;;
-    --seed) args_mf4l[$((i + 1))]=2 ;;
-  esac
-done
+derive args_mf4l args_mf4 --steps 10000 --seed 2
 
 # Issue 30 items 3 and 5 on validation: the chain's synthetic scenes were all realistic-style, while
 # half of the validation and test renders are classic-style (procedural textures, large white walls),
@@ -77,29 +81,15 @@ done
 # mx4 continues mf4l's multi-frame fine-tune from its final weights with both renderer styles
 # (--synthetic-style mixed: even seeds classic, odd seeds real; SPEC.md §13.5), 5 000 steps = 20 000
 # tuples, its own data draws (--seed 3).
-args_mx4=("${args_mf4[@]}")
-for i in "${!args_mx4[@]}"; do
-  case "${args_mx4[$i]}" in
-    --synthetic-style) args_mx4[$((i + 1))]=mixed ;;
-    --init-weights) args_mx4[$((i + 1))]=docs/training/chain_mf4l/best_weights.safetensors ;;
-    --steps) args_mx4[$((i + 1))]=5000 ;;
-    --seed) args_mx4[$((i + 1))]=3 ;;
-  esac
-done
+derive args_mx4 args_mf4 --synthetic-style mixed \
+  --init-weights docs/training/chain_mf4l/best_weights.safetensors --steps 5000 --seed 3
 
 # mx4 did not beat mf4l on the wide validation (docs/training/wide_validation/README.md), so the
 # multi-frame objective is pushed further instead: mf8 continues mf4l's fine-tune from its final
 # weights with 8 live frames per reference (the mapper sums over up to 60), realistic-style renders
 # as in mf4l, 5 000 steps = 20 000 tuples, its own data draws (--seed 4).
-args_mf8=("${args_mf4[@]}")
-for i in "${!args_mf8[@]}"; do
-  case "${args_mf8[$i]}" in
-    --live-frames) args_mf8[$((i + 1))]=8 ;;
-    --init-weights) args_mf8[$((i + 1))]=docs/training/chain_mf4l/best_weights.safetensors ;;
-    --steps) args_mf8[$((i + 1))]=5000 ;;
-    --seed) args_mf8[$((i + 1))]=4 ;;
-  esac
-done
+derive args_mf8 args_mf4 --live-frames 8 \
+  --init-weights docs/training/chain_mf4l/best_weights.safetensors --steps 5000 --seed 4
 
 case "${1:-}" in
   start)

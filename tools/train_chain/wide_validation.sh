@@ -12,7 +12,9 @@
 #
 # Writes runs/valwide/TAG/all.csv (test_scenes.sh's columns) and prints test_table.py's tables. The
 # RGB rows do not depend on the weights and are run once per scene (runs/valwide/rgb/; delete it when
-# the mapper's defaults change). SEEDS="200000 200050" limits the renders (a quick look).
+# the mapper's defaults change). SEEDS="200000 200050" limits the renders (a quick look). METHODS=...
+# runs those methods instead (one eval per scene, no RGB cache), e.g. the normal-prior variants:
+#   METHODS=rgb-normals,learned-normals tools/train_chain/wide_validation.sh normals_mf4l WEIGHTS --normals learned
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
@@ -42,14 +44,21 @@ for sk in "${scenes[@]}"; do
   i=$((i + 1))
   seq=${sk%%:*}; kfs=${sk#*:}; scene=$(basename "$seq")
   printf '\r%s wide validation %s: scene %d of %d (%s)   ' "$(date -u +%T)" "$tag" "$i" "$n" "$scene" >&2
-  rgb=runs/valwide/rgb/$scene
-  if [ ! -f "$rgb/table.csv" ]; then
-    nice -n 19 "$bin" eval --sequence "$seq" --keyframes "$kfs" --methods rgb-wta,rgb-tv --out "$rgb" "$@" > "$rgb.log" 2>&1
-  fi
   out=$root/$scene
-  nice -n 19 "$bin" eval --sequence "$seq" --keyframes "$kfs" --methods learned-wta,learned-tv \
-    --weights "$weights" --out "$out" "$@" > "$out.log" 2>&1
-  for t in "$rgb/table.csv" "$out/table.csv"; do
+  tables=("$out/table.csv")
+  if [ -n "${METHODS:-}" ]; then
+    nice -n 19 "$bin" eval --sequence "$seq" --keyframes "$kfs" --methods "$METHODS" \
+      --weights "$weights" --out "$out" "$@" > "$out.log" 2>&1
+  else
+    rgb=runs/valwide/rgb/$scene
+    if [ ! -f "$rgb/table.csv" ]; then
+      nice -n 19 "$bin" eval --sequence "$seq" --keyframes "$kfs" --methods rgb-wta,rgb-tv --out "$rgb" "$@" > "$rgb.log" 2>&1
+    fi
+    nice -n 19 "$bin" eval --sequence "$seq" --keyframes "$kfs" --methods learned-wta,learned-tv \
+      --weights "$weights" --out "$out" "$@" > "$out.log" 2>&1
+    tables=("$rgb/table.csv" "$out/table.csv")
+  fi
+  for t in "${tables[@]}"; do
     awk -F, -v scene="$scene" 'NR > 1 && $1 !~ /@/ { print scene "," $0 }' "$t" >> "$csv"
   done
 done

@@ -91,6 +91,11 @@ derive args_mx4 args_mf4 --synthetic-style mixed \
 derive args_mf8 args_mf4 --live-frames 8 \
   --init-weights docs/training/chain_mf4l/best_weights.safetensors --steps 5000 --seed 4
 
+# The control of mf8: the same fine-tune from mf4l's final weights, the same 5 000 steps and data seed,
+# with 4 live frames (as mf4l), so mf8 - mf4c is the effect of 8 frames, not of 5 000 more steps.
+derive args_mf4c args_mf4 \
+  --init-weights docs/training/chain_mf4l/best_weights.safetensors --steps 5000 --seed 4
+
 case "${1:-}" in
   start)
     var="args_${name}[@]"

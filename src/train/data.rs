@@ -212,6 +212,8 @@ fn draw_distinct(
 /// The training and validation data.
 pub struct DataSet {
     cfg: DataConfig,
+    /// The synthetic scenes' frames and size; each scene sets its own seed and style
+    /// ([`SyntheticStyles::of`]) when it is generated.
     synth: SceneConfig,
     sequences: Vec<SequenceSource>,
     cache: FrameCache,
@@ -308,7 +310,6 @@ impl DataSet {
             frames: SYNTH_FRAMES,
             width: cw.max(320),
             height: ch.max(240),
-            style: cfg.synthetic_style.of(SYNTH_TRAIN_SEED0),
             ..SceneConfig::default()
         };
         let mut sequences = Vec::new();

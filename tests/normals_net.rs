@@ -621,3 +621,33 @@ fn the_shipped_predictor_is_the_normal_priors_default() {
     assert!((0.0..90.0).contains(&mean), "{line}");
     assert!(stdout.contains("  normals: "), "the prior's metrics: {stdout}");
 }
+
+#[test]
+fn the_learned_features_default_to_the_normal_prior_and_the_others_to_tv() {
+    use densefeat::mapping::keyframe::Regularizer;
+    use densefeat::mapping::FeatureKind;
+    // SPEC.md §10.1b: chosen per feature type on validation; without a normal source, TV.
+    assert_eq!(Regularizer::default_for(&FeatureKind::Learned(None), true), Regularizer::Normals);
+    let custom = FeatureKind::Learned(Some("w.safetensors".into()));
+    assert_eq!(Regularizer::default_for(&custom, true), Regularizer::Normals);
+    assert_eq!(Regularizer::default_for(&FeatureKind::Learned(None), false), Regularizer::Tv);
+    for k in [FeatureKind::Rgb, FeatureKind::B1(None), FeatureKind::Dsift, FeatureKind::Patch7] {
+        assert_eq!(Regularizer::default_for(&k, true), Regularizer::Tv, "{k:?}");
+    }
+    // `reconstruct` without --regularizer: the learned features write the prior's depth, RGB TV's.
+    let d = tempfile::tempdir().unwrap();
+    let seq = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");
+    for (features, depth, other) in
+        [("learned", "depth_normals.pfm", "depth_tv.pfm"), ("rgb", "depth_tv.pfm", "depth_normals.pfm")]
+    {
+        let out = d.path().join(features);
+        let o = Command::new(env!("CARGO_BIN_EXE_densefeat"))
+            .args(["reconstruct", "--sequence", seq, "--keyframe", "10", "--window", "2,2", "--level", "1"])
+            .args(["--bins", "32", "--features", features, "--out", out.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(out.join(depth).is_file() && !out.join(other).exists(), "{features}: {stdout}");
+    }
+}

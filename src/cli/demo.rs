@@ -1,5 +1,6 @@
 //! `densefeat demo`: reconstruct a keyframe of the shipped synthetic fixture with RGB and learned
-//! features, winner-take-all and TV; print the table and write the pictures.
+//! features, winner-take-all, TV and (the learned features' default) the surface-normal prior; print
+//! the table and write the pictures.
 
 use std::path::{Path, PathBuf};
 
@@ -67,10 +68,12 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let mut staging = densefeat::io::Staging::new();
     let out = staging.dir(&args.out)?;
     let table =
-        run_eval(&seq, &args.mapping, &[args.keyframe], &Method::ALL, &out, (true, true), || EvalOptions {
-            min_confidence: args.mapping.min_confidence,
-            lambda_per_kind: args.mapping.lambda.is_none(),
-            ..EvalOptions::default()
+        run_eval(&seq, &args.mapping, &[args.keyframe], &Method::DEFAULT, &out, (true, true), || {
+            EvalOptions {
+                min_confidence: args.mapping.min_confidence,
+                lambda_per_kind: args.mapping.lambda.is_none(),
+                ..EvalOptions::default()
+            }
         })?;
     staging.commit()?;
     print_table(&table, &args.out);

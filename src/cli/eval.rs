@@ -30,8 +30,14 @@ pub struct EvalArgs {
     pub keyframes: String,
     /// Comma-separated methods: FEATURES-wta or FEATURES-tv with FEATURES rgb, learned, b1 (block 1
     /// of the network alone), dsift (dense SIFT) or patch7 (affine-warped 7x7 patches), SPEC.md §9a;
-    /// and rgb-normals, learned-normals (the surface-normal prior, SPEC.md §10.2; with --normals).
-    #[arg(long, default_value = "rgb-wta,rgb-tv,learned-wta,learned-tv", value_delimiter = ',')]
+    /// and rgb-normals, learned-normals (the surface-normal prior, SPEC.md §10.2, with --normals' or
+    /// the built-in predictor's normals). The default is the paper's four and learned-normals, the
+    /// learned features' default regulariser (SPEC.md §10.1a).
+    #[arg(
+        long,
+        default_value = "rgb-wta,rgb-tv,learned-wta,learned-tv,learned-normals",
+        value_delimiter = ','
+    )]
     pub methods: Vec<Method>,
     /// Weights of the learned and block-1 features (default: the shipped ones).
     #[arg(long)]

@@ -344,7 +344,7 @@ pub fn summary(r: &KeyframeResult) -> String {
     let t = &r.timings;
     let mut s = format!(
         "keyframe {} ({}, {} live frames, {}x{} level {}): load {:.2} s, features {:.2} s, cost volume {:.2} s, \
-         WTA {:.2} s, TV {:.2} s, total {:.2} s",
+         WTA {:.2} s, TV {:.2} s, normal prior {:.2} s, total {:.2} s",
         r.keyframe,
         r.features,
         r.live_frames.len(),
@@ -356,6 +356,7 @@ pub fn summary(r: &KeyframeResult) -> String {
         t.cost_volume,
         t.wta,
         t.tv,
+        t.normals,
         t.total()
     );
     if let Some(d) = &r.dtam {

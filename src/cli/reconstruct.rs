@@ -26,9 +26,11 @@ pub struct ReconstructArgs {
     #[arg(long, default_value = "rgb")]
     pub features: FeatureKind,
     /// `none` (winner-take-all), `tv` (DTAM, initialised by winner-take-all) or `normals` (DTAM with
-    /// the surface-normal prior, SPEC.md §10.2; needs `--normals`).
-    #[arg(long, default_value = "tv")]
-    pub regularizer: Regularizer,
+    /// the surface-normal prior, SPEC.md §10.2, with `--normals`' or the built-in predictor's
+    /// normals). [default: per feature type, chosen on validation (SPEC.md §10.1a): `normals` for
+    /// the learned features, `tv` for the others]
+    #[arg(long)]
+    pub regularizer: Option<Regularizer>,
     /// Mapping flags.
     #[command(flatten)]
     pub mapping: MappingArgs,
@@ -43,7 +45,11 @@ pub struct ReconstructArgs {
 /// Bad arguments, reading or writing errors.
 pub fn run(args: ReconstructArgs) -> Result<()> {
     let seq = args.mapping.open_sequence(&args.sequence)?;
-    let cfg = args.mapping.config(&seq, args.keyframe, args.features.clone(), args.regularizer)?;
+    let regularizer = match args.regularizer {
+        Some(r) => r,
+        None => Regularizer::default_for(&args.features, args.mapping.normals_source()?.is_some()),
+    };
+    let cfg = args.mapping.config(&seq, args.keyframe, args.features.clone(), regularizer)?;
     mapping_preflight(&seq, &cfg, &[args.keyframe], std::slice::from_ref(&args.features), "reconstruct")?;
     let mut staging = Staging::new();
     let out = staging.dir(&args.out)?;

@@ -44,8 +44,13 @@ pub enum Method {
 }
 
 impl Method {
-    /// The paper's four methods in table order (the default of `eval --methods`, and `demo`).
+    /// The paper's four methods in table order.
     pub const ALL: [Method; 4] = [Method::RgbWta, Method::RgbTv, Method::LearnedWta, Method::LearnedTv];
+
+    /// The default of `eval --methods` and what `demo` runs: the paper's four, then the learned
+    /// features' default regulariser, the surface-normal prior (SPEC.md §10.1a).
+    pub const DEFAULT: [Method; 5] =
+        [Method::RgbWta, Method::RgbTv, Method::LearnedWta, Method::LearnedTv, Method::LearnedNormals];
 
     /// Every method: the paper's four, then the per-pixel descriptor baselines (SPEC.md §9a).
     pub const EVERY: [Method; 12] = [
@@ -289,9 +294,13 @@ pub fn evaluate(
                         sweep_per_kf.push((m, *l, result.metrics(e)?));
                     }
                 }
+                // Each method's time: the shared stages and its own regulariser.
                 let mut t = result.timings;
-                if !m.tv() && !m.normals() {
+                if !m.tv() {
                     t.tv = 0.0;
+                }
+                if !m.normals() {
+                    t.normals = 0.0;
                 }
                 add_timings(&mut timing_sums[i], &t);
             }
@@ -311,6 +320,7 @@ pub fn evaluate(
                 cost_volume: t.cost_volume / n,
                 wta: t.wta / n,
                 tv: t.tv / n,
+                normals: t.normals / n,
                 photometric: t.photometric / n,
             };
             let cs: Vec<DepthMetrics> =
@@ -354,6 +364,7 @@ fn add_timings(sum: &mut StageTimings, t: &StageTimings) {
     sum.cost_volume += t.cost_volume;
     sum.wta += t.wta;
     sum.tv += t.tv;
+    sum.normals += t.normals;
     sum.photometric += t.photometric;
 }
 
@@ -459,13 +470,13 @@ impl EvalTable {
     /// Mean wall time per keyframe by stage, as Markdown, one row per method.
     pub fn timings_markdown(&self) -> String {
         let mut s = String::from(
-            "| method | load s | photometric s | features s | cost volume s | WTA s | TV s | total s |\n|---|---|---|---|---|---|---|---|\n",
+            "| method | load s | photometric s | features s | cost volume s | WTA s | TV s | normals s | total s |\n|---|---|---|---|---|---|---|---|---|\n",
         );
         for r in &self.rows {
             let t = &r.timings;
             let _ = writeln!(
                 s,
-                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
                 r.method,
                 t.load,
                 t.photometric,
@@ -473,6 +484,7 @@ impl EvalTable {
                 t.cost_volume,
                 t.wta,
                 t.tv,
+                t.normals,
                 t.total()
             );
         }

@@ -52,6 +52,17 @@ impl Regularizer {
     pub fn normals(self) -> bool {
         matches!(self, Regularizer::Normals | Regularizer::TvAndNormals)
     }
+
+    /// The default regulariser of a feature kind in `reconstruct` and `demo` (SPEC.md §10.1a),
+    /// chosen on the validation scenes like its `λ`: the learned features take the surface-normal
+    /// prior when a normal source is available (`has_normals`), every other kind (and the learned
+    /// features without normals) Huber-TV. `map` keeps Huber-TV (chosen there by mesh F-score).
+    pub fn default_for(features: &FeatureKind, has_normals: bool) -> Self {
+        match features {
+            FeatureKind::Learned(_) if has_normals => Regularizer::Normals,
+            _ => Regularizer::Tv,
+        }
+    }
 }
 
 impl std::str::FromStr for Regularizer {
@@ -306,8 +317,11 @@ pub struct StageTimings {
     pub cost_volume: f64,
     /// Winner-take-all.
     pub wta: f64,
-    /// DTAM (0 without TV).
+    /// DTAM's Huber-TV solve (0 without it).
     pub tv: f64,
+    /// The surface-normal prior: the keyframe's normals (prediction or file) and its DTAM solve
+    /// (0 without it).
+    pub normals: f64,
     /// Photometric calibration (0 without it).
     pub photometric: f64,
 }
@@ -315,7 +329,7 @@ pub struct StageTimings {
 impl StageTimings {
     /// Sum of the stages.
     pub fn total(&self) -> f64 {
-        self.load + self.features + self.cost_volume + self.wta + self.tv + self.photometric
+        self.load + self.features + self.cost_volume + self.wta + self.tv + self.normals + self.photometric
     }
 }
 
@@ -498,6 +512,8 @@ pub fn reconstruct_with(
     progress(Stage::Keyframe, 0, 1);
     let t = Instant::now();
     let key = seq.load_frame(cfg.keyframe)?;
+    timings.load += t.elapsed().as_secs_f64();
+    let t = Instant::now();
     // The normals before any heavy work: a bad file is reported at once.
     let (slope, normals_error) = match (&cfg.normals, cfg.regularizer.normals()) {
         (Some(source), true) => {
@@ -519,7 +535,7 @@ pub fn reconstruct_with(
         }
         _ => (None, None),
     };
-    timings.load += t.elapsed().as_secs_f64();
+    timings.normals += t.elapsed().as_secs_f64();
     let t = Instant::now();
     let key_features = extractor.extract(&key.rgb)?.data;
     timings.features += t.elapsed().as_secs_f64();
@@ -638,6 +654,8 @@ pub fn reconstruct_with(
             let (e, report) = run(cfg.dtam.lambda, None)?;
             (tv, dtam) = (Some(e), Some(report));
         }
+        timings.tv = t.elapsed().as_secs_f64();
+        let t = Instant::now();
         if let Some(q) = slope.as_ref().filter(|_| cfg.regularizer.normals()) {
             let (e, report) = run(cfg.lambda_normals, Some(q))?;
             if dtam.is_none() {
@@ -645,7 +663,7 @@ pub fn reconstruct_with(
             }
             (normals_estimate, normals_dtam) = (Some(e), Some((report, q.fallback)));
         }
-        timings.tv = t.elapsed().as_secs_f64();
+        timings.normals += t.elapsed().as_secs_f64();
         // The λ sweep runs the Huber-TV solve where it runs, else the normal prior.
         let sweep_slope = if cfg.regularizer.tv() { None } else { slope.as_ref() };
         for (i, &l) in cfg.lambda_sweep.iter().enumerate() {

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Issue 30's honest table, run once per issue at the end (SPEC.md §3a, §13.10): `densefeat eval`
 # with every flag at its default except the weights (and, where validation chose one, the learned
-# λ) on the test scenes, for RGB-WTA, RGB-TV, learned-WTA and learned-TV. The scene list is fixed
+# λ) on the test scenes, for eval's default methods (RGB-WTA, RGB-TV, learned-WTA, learned-TV and,
+# since 2026-12-04, learned-normals). The scene list is fixed
 # here, before any test result exists:
 #   real:   SUN3D f3160 keyframes 15, 25, 35; TUM fr1_rpy keyframes 30, 60, 90
 #   render: classic seeds 2-11 and realistic seeds 12-14 (40 frames, 320x240, keyframe 20)

@@ -26,7 +26,7 @@ def load(path):
 fig, ax = plt.subplots(figsize=(8, 4.5))
 train, val = load(sys.argv[1])
 ax.plot(*zip(*train), color="tab:blue", label="training batches (mean of 100 steps)")
-ax.plot(*zip(*val), "o-", color="tab:orange", label="validation (40 frames)")
+ax.plot(*zip(*val), "o-", color="tab:orange", label="validation (the run's --val-data and synthetic validation frames)")
 for extra in sys.argv[3:]:
     label, path = extra.split("=", 1)
     t, v = load(path)

@@ -14,9 +14,13 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 
 tag=${1:-table1}
-weights=fixtures/weights/featurenet_trained_b1s2.safetensors
+weights=fixtures/weights/featurenet_trained_mf4l.safetensors  # the default (b1s2 until 2026-12-04)
+# The built-in run also carries the winner-take-all rows, so that it is issue 30's test table too
+# (tools/train_chain/test_table.py on its all.csv): one run of the test scenes serves both issues.
 tools/train_chain/test_scenes.sh "${tag}_builtin" "$weights" \
-  --methods rgb-tv,learned-tv,rgb-normals,learned-normals --normals learned
+  --methods rgb-wta,rgb-tv,learned-wta,learned-tv,rgb-normals,learned-normals --normals learned
 tools/train_chain/test_scenes.sh "${tag}_gt" "$weights" \
   --methods rgb-normals,learned-normals --normals gt
 python3 tools/paper/table1.py "runs/test/${tag}_builtin" "runs/test/${tag}_gt"
+echo
+python3 tools/train_chain/test_table.py "runs/test/${tag}_builtin/all.csv"

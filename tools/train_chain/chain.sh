@@ -96,6 +96,13 @@ derive args_mf8 args_mf4 --live-frames 8 \
 derive args_mf4c args_mf4 \
   --init-weights docs/training/chain_mf4l/best_weights.safetensors --steps 5000 --seed 4
 
+# The multi-frame objective for the other stride (issue 30 item 2's stride-1 weights): mf4l's recipe
+# (+0.012 learned-TV on the 101 validation scenes for stride 2) applied to the shipped b1s1 weights,
+# with b1s1's loss sampling (stride 4 at level 0), 5 000 steps = 20 000 tuples, its own data draws
+# (--seed 5). About 4x mf4l's cost per step: a chain over sessions.
+derive args_mf4s1 args_mf4 --b1-stride 1 --loss-sample-stride 4 \
+  --init-weights fixtures/weights/featurenet_trained_b1s1.safetensors --steps 5000 --seed 5
+
 case "${1:-}" in
   start)
     var="args_${name}[@]"

@@ -453,6 +453,8 @@ fn map_writes_mesh_metrics_and_resumes() {
         serde_json::from_str(&std::fs::read_to_string(out.join("map.json")).unwrap()).unwrap();
     let f = doc["metrics"]["fscore"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&f), "{f}");
+    // RGB keeps its depth λ in `map` (SPEC.md §16.9); map.json records it.
+    assert_eq!(doc["mapping"]["lambda"].as_f64(), Some(densefeat::mapping::features::LAMBDA_RGB), "{doc}");
     assert_eq!(doc["mesh"]["edges"]["boundary"].as_u64().unwrap() as usize, mesh.edge_report().boundary);
     let keys: Vec<u64> =
         doc["keyframes"].as_array().unwrap().iter().map(|k| k["index"].as_u64().unwrap()).collect();
@@ -473,6 +475,44 @@ fn map_writes_mesh_metrics_and_resumes() {
     let third = map_cmd(&out, &["--min-evidence", "0.3"]);
     let text = String::from_utf8_lossy(&third.stdout).to_string();
     assert!(third.status.success() && text.contains(&format!("{} computed", keys.len())), "{text}");
+}
+
+#[test]
+fn map_smooths_the_learned_features_less_than_the_depth_commands() {
+    // SPEC.md §16.9: λ 10 for the learned features by default, chosen by mesh F-score on
+    // validation; `--lambda` still sets it.
+    let dir = tempfile::tempdir().unwrap();
+    for (extra, lambda) in
+        [(&[][..], densefeat::mapping::sequence_map::MAP_LAMBDA_LEARNED), (&["--lambda", "30"][..], 30.0)]
+    {
+        let out = dir.path().join(format!("map_{lambda}"));
+        let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/synthetic/room_s1");
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_densefeat"))
+            .args(["map", "--sequence", fixture, "--frames", "0:5", "--bins", "16", "--window", "2,2"])
+            .args([
+                "--iterations",
+                "10",
+                "--max-iterations",
+                "10",
+                "--kf-baseline",
+                "0.05",
+                "--voxel-size",
+                "0.1",
+            ])
+            .args(extra)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let doc: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("map.json")).unwrap()).unwrap();
+        assert_eq!(doc["mapping"]["lambda"].as_f64(), Some(lambda), "{extra:?}");
+    }
+    assert_eq!(densefeat::mapping::sequence_map::MAP_LAMBDA_LEARNED, 10.0);
+    assert!(
+        densefeat::mapping::sequence_map::MAP_LAMBDA_LEARNED < densefeat::mapping::features::LAMBDA_LEARNED
+    );
 }
 
 #[test]

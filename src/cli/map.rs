@@ -106,8 +106,12 @@ pub fn run(mut args: MapArgs) -> Result<()> {
     args.mapping.level.get_or_insert(densefeat::mapping::sequence_map::MAP_LEVEL);
     let frames = args.frames.as_deref().map(parse_frames).transpose()?;
     let seq = args.mapping.open_sequence(&args.sequence)?;
-    let keyframe =
+    let mut keyframe =
         args.mapping.config(&seq, frames.map_or(0, |f| f.0), args.features.clone(), args.regularizer)?;
+    // A mesh at 5 cm wants less smoothing than depth at δ<1.25 (SPEC.md §16.9).
+    if args.mapping.lambda.is_none() && matches!(args.features, FeatureKind::Learned(_)) {
+        keyframe.dtam.lambda = densefeat::mapping::sequence_map::MAP_LAMBDA_LEARNED;
+    }
     let cfg = MapConfig {
         keyframe,
         frames: frames.unwrap_or((0, seq.len().saturating_sub(1))),

@@ -62,7 +62,7 @@ pub struct MappingArgs {
     pub normal_weights: Option<std::path::PathBuf>,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1);
     /// default: per feature type, chosen on validation (SPEC §10.1a: rgb 300, learned 30, others 100;
-    /// the normal prior's solve: rgb 300, learned 100).
+    /// the normal prior's solve: rgb 300, learned 100; `map`'s learned features 10, §16.9).
     #[arg(long)]
     pub lambda: Option<f64>,
     /// Huber threshold ε, 1/m.

@@ -40,6 +40,12 @@ use crate::sequence::Sequence;
 /// third to a sixth of the time per keyframe (`docs/map/results.md`).
 pub const MAP_LEVEL: u32 = 1;
 
+/// `densefeat map`'s default DTAM `λ` for the learned features (SPEC.md §16.9): 10, below the depth
+/// commands' 30 (§10.1a). Chosen on the validation scenes by the mean F-score at 5 cm over λ ∈ {3,
+/// 10, 30, 100} (2026-12-05: 0.365 / **0.372** / 0.360 / 0.329; `docs/map/results.md`): a mesh at
+/// 5 cm wants less smoothing than δ<1.25 does. The other kinds keep their §10.1a default.
+pub const MAP_LAMBDA_LEARNED: f64 = 10.0;
+
 /// Everything [`map_sequence`] needs besides the sequence.
 #[derive(Clone, Debug)]
 pub struct MapConfig {
@@ -547,6 +553,7 @@ fn map_json(
         "mapping": {
             "features": format!("{:?}", cfg.keyframe.features),
             "regularizer": cfg.keyframe.regularizer,
+            "lambda": cfg.keyframe.dtam.lambda,
             "bins": cfg.keyframe.bins,
             "depth_range_m": [cfg.keyframe.near, cfg.keyframe.far],
             "depth_range_auto": cfg.auto_depth_range,

@@ -8,6 +8,7 @@
 # realistic render 13 at keyframe 20 (test_scenes.sh renders them).
 #
 #   tools/paper/feature_figure.sh TAG
+#   METHODS=learned-wta,b1-wta tools/paper/feature_figure.sh TAG   # only those methods (e.g. new weights)
 #
 # Writes runs/test/TAG/<scene>_w1 and _w30 (eval's folders, figure_kfNNNNN.png) and prints the table.
 set -euo pipefail
@@ -37,7 +38,7 @@ for ex in "${examples[@]}"; do
     out=$root/${scene}_w$n
     echo "$(date -u +%T) $scene, $n live frame(s)"
     "$bin" eval --sequence "$seq" --keyframes "$kf:1:$kf" --window "$window" \
-      --methods rgb-wta,learned-wta,b1-wta,dsift-wta,patch7-wta --figure --out "$out" > "$out.log" 2>&1
+      --methods "${METHODS:-rgb-wta,learned-wta,b1-wta,dsift-wta,patch7-wta}" --figure --out "$out" > "$out.log" 2>&1
     python3 - "$out/table.csv" "$scene" "$n" >> "$csv" <<'PY'
 import csv, sys
 for r in csv.DictReader(open(sys.argv[1])):

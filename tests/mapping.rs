@@ -497,3 +497,37 @@ fn eval_auto_depth_range_is_estimated_per_keyframe() {
         );
     }
 }
+
+#[test]
+fn border_taper_weights_the_data_term_towards_the_edge_and_leaves_wta_alone() {
+    use densefeat::mapping::keyframe::{border_weight, taper_border, BORDER_WEIGHT_FLOOR};
+    // SPEC.md §10.1c: clamp((d + 0.5) / r, 0.05, 1), d the distance to the nearest edge.
+    assert_eq!(border_weight(0, 0, 10, 12, 4.0), 0.125);
+    assert_eq!(border_weight(1, 6, 10, 12, 4.0), 0.375);
+    assert_eq!(border_weight(9, 6, 10, 12, 4.0), 0.125, "the bottom row is on the edge too");
+    assert_eq!(border_weight(5, 6, 10, 12, 4.0), 1.0);
+    assert_eq!(border_weight(0, 0, 10, 12, 100.0), BORDER_WEIGHT_FLOOR);
+    assert_eq!(border_weight(0, 0, 10, 12, 0.0), 1.0, "0 is off");
+    let mut costs = ndarray::Array3::<f32>::from_elem((4, 5, 2), 2.0);
+    costs[[0, 0, 1]] = f32::INFINITY;
+    let before = costs.clone();
+    taper_border(&mut costs, 0.0);
+    assert_eq!(costs, before);
+    taper_border(&mut costs, 2.0);
+    assert_eq!(costs[[0, 0, 0]], 0.5, "2 x 0.25");
+    assert_eq!(costs[[0, 0, 1]], f32::INFINITY, "an unseen cell stays unseen");
+    assert_eq!(costs[[1, 2, 0]], 2.0 * 0.75);
+    assert_eq!(costs[[2, 2, 1]], 2.0 * 0.75, "row 2 of 4 is 1 from the bottom edge");
+
+    // In the mapper: WTA unchanged, the regularised depth changed, and bad values refused.
+    let seq = fixture();
+    let mut cfg = small_config();
+    let plain = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    cfg.border_taper = 16.0;
+    let tapered = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    assert_eq!(plain.wta.inverse_depth, tapered.wta.inverse_depth);
+    assert_ne!(plain.tv.as_ref().unwrap().inverse_depth, tapered.tv.as_ref().unwrap().inverse_depth);
+    cfg.border_taper = -1.0;
+    let (name, _) = invalid_argument(reconstruct(&seq, &cfg, |_, _, _| {}).unwrap_err());
+    assert_eq!(name, "border-taper");
+}

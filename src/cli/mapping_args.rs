@@ -60,6 +60,12 @@ pub struct MappingArgs {
     /// written by `densefeat train-normals`); default: the shipped `fixtures/weights/normalnet.safetensors`.
     #[arg(long)]
     pub normal_weights: Option<std::path::PathBuf>,
+    /// Border taper of the data term, in pixels of the input resolution (SPEC.md §10.1c): the
+    /// costs of a keyframe pixel closer than this to the image edge are weighted down linearly
+    /// (to 5 % on the edge) before DTAM, so the regulariser fills that strip from the interior.
+    /// 0: off.
+    #[arg(long, default_value_t = 0.0)]
+    pub border_taper: f64,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1);
     /// default: per feature type, chosen on validation (SPEC §10.1a: rgb 300, learned 30, others 100;
     /// the normal prior's solve: rgb 300, learned 100; `map`'s learned features 10, §16.9).
@@ -265,6 +271,7 @@ impl MappingArgs {
             level: self.level.unwrap_or(0),
             min_evidence: self.min_evidence,
             lambda_sweep: Vec::new(),
+            border_taper: self.border_taper,
             backend: self.backend.resolve()?,
             photometric: self.photometric,
             truncation: Truncation {

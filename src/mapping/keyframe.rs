@@ -9,7 +9,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use ndarray::Array2;
+use ndarray::{Array2, Array3};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -185,6 +185,40 @@ pub struct KeyframeConfig {
     pub photometric: PhotometricMode,
     /// Per-frame cost truncation per feature kind (SPEC.md §9.13).
     pub truncation: Truncation,
+    /// The border taper of the data term (SPEC.md §10.1c), in level-0 pixels: after winner-take-all
+    /// each pixel's costs are scaled by [`border_weight`], so the regulariser fills a strip along the
+    /// keyframe's border from the interior. 0 (the default): off.
+    pub border_taper: f64,
+}
+
+/// Smallest weight of [`border_weight`] (a pixel on the border keeps 5 % of its data term).
+pub const BORDER_WEIGHT_FLOOR: f32 = 0.05;
+
+/// The border taper's weight of pixel `(y, x)` of an `h x w` grid for a taper of `r` pixels of that
+/// grid (SPEC.md §10.1c): `clamp((d + 0.5) / r, 0.05, 1)`, `d` the pixel's distance in pixels to the
+/// nearest image edge (0 on the outermost row or column); 1 for `r <= 0`.
+pub fn border_weight(y: usize, x: usize, h: usize, w: usize, r: f64) -> f32 {
+    if r <= 0.0 {
+        return 1.0;
+    }
+    let d = x.min(y).min(w - 1 - x).min(h - 1 - y) as f64 + 0.5;
+    ((d / r) as f32).clamp(BORDER_WEIGHT_FLOOR, 1.0)
+}
+
+/// Applies the border taper of `r` pixels of the volume's grid to `costs` (`[H, W, K]`): every
+/// finite cost of pixel `(y, x)` is multiplied by [`border_weight`]. Per pixel, so the same bits
+/// for any thread count.
+pub fn taper_border(costs: &mut Array3<f32>, r: f64) {
+    if r <= 0.0 {
+        return;
+    }
+    let (h, w, _) = costs.dim();
+    for ((y, x, _), c) in costs.indexed_iter_mut() {
+        let wt = border_weight(y, x, h, w, r);
+        if wt < 1.0 && c.is_finite() {
+            *c *= wt;
+        }
+    }
 }
 
 /// Default of [`KeyframeConfig::bins`].
@@ -219,6 +253,7 @@ impl KeyframeConfig {
             backend: crate::backend::default_backend(),
             photometric: PhotometricMode::None,
             truncation: Truncation::DEFAULT,
+            border_taper: 0.0,
         }
     }
 
@@ -274,6 +309,12 @@ impl KeyframeConfig {
         }
         if self.level > 8 {
             return Err(Error::invalid_argument("level", format!("{}: at most 8", self.level)));
+        }
+        if !(self.border_taper >= 0.0 && self.border_taper.is_finite()) {
+            return Err(Error::invalid_argument(
+                "border-taper",
+                format!("{}: must be a finite number of pixels >= 0", self.border_taper),
+            ));
         }
         check_truncation("truncate-rgb", self.truncation.rgb)?;
         check_truncation("truncate-learned", self.truncation.learned)?;
@@ -616,6 +657,8 @@ pub fn reconstruct_with(
     let (conf, scale) = confidence_and_scale(costs.view(), counts.view(), frames);
     drop(counts);
     let w = backend.winner_take_all(costs.view(), &bins)?;
+    // The border taper (SPEC.md §10.1c) after WTA: it weights the regulariser's data term only.
+    taper_border(&mut costs, cfg.border_taper / f64::from(1u32 << level));
     timings.wta = t.elapsed().as_secs_f64();
     progress(Stage::Wta, 1, 1);
     let wta = DepthEstimate { inverse_depth: w.inverse_depth.clone(), depth: w.depth.clone() };

@@ -264,7 +264,7 @@ impl MapConfig {
             c.min_evidence,
             self.min_confidence,
             c.backend.name()
-        )
+        ) + &if c.border_taper > 0.0 { format!(" border_taper={}", c.border_taper) } else { String::new() }
     }
 }
 

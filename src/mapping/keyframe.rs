@@ -213,10 +213,16 @@ pub fn taper_border(costs: &mut Array3<f32>, r: f64) {
         return;
     }
     let (h, w, _) = costs.dim();
-    for ((y, x, _), c) in costs.indexed_iter_mut() {
-        let wt = border_weight(y, x, h, w, r);
-        if wt < 1.0 && c.is_finite() {
-            *c *= wt;
+    for y in 0..h {
+        for x in 0..w {
+            let wt = border_weight(y, x, h, w, r);
+            if wt < 1.0 {
+                costs
+                    .slice_mut(ndarray::s![y, x, ..])
+                    .iter_mut()
+                    .filter(|c| c.is_finite())
+                    .for_each(|c| *c *= wt);
+            }
         }
     }
 }
@@ -658,7 +664,9 @@ pub fn reconstruct_with(
     drop(counts);
     let w = backend.winner_take_all(costs.view(), &bins)?;
     // The border taper (SPEC.md §10.1c) after WTA: it weights the regulariser's data term only.
-    taper_border(&mut costs, cfg.border_taper / f64::from(1u32 << level));
+    if cfg.regularizer != Regularizer::None {
+        taper_border(&mut costs, cfg.border_taper / f64::from(1u32 << level));
+    }
     timings.wta = t.elapsed().as_secs_f64();
     progress(Stage::Wta, 1, 1);
     let wta = DepthEstimate { inverse_depth: w.inverse_depth.clone(), depth: w.depth.clone() };

@@ -499,6 +499,34 @@ fn eval_auto_depth_range_is_estimated_per_keyframe() {
 }
 
 #[test]
+fn the_learned_features_default_to_their_border_taper_and_the_others_to_none() {
+    use densefeat::mapping::features::BORDER_TAPER_LEARNED;
+    // SPEC.md §10.1c: the taper is chosen per feature kind on validation; `None` means the kind's.
+    assert_eq!(FeatureKind::Learned(None).default_border_taper(), BORDER_TAPER_LEARNED);
+    assert_eq!(FeatureKind::Rgb.default_border_taper(), 0.0);
+    assert_eq!(FeatureKind::Dsift.default_border_taper(), 0.0);
+    let seq = fixture();
+    let mut cfg = eval_config();
+    cfg.features = FeatureKind::Learned(None);
+    assert_eq!(cfg.border_taper, None, "unset by default");
+    assert_eq!(cfg.border_taper_px(), BORDER_TAPER_LEARNED);
+    let default = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    cfg.border_taper = Some(BORDER_TAPER_LEARNED);
+    let explicit = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    cfg.border_taper = Some(0.0);
+    let off = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    let tv = |r: &densefeat::mapping::keyframe::KeyframeResult| r.tv.as_ref().unwrap().inverse_depth.clone();
+    assert_eq!(tv(&default), tv(&explicit), "the default is the learned kind's taper");
+    assert_ne!(tv(&default), tv(&off), "and it is on");
+    cfg.features = FeatureKind::Rgb;
+    cfg.border_taper = None;
+    let rgb_default = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    cfg.border_taper = Some(0.0);
+    let rgb_off = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    assert_eq!(tv(&rgb_default), tv(&rgb_off), "RGB is not tapered by default");
+}
+
+#[test]
 fn border_taper_weights_the_data_term_towards_the_edge_and_leaves_wta_alone() {
     use densefeat::mapping::keyframe::{border_weight, taper_border, BORDER_WEIGHT_FLOOR};
     // SPEC.md §10.1c: clamp((d + 0.5) / r, 0.05, 1), d the distance to the nearest edge.
@@ -523,11 +551,11 @@ fn border_taper_weights_the_data_term_towards_the_edge_and_leaves_wta_alone() {
     let seq = fixture();
     let mut cfg = small_config();
     let plain = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
-    cfg.border_taper = 16.0;
+    cfg.border_taper = Some(16.0);
     let tapered = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
     assert_eq!(plain.wta.inverse_depth, tapered.wta.inverse_depth);
     assert_ne!(plain.tv.as_ref().unwrap().inverse_depth, tapered.tv.as_ref().unwrap().inverse_depth);
-    cfg.border_taper = -1.0;
+    cfg.border_taper = Some(-1.0);
     let (name, _) = invalid_argument(reconstruct(&seq, &cfg, |_, _, _| {}).unwrap_err());
     assert_eq!(name, "border-taper");
 }

@@ -112,6 +112,7 @@ pub fn run(mut args: MapArgs) -> Result<()> {
     if args.mapping.lambda.is_none() && matches!(args.features, FeatureKind::Learned(_)) {
         keyframe.dtam.lambda = densefeat::mapping::sequence_map::MAP_LAMBDA_LEARNED;
     }
+    keyframe.border_taper.get_or_insert(densefeat::mapping::sequence_map::MAP_BORDER_TAPER);
     let cfg = MapConfig {
         keyframe,
         frames: frames.unwrap_or((0, seq.len().saturating_sub(1))),

@@ -63,9 +63,10 @@ pub struct MappingArgs {
     /// Border taper of the data term, in pixels of the input resolution (SPEC.md §10.1c): the
     /// costs of a keyframe pixel closer than this to the image edge are weighted down linearly
     /// (to 5 % on the edge) before DTAM, so the regulariser fills that strip from the interior.
-    /// 0: off.
-    #[arg(long, default_value_t = 0.0)]
-    pub border_taper: f64,
+    /// 0: off; default: per feature type, chosen on validation (the learned features 32, the
+    /// others 0).
+    #[arg(long)]
+    pub border_taper: Option<f64>,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1);
     /// default: per feature type, chosen on validation (SPEC §10.1a: rgb 300, learned 30, others 100;
     /// the normal prior's solve: rgb 300, learned 100; `map`'s learned features 10, §16.9).

@@ -187,8 +187,9 @@ pub struct KeyframeConfig {
     pub truncation: Truncation,
     /// The border taper of the data term (SPEC.md §10.1c), in level-0 pixels: after winner-take-all
     /// each pixel's costs are scaled by [`border_weight`], so the regulariser fills a strip along the
-    /// keyframe's border from the interior. 0 (the default): off.
-    pub border_taper: f64,
+    /// keyframe's border from the interior. 0: off; `None` (the default): the feature kind's
+    /// [`FeatureKind::default_border_taper`].
+    pub border_taper: Option<f64>,
 }
 
 /// Smallest weight of [`border_weight`] (a pixel on the border keeps 5 % of its data term).
@@ -259,7 +260,7 @@ impl KeyframeConfig {
             backend: crate::backend::default_backend(),
             photometric: PhotometricMode::None,
             truncation: Truncation::DEFAULT,
-            border_taper: 0.0,
+            border_taper: None,
         }
     }
 
@@ -290,6 +291,12 @@ impl KeyframeConfig {
         Ok(live)
     }
 
+    /// The border taper `R` in effect (SPEC.md §10.1c), in level-0 pixels: [`KeyframeConfig::border_taper`],
+    /// else the feature kind's default.
+    pub fn border_taper_px(&self) -> f64 {
+        self.border_taper.unwrap_or_else(|| self.features.default_border_taper())
+    }
+
     fn validate(&self) -> Result<InverseDepthBins> {
         if self.bins < 2 {
             return Err(Error::invalid_argument("bins", format!("{}: need at least 2", self.bins)));
@@ -316,10 +323,10 @@ impl KeyframeConfig {
         if self.level > 8 {
             return Err(Error::invalid_argument("level", format!("{}: at most 8", self.level)));
         }
-        if !(self.border_taper >= 0.0 && self.border_taper.is_finite()) {
+        if let Some(r) = self.border_taper.filter(|r| !(*r >= 0.0 && r.is_finite())) {
             return Err(Error::invalid_argument(
                 "border-taper",
-                format!("{}: must be a finite number of pixels >= 0", self.border_taper),
+                format!("{r}: must be a finite number of pixels >= 0"),
             ));
         }
         check_truncation("truncate-rgb", self.truncation.rgb)?;
@@ -665,7 +672,7 @@ pub fn reconstruct_with(
     let w = backend.winner_take_all(costs.view(), &bins)?;
     // The border taper (SPEC.md §10.1c) after WTA: it weights the regulariser's data term only.
     if cfg.regularizer != Regularizer::None {
-        taper_border(&mut costs, cfg.border_taper / f64::from(1u32 << level));
+        taper_border(&mut costs, cfg.border_taper_px() / f64::from(1u32 << level));
     }
     timings.wta = t.elapsed().as_secs_f64();
     progress(Stage::Wta, 1, 1);

@@ -46,6 +46,12 @@ pub const MAP_LEVEL: u32 = 1;
 /// 5 cm wants less smoothing than δ<1.25 does. The other kinds keep their §10.1a default.
 pub const MAP_LAMBDA_LEARNED: f64 = 10.0;
 
+/// `densefeat map`'s border taper (SPEC.md §10.1c, §16.9): 0 (off) for every kind. The depth
+/// commands' learned default (32) ties on the validation meshes (mean F-score at 5 cm 0.372 with and
+/// without, worse on 6 of 8 scenes; `docs/map/results.md`): the neighbouring keyframes already see
+/// what one keyframe's border misses.
+pub const MAP_BORDER_TAPER: f64 = 0.0;
+
 /// Everything [`map_sequence`] needs besides the sequence.
 #[derive(Clone, Debug)]
 pub struct MapConfig {
@@ -264,7 +270,11 @@ impl MapConfig {
             c.min_evidence,
             self.min_confidence,
             c.backend.name()
-        ) + &if c.border_taper > 0.0 { format!(" border_taper={}", c.border_taper) } else { String::new() }
+        ) + &if c.border_taper_px() > 0.0 {
+            format!(" border_taper={}", c.border_taper_px())
+        } else {
+            String::new()
+        }
     }
 }
 
@@ -554,6 +564,7 @@ fn map_json(
             "features": format!("{:?}", cfg.keyframe.features),
             "regularizer": cfg.keyframe.regularizer,
             "lambda": cfg.keyframe.dtam.lambda,
+            "border_taper_px": cfg.keyframe.border_taper_px(),
             "bins": cfg.keyframe.bins,
             "depth_range_m": [cfg.keyframe.near, cfg.keyframe.far],
             "depth_range_auto": cfg.auto_depth_range,

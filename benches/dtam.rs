@@ -8,10 +8,10 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use densefeat::dtam::{
-    edge_weights, exhaustive_search, search_with_energy, solve, total_energy, CostRange, Dispatch,
-    DtamParams, HuberTv,
+    edge_weights, exhaustive_search, search_with_energy, solve, total_energy, CostRange, DtamParams, HuberTv,
 };
 use densefeat::perf::{tv_inputs, TvInputs};
+use densefeat::runtime::CpuFeatureLevel;
 
 fn dtam(c: &mut Criterion) {
     let TvInputs { costs, bins, grey, init } = tv_inputs(320, 240, 64).expect("valid bench shape");
@@ -29,7 +29,7 @@ fn dtam(c: &mut Criterion) {
         });
         // One DTAM iteration's primal-dual steps (the mapping default runs 16 per a-search).
         c.bench_function(&format!("cpu_dtam_16_steps_320x240_k64_t{threads}"), |b| {
-            b.iter(|| pool.install(|| tv.steps_with(a.view(), th, 16, Dispatch::Auto)))
+            b.iter(|| pool.install(|| tv.steps_with(a.view(), th, 16, CpuFeatureLevel::get())))
         });
         c.bench_function(&format!("cpu_dtam_search_320x240_k64_t{threads}"), |b| {
             b.iter(|| {
@@ -47,7 +47,7 @@ fn dtam(c: &mut Criterion) {
                         th,
                         p.lambda,
                         &mut fused_a,
-                        Dispatch::Auto,
+                        CpuFeatureLevel::get(),
                     )
                 })
             })

@@ -68,6 +68,43 @@ impl CpuFeatureLevel {
         }
     }
 
+    /// Whether a kernel handed this level may use AVX-512F: the level includes it and the CPU has
+    /// it (so a level above the CPU's never runs an instruction the CPU lacks).
+    pub fn avx512f(self) -> bool {
+        self >= CpuFeatureLevel::Avx512 && Self::cpu() >= CpuFeatureLevel::Avx512
+    }
+
+    /// Whether a kernel handed this level may use AVX2 and FMA (the level includes them and the CPU
+    /// has them).
+    pub fn avx2_fma(self) -> bool {
+        self >= CpuFeatureLevel::Avx2 && Self::cpu() >= CpuFeatureLevel::Avx2
+    }
+
+    /// Whether a kernel handed this level may use AVX-512F with its BW, VL and DQ extensions (the
+    /// cost volume's block kernel): [`CpuFeatureLevel::avx512f`] and the CPU has the three.
+    pub fn avx512_bw_vl_dq(self) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            static EXT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+            self.avx512f()
+                && *EXT.get_or_init(|| {
+                    std::arch::is_x86_feature_detected!("avx512bw")
+                        && std::arch::is_x86_feature_detected!("avx512vl")
+                        && std::arch::is_x86_feature_detected!("avx512dq")
+                })
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            false
+        }
+    }
+
+    /// [`CpuFeatureLevel::detected`], probed once.
+    fn cpu() -> Self {
+        static CPU: std::sync::OnceLock<CpuFeatureLevel> = std::sync::OnceLock::new();
+        *CPU.get_or_init(Self::detected)
+    }
+
     /// The level of this process: [`CpuFeatureLevel::detected`] capped by [`CPU_LEVEL_ENV`]
     /// (an unknown value caps nothing; the binary refuses it before any work) and by
     /// [`NO_AVX512_ENV`]. Read once per process.
@@ -106,32 +143,19 @@ pub fn check_cpu_level_env() -> Result<()> {
 /// path asks here (the cost volume, the direct convolution and transposed convolution, the training
 /// loss and weight gradients, DTAM, the feature upsampling).
 pub fn has_avx512f() -> bool {
-    CpuFeatureLevel::get() >= CpuFeatureLevel::Avx512
+    CpuFeatureLevel::get().avx512f()
 }
 
 /// Whether the kernels may use AVX-512F with its BW, VL and DQ extensions (the cost volume's
 /// kernel): [`has_avx512f`] and the CPU has the three (probed once).
 pub fn has_avx512_bw_vl_dq() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        static EXT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        has_avx512f()
-            && *EXT.get_or_init(|| {
-                std::arch::is_x86_feature_detected!("avx512bw")
-                    && std::arch::is_x86_feature_detected!("avx512vl")
-                    && std::arch::is_x86_feature_detected!("avx512dq")
-            })
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    CpuFeatureLevel::get().avx512_bw_vl_dq()
 }
 
 /// Whether the kernels may use AVX2 and FMA: [`CpuFeatureLevel::get`] is at least
 /// [`CpuFeatureLevel::Avx2`] (always `false` off x86-64).
 pub fn has_avx2_fma() -> bool {
-    CpuFeatureLevel::get() >= CpuFeatureLevel::Avx2
+    CpuFeatureLevel::get().avx2_fma()
 }
 
 /// `threads`, or every core the process may use when it is 0 (for flags whose help says

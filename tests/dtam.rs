@@ -7,11 +7,11 @@ use densefeat::costvolume::{CostVolume, UNSEEN_COST};
 use densefeat::dtam::search::exhaustive_search_full;
 use densefeat::dtam::{
     edge_weights, exhaustive_search, exhaustive_search_reference, exhaustive_search_with, rms_gap,
-    search_with_energy, solve, solve_reference, solve_with, total_energy, CostRange, Dispatch, DtamParams,
-    HuberTv,
+    search_with_energy, solve, solve_reference, solve_with, total_energy, CostRange, DtamParams, HuberTv,
 };
 use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
 use densefeat::image::to_gray;
+use densefeat::runtime::CpuFeatureLevel;
 use densefeat::synth::{Quad, Scene, Shape, Surface, Texture};
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{Array2, Array3, ArrayView2};
@@ -44,7 +44,7 @@ proptest! {
         let pruned = exhaustive_search(costs.view(), &range, &bins, d.view(), theta, lambda);
         let full = exhaustive_search_full(costs.view(), &bins, d.view(), theta, lambda);
         prop_assert_eq!(pruned.mapv(f32::to_bits), full.mapv(f32::to_bits));
-        let portable = exhaustive_search_with(costs.view(), &range, &bins, d.view(), theta, lambda, Dispatch::Portable);
+        let portable = exhaustive_search_with(costs.view(), &range, &bins, d.view(), theta, lambda, CpuFeatureLevel::Portable);
         prop_assert_eq!(portable.mapv(f32::to_bits), full.mapv(f32::to_bits));
         let scalar = exhaustive_search_reference(costs.view(), &range, &bins, d.view(), theta, lambda);
         prop_assert_eq!(scalar.mapv(f32::to_bits), full.mapv(f32::to_bits));
@@ -69,7 +69,7 @@ proptest! {
         });
         let range = CostRange::new(costs.view());
         let full = exhaustive_search_full(costs.view(), &bins, d.view(), theta, 1.0);
-        for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
             let got = exhaustive_search_with(costs.view(), &range, &bins, d.view(), theta, 1.0, dispatch);
             prop_assert_eq!(got.mapv(f32::to_bits), full.mapv(f32::to_bits), "{:?}", dispatch);
         }
@@ -91,7 +91,7 @@ proptest! {
             steps_per_search: steps, ..DtamParams::default()
         };
         let reference = fingerprint(solve_reference(costs.view(), &bins, grey.view(), init.view(), &params).unwrap());
-        for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
             let got = solve_with(costs.view(), &bins, grey.view(), init.view(), &params, dispatch).unwrap();
             prop_assert_eq!(&fingerprint(got), &reference, "{:?}", dispatch);
         }
@@ -160,7 +160,7 @@ proptest! {
             let full = exhaustive_search_full(costs.view(), &bins, d.view(), theta, lambda);
             prop_assert_eq!(definition.mapv(f32::to_bits), full.mapv(f32::to_bits));
         }
-        for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
             let got = exhaustive_search_with(costs.view(), &range, &bins, d.view(), theta, lambda, dispatch);
             prop_assert_eq!(got.mapv(f32::to_bits), definition.mapv(f32::to_bits), "{:?}", dispatch);
         }
@@ -180,7 +180,7 @@ proptest! {
             ..DtamParams::default()
         };
         let reference = fingerprint(solve_reference(costs.view(), &bins, grey.view(), init.view(), &params).unwrap());
-        for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
             let got = solve_with(costs.view(), &bins, grey.view(), init.view(), &params, dispatch).unwrap();
             prop_assert_eq!(&fingerprint(got), &reference, "{:?}", dispatch);
         }
@@ -239,7 +239,7 @@ fn fused_solve_equals_the_reference_on_every_thread_count() {
             fingerprint(solve_reference(costs.view(), bins, grey.view(), init.view(), &params).unwrap())
         });
         for n in [1, 2, 3, 8] {
-            for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+            for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
                 let got = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| {
                     solve_with(costs.view(), bins, grey.view(), init.view(), &params, dispatch).unwrap()
                 });
@@ -268,7 +268,7 @@ fn fused_pass_equals_the_reference_functions() {
                 exhaustive_search_reference(costs.view(), &range, &bins, tv.primal(), theta, lambda);
             let e = total_energy(&tv, costs.view(), &bins, reference.view(), theta, lambda);
             let g = rms_gap(tv.primal(), reference.view());
-            for dispatch in [Dispatch::Auto, Dispatch::Portable] {
+            for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
                 let m = search_with_energy(costs.view(), &range, &bins, &tv, theta, lambda, &mut a, dispatch);
                 assert_eq!(a.mapv(f32::to_bits), reference.mapv(f32::to_bits), "seed {seed}, θ {theta}");
                 assert_eq!(m.energy.to_bits(), e.to_bits(), "seed {seed}, θ {theta}: {} vs {e}", m.energy);
@@ -307,8 +307,8 @@ fn step_equals_the_reference_step() {
         for n in 0..50 {
             let theta = 0.5 * 0.8f64.powi(n);
             reference.step_reference(a.view(), theta);
-            auto.step_with(a.view(), theta, Dispatch::Auto);
-            portable.step_with(a.view(), theta, Dispatch::Portable);
+            auto.step_with(a.view(), theta, CpuFeatureLevel::get());
+            portable.step_with(a.view(), theta, CpuFeatureLevel::Portable);
             assert_builds_match(
                 &reference,
                 [&auto, &portable],
@@ -343,8 +343,8 @@ fn several_steps_equal_as_many_reference_steps() {
             for _ in 0..n {
                 reference.step_reference(a.view(), theta);
             }
-            auto.steps_with(a.view(), theta, n, Dispatch::Auto);
-            portable.steps_with(a.view(), theta, n, Dispatch::Portable);
+            auto.steps_with(a.view(), theta, n, CpuFeatureLevel::get());
+            portable.steps_with(a.view(), theta, n, CpuFeatureLevel::Portable);
             let what = format!("{h}x{w}, {n} steps at θ {theta}");
             assert_builds_match(&reference, [&auto, &portable], a.view(), theta, &what);
         }
@@ -365,7 +365,7 @@ fn several_steps_are_independent_of_thread_count() {
     let run = |threads: usize| {
         let mut tv = tv.clone();
         rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
-            tv.steps_with(a.view(), 0.05, 16, Dispatch::Auto);
+            tv.steps_with(a.view(), 0.05, 16, CpuFeatureLevel::get());
         });
         tv.primal().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
     };
@@ -597,7 +597,7 @@ fn no_avx512_env_switches_every_avx512_dispatch() {
     const NAME: &str = "no_avx512_env_switches_every_avx512_dispatch";
     if std::env::var_os(NO_AVX512_ENV).is_some() {
         assert!(!has_avx512f());
-        assert!(!densefeat::dtam::Dispatch::Auto.use_avx512());
+        assert!(!densefeat::runtime::CpuFeatureLevel::get().avx512f());
         return;
     }
     rerun_in_child(NAME, NO_AVX512_ENV, "1");
@@ -635,7 +635,7 @@ fn cpu_level_env_caps_every_dispatch_and_bad_values_are_refused() {
     if std::env::var(CPU_LEVEL_ENV).as_deref() == Ok("portable") {
         assert_eq!(CpuFeatureLevel::get(), CpuFeatureLevel::Portable);
         assert!(!has_avx512f() && !has_avx2_fma());
-        assert!(!densefeat::dtam::Dispatch::Auto.use_avx512());
+        assert!(!densefeat::runtime::CpuFeatureLevel::get().avx512f());
         return;
     }
     assert!(CpuFeatureLevel::get() <= CpuFeatureLevel::detected());

@@ -498,6 +498,46 @@ fn eval_auto_depth_range_is_estimated_per_keyframe() {
     }
 }
 
+/// One CPU-feature level handed to every mapping kernel through the backend (issue 33 item 3):
+/// a keyframe reconstructed on `CpuBackend`s at the portable, AVX2 and AVX-512 levels gives the same
+/// bits (cost volume, winner-take-all, Huber-TV, the normal prior, the feature maps' resampling and
+/// the colour pyramid), in this process, with no environment variable.
+#[test]
+fn every_cpu_level_of_the_backend_gives_the_same_keyframe() {
+    use densefeat::backend::{Backend, CpuBackend};
+    use densefeat::mapping::normals::NormalsSource;
+    use densefeat::runtime::CpuFeatureLevel;
+    let seq = fixture();
+    let mut cfg = eval_config();
+    cfg.features = FeatureKind::Learned(None);
+    cfg.regularizer = Regularizer::TvAndNormals;
+    cfg.normals = Some(NormalsSource::GroundTruth);
+    cfg.level = 0;
+    let run = |level: CpuFeatureLevel| {
+        let backend = CpuBackend { level, ..CpuBackend::default() };
+        assert_eq!(backend.cpu_level(), level);
+        let mut c = cfg.clone();
+        c.backend = std::sync::Arc::new(backend);
+        reconstruct(&seq, &c, |_, _, _| {}).unwrap()
+    };
+    let want = run(CpuFeatureLevel::Portable);
+    for level in [CpuFeatureLevel::Avx2, CpuFeatureLevel::Avx512, CpuFeatureLevel::get()] {
+        let got = run(level);
+        assert_eq!(got.wta.inverse_depth, want.wta.inverse_depth, "{level:?}: WTA");
+        assert_eq!(
+            got.tv.as_ref().unwrap().inverse_depth,
+            want.tv.as_ref().unwrap().inverse_depth,
+            "{level:?}: TV"
+        );
+        assert_eq!(
+            got.normals.as_ref().unwrap().inverse_depth,
+            want.normals.as_ref().unwrap().inverse_depth,
+            "{level:?}: the normal prior"
+        );
+        assert_eq!(got.colour, want.colour, "{level:?}: the keyframe's colour");
+    }
+}
+
 #[test]
 fn the_learned_features_default_to_their_border_taper_and_the_others_to_none() {
     use densefeat::mapping::features::BORDER_TAPER_LEARNED;

@@ -87,11 +87,17 @@ fn upsampling_equals_its_per_pixel_definition_bit_for_bit() {
                 (v * 200.0 - 100.0) as f32
             }
         });
-        let got = upsample_to(x.view(), levels, oh, ow);
         let want = upsample_to_reference(x.view(), levels, oh, ow);
-        assert_eq!(got.dim(), want.dim());
-        for (a, b) in got.iter().zip(&want) {
-            assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()), "{h}x{w}x{c}: {a} vs {b}");
+        // The process's level, and each level handed in explicitly (issue 33 item 3).
+        let mut runs = vec![upsample_to(x.view(), levels, oh, ow)];
+        for level in densefeat::runtime::CpuFeatureLevel::ALL {
+            runs.push(densefeat::mapping::features::upsample_to_at(x.view(), levels, oh, ow, level));
+        }
+        for got in runs {
+            assert_eq!(got.dim(), want.dim());
+            for (a, b) in got.iter().zip(&want) {
+                assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()), "{h}x{w}x{c}: {a} vs {b}");
+            }
         }
     }
 }

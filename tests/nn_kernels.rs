@@ -296,6 +296,11 @@ proptest! {
         prop_assert_eq!(fast.dim(), want.dim());
         let canon = |a: &Array3<f32>| a.iter().map(|v| if v.is_nan() { u32::MAX } else { v.to_bits() }).collect::<Vec<_>>();
         prop_assert_eq!(canon(&fast), canon(&want));
+        // Each CPU-feature level handed in explicitly (issue 33 item 3): the same bits.
+        for level in densefeat::runtime::CpuFeatureLevel::ALL {
+            let at = densefeat::ops::downsample2x_at(img.view(), level).unwrap();
+            prop_assert_eq!(canon(&at), canon(&want), "{:?}", level);
+        }
     }
 
     #[test]

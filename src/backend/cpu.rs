@@ -14,10 +14,11 @@ use crate::ops::conv2d::{OutputLayout, WinogradKernel};
 use crate::ops::LayerParams;
 use crate::ops::{
     add, concat_channels_into, conv2d_concat_prepared_into, conv2d_prepared_into, deconv2d_prepared_into,
-    downsample2x, expect_shape, Activation, Conv2dGeometry, Conv2dImpl, Deconv2dImpl, NetworkConfig,
+    downsample2x_at, expect_shape, Activation, Conv2dGeometry, Conv2dImpl, Deconv2dImpl, NetworkConfig,
     NetworkImpl, PreparedConv, PreparedDeconv,
 };
 use crate::ops::{concat_conv_geometry, conv_geometry, deconv_geometry};
+use crate::runtime::CpuFeatureLevel;
 use crate::util::alloc::zeroed_vec;
 
 /// Kernel choices of the CPU backend. [`CpuBackend::default`] is the fast one; tests build others
@@ -28,11 +29,15 @@ pub struct CpuBackend {
     pub network: NetworkImpl,
     /// Cost-volume kernel.
     pub volume: CostVolumeImpl,
+    /// The SIMD level this backend's kernels are handed (issue 33 item 3): the process's
+    /// [`CpuFeatureLevel::get`] by default; a lower one forces the portable or AVX2 builds (the same
+    /// bits), a higher one than the CPU's runs no instruction the CPU lacks.
+    pub level: CpuFeatureLevel,
 }
 
 impl Default for CpuBackend {
     fn default() -> Self {
-        Self { network: NetworkImpl::FAST, volume: CostVolumeImpl::Fast }
+        Self { network: NetworkImpl::FAST, volume: CostVolumeImpl::Fast, level: CpuFeatureLevel::get() }
     }
 }
 
@@ -115,7 +120,11 @@ impl CpuBackend {
 
     /// The f64 reference kernels everywhere (single-threaded and slow: the oracle).
     pub fn reference() -> Self {
-        Self { network: NetworkImpl::REFERENCE, volume: CostVolumeImpl::Reference }
+        Self {
+            network: NetworkImpl::REFERENCE,
+            volume: CostVolumeImpl::Reference,
+            level: CpuFeatureLevel::Portable,
+        }
     }
 }
 
@@ -163,6 +172,10 @@ pub(crate) fn host<'a>(backend: &str, x: &'a Tensor) -> Result<&'a Array3<f32>> 
 }
 
 impl Backend for CpuBackend {
+    fn cpu_level(&self) -> CpuFeatureLevel {
+        self.level
+    }
+
     fn name(&self) -> &'static str {
         "cpu"
     }
@@ -276,7 +289,7 @@ impl Backend for CpuBackend {
     }
 
     fn downsample2x(&self, x: &Tensor) -> Result<Tensor> {
-        Ok(Tensor::host(downsample2x(host(self.name(), x)?.view())?))
+        Ok(Tensor::host(downsample2x_at(host(self.name(), x)?.view(), self.level)?))
     }
 
     fn concat(&self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
@@ -326,7 +339,9 @@ impl Backend for CpuBackend {
     ) -> Result<Box<dyn VolumeBuilder>> {
         let r = host(self.name(), reference)?.clone();
         Ok(Box::new(CpuVolume(
-            CostVolume::with_impl(r, camera, bins, self.volume)?.with_truncation(truncation)?,
+            CostVolume::with_impl(r, camera, bins, self.volume)?
+                .with_level(self.level)
+                .with_truncation(truncation)?,
         )))
     }
 
@@ -342,7 +357,7 @@ impl Backend for CpuBackend {
         init: ArrayView2<f32>,
         params: &DtamParams,
     ) -> Result<(DtamResult, DtamReport)> {
-        crate::dtam::solve(costs, bins, grey, init, params)
+        crate::dtam::solve_with(costs, bins, grey, init, params, self.level)
     }
 
     fn dtam_solve_normals(
@@ -354,7 +369,7 @@ impl Backend for CpuBackend {
         slope: &crate::dtam::SlopeField,
         params: &DtamParams,
     ) -> Result<(DtamResult, DtamReport)> {
-        crate::dtam::solve_normals(costs, bins, grey, init, slope, params)
+        crate::dtam::solve_normals_with(costs, bins, grey, init, slope, params, self.level)
     }
 }
 

@@ -129,6 +129,12 @@ pub trait Backend: Send + Sync + Debug {
     fn name(&self) -> &'static str;
     /// What it runs on, for logs and bench output (CPU features, adapter name).
     fn device(&self) -> String;
+    /// The SIMD level of the CPU kernels this backend runs and of the host-side work around its ops
+    /// (the feature maps' resampling in `mapping`): one value, handed to every kernel (issue 33
+    /// item 3). The default is the process's [`crate::runtime::CpuFeatureLevel::get`].
+    fn cpu_level(&self) -> crate::runtime::CpuFeatureLevel {
+        crate::runtime::CpuFeatureLevel::get()
+    }
 
     /// Copy a host map `[H, W, C]` to where this backend computes.
     ///

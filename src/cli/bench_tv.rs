@@ -11,10 +11,11 @@ use clap::Args;
 use super::synth::parse_size;
 use densefeat::dtam::{
     exhaustive_search, exhaustive_search_reference, rms_gap, search_with_energy, solve, total_energy,
-    CostRange, Dispatch, DtamParams, HuberTv,
+    CostRange, DtamParams, HuberTv,
 };
 use densefeat::error::{Error, Result};
 use densefeat::perf::{tv_inputs, TvInputs};
+use densefeat::runtime::CpuFeatureLevel;
 
 /// Arguments of `densefeat bench tv`.
 #[derive(Debug, Clone, Args)]
@@ -97,8 +98,16 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
             let t0 = Instant::now();
             tv.step(a.view(), theta);
             let t1 = Instant::now();
-            let m =
-                search_with_energy(costs.view(), &range, &bins, &tv, theta, lambda, &mut a, Dispatch::Auto);
+            let m = search_with_energy(
+                costs.view(),
+                &range,
+                &bins,
+                &tv,
+                theta,
+                lambda,
+                &mut a,
+                CpuFeatureLevel::get(),
+            );
             let t2 = Instant::now();
             std::hint::black_box(m);
             std::hint::black_box(exhaustive_search(costs.view(), &range, &bins, tv.primal(), theta, lambda));

@@ -17,6 +17,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use crate::geometry::{PinholeCamera, Warp};
+use crate::runtime::CpuFeatureLevel;
 
 /// Width of the channel loop's partial sums (one AVX-512 register of `f32`).
 const LANES: usize = 16;
@@ -62,36 +63,36 @@ impl Scratch {
 /// channels, the per-hypothesis row kernel otherwise), `"avx512"` (AVX-512F only: the row kernel)
 /// or `"portable"`. Maps too large for 32-bit gather offsets fall back to the row kernel.
 pub fn fast_kernel_name() -> &'static str {
+    fast_kernel_name_at(CpuFeatureLevel::get())
+}
+
+/// [`fast_kernel_name`] for a volume handed `level`.
+pub fn fast_kernel_name_at(level: CpuFeatureLevel) -> &'static str {
     #[cfg(target_arch = "x86_64")]
-    if has_avx512() && super::fast_avx512::available() {
+    if level.avx512_bw_vl_dq() {
         return "avx512-blocks";
     }
-    if has_avx512() {
+    if level.avx512f() {
         "avx512"
     } else {
         "portable"
     }
 }
 
-fn has_avx512() -> bool {
-    crate::runtime::has_avx512f()
-}
-
-/// Add one live frame into `sums` / `counts` (`[H, W, K]`). `dispatch`: use AVX-512 when available.
+/// Add one live frame into `sums` / `counts` (`[H, W, K]`), with the SIMD builds `level` allows.
 pub(super) fn add_frame(
     geo: &Geometry,
     feats: &Slices,
     rhos: &[f64],
     sums: &mut [f32],
     counts: &mut [u16],
-    dispatch: bool,
+    level: CpuFeatureLevel,
 ) {
     let (w, k_count) = (geo.camera.width, rhos.len());
     let row_cells = w * k_count;
-    let use_avx512 = dispatch && has_avx512();
+    let use_avx512 = level.avx512f();
     #[cfg(target_arch = "x86_64")]
-    let use_blocks = use_avx512
-        && super::fast_avx512::available()
+    let use_blocks = level.avx512_bw_vl_dq()
         && super::fast_avx512::fits_i32(w, geo.camera.height, feats.channels)
         && super::fast_avx512::fits_i32(geo.live.width, geo.live.height, feats.channels);
     // The block kernel loads whole 64-byte channel chunks of 16·N-channel maps: from a
@@ -126,14 +127,14 @@ pub(super) fn add_frame(
         |scratch, (y, (sum_row, count_row))| {
             #[cfg(target_arch = "x86_64")]
             if use_blocks {
-                // SAFETY: `available()` checked the CPU features, `fits_i32` the offsets; `packed`
+                // SAFETY: `avx512_bw_vl_dq()` checked the CPU features, `fits_i32` the offsets; `packed`
                 // is this frame's live map.
                 unsafe { super::fast_avx512::row(geo, feats, packed.as_ref(), rhos, y, sum_row, count_row) };
                 return;
             }
             #[cfg(target_arch = "x86_64")]
             if use_avx512 {
-                // SAFETY: `has_avx512()` reported AVX-512F on this CPU.
+                // SAFETY: `avx512f()` reported AVX-512F on this CPU.
                 unsafe { row_avx512(geo, feats, rhos, y, sum_row, count_row, scratch) };
                 return;
             }

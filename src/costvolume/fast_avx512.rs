@@ -26,8 +26,10 @@ use super::fast::{Geometry, Slices};
 /// Hypotheses per block (one `zmm` of `f32`).
 const BLOCK: usize = 16;
 
-/// Whether this CPU runs the kernel (AVX-512F, BW for the `u16` count update, VL, DQ).
-pub(super) fn available() -> bool {
+/// Whether this CPU runs the kernel (AVX-512F, BW for the `u16` count update, VL, DQ), at the
+/// process's level (the tests' probe; `fast::add_frame` asks the level it is handed).
+#[cfg(test)]
+fn available() -> bool {
     crate::runtime::has_avx512_bw_vl_dq()
 }
 
@@ -201,7 +203,7 @@ fn block(g: &RowGeo, rhos: &[f64], k: usize) -> Block {
 /// One reference row of `add_frame` (see `fast::row`, whose bits this reproduces).
 ///
 /// # Safety
-/// The CPU must have the features [`available`] checks, and [`fits_i32`] must hold for the map.
+/// The CPU must have the features `CpuFeatureLevel::avx512_bw_vl_dq` checks, and [`fits_i32`] must hold for the map.
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq")]
 pub(super) unsafe fn row(
     geo: &Geometry,

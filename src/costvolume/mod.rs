@@ -60,6 +60,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
+use crate::runtime::CpuFeatureLevel;
 use crate::util::alloc::zeroed_aligned;
 
 pub use curve::{confidence, confidence_and_scale, cost_scale, filter_evidence, winner_take_all_costs};
@@ -117,6 +118,8 @@ pub struct CostVolume {
     /// `ρ_k`, `k = 0..K`, from [`InverseDepthBins::rho`].
     rhos: Vec<f64>,
     imp: CostVolumeImpl,
+    /// The SIMD level [`CostVolumeImpl::Fast`] is handed ([`CostVolume::with_level`]).
+    level: CpuFeatureLevel,
     sums: Sums,
     counts: Array1<u16>,
     frames: usize,
@@ -163,6 +166,7 @@ impl CostVolume {
             camera,
             bins,
             imp,
+            level: CpuFeatureLevel::get(),
             sums,
             counts: zeroed_aligned(cells),
             frames: 0,
@@ -280,7 +284,7 @@ impl CostVolume {
                     &self.rhos,
                     flat_mut(sums),
                     flat_mut(&mut self.counts),
-                    imp == CostVolumeImpl::Fast,
+                    if imp == CostVolumeImpl::Fast { self.level } else { CpuFeatureLevel::Portable },
                 )
             }
         }
@@ -296,6 +300,14 @@ impl CostVolume {
     /// The implementation this volume runs.
     pub fn implementation(&self) -> CostVolumeImpl {
         self.imp
+    }
+
+    /// This volume with its [`CostVolumeImpl::Fast`] kernels handed `level` instead of the process's
+    /// [`CpuFeatureLevel::get`] (a backend passes its own; the same bits at every level).
+    #[must_use]
+    pub fn with_level(mut self, level: CpuFeatureLevel) -> Self {
+        self.level = level;
+        self
     }
 
     /// The hypotheses.

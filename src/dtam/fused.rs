@@ -16,9 +16,10 @@ use rayon::prelude::*;
 
 use super::huber_tv::{regulariser_row, slope_regulariser_row};
 use super::search::{for_each_group, GroupSink, SearchParams, SearchRow, LANES, UNSEEN};
-use super::{Dispatch, HuberTv};
+use super::HuberTv;
 use crate::dtam::search::{exhaustive_search_reference, CostRange};
 use crate::geometry::InverseDepthBins;
+use crate::runtime::CpuFeatureLevel;
 
 /// What [`search_with_energy`] measures after writing `a`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -52,7 +53,7 @@ struct Row<'a> {
 
 /// For the current `d = tv.primal()`: write the a-search's result into `a` (the bits of
 /// [`super::exhaustive_search`]) and return `E_θ(d, a)` and the rms gap, with the AVX-512 build of
-/// the row loop where `dispatch` allows it.
+/// the row loop where `level` allows it.
 ///
 /// # Panics
 /// If `a`, `d` or `range` do not match the volume's `[H, W]`, or `costs` has fewer hypotheses than
@@ -66,7 +67,7 @@ pub fn search_with_energy(
     theta: f64,
     lambda: f64,
     a: &mut Array2<f32>,
-    dispatch: Dispatch,
+    level: CpuFeatureLevel,
 ) -> IterationMeasures {
     let (h, w, k) = costs.dim();
     assert_eq!(tv.primal().dim(), (h, w), "d must match the cost volume");
@@ -87,7 +88,7 @@ pub fn search_with_energy(
     assert_eq!(ranges.len(), h * w, "the cost range must match the cost volume");
     let p = SearchParams::new(bins, theta, lambda);
     let minima = range.minima();
-    let avx512 = dispatch.use_avx512();
+    let avx512 = level.avx512f();
     let eps = tv.epsilon();
     let out = a.as_slice_mut().expect("owned arrays are contiguous");
     let rows: Vec<RowSums> = out
@@ -125,7 +126,7 @@ pub fn search_with_energy(
 fn fused_row(row: &Row, p: &SearchParams, a: &mut [f32], avx512: bool) -> RowSums {
     #[cfg(target_arch = "x86_64")]
     if avx512 {
-        // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`Dispatch::use_avx512`).
+        // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`CpuFeatureLevel::avx512f`).
         return unsafe { fused_row_avx512(row, p, a) };
     }
     let _ = avx512;

@@ -28,7 +28,7 @@ use ndarray::{Array2, ArrayView2, Zip};
 use rayon::prelude::*;
 
 use super::normal_prior::{step_size, SlopeField};
-use super::Dispatch;
+use crate::runtime::CpuFeatureLevel;
 
 #[path = "normal_steps.rs"]
 mod normal_steps;
@@ -192,12 +192,12 @@ impl HuberTv {
     }
 
     /// One primal-dual step towards `argmin_d P(d)` for the given `a` and `θ`, with the AVX-512
-    /// build of the row kernels where the CPU has it ([`Dispatch::Auto`]).
+    /// build of the row kernels where the CPU has it ([`CpuFeatureLevel::get()`]).
     ///
     /// # Panics
     /// If `a` differs in shape from `d`.
     pub fn step(&mut self, a: ArrayView2<f32>, theta: f64) {
-        self.step_with(a, theta, Dispatch::Auto);
+        self.step_with(a, theta, CpuFeatureLevel::get());
     }
 
     /// [`HuberTv::step`] with an explicit choice of kernel build; every build gives the same bits
@@ -205,8 +205,8 @@ impl HuberTv {
     ///
     /// # Panics
     /// If `a` differs in shape from `d`.
-    pub fn step_with(&mut self, a: ArrayView2<f32>, theta: f64, dispatch: Dispatch) {
-        self.steps_with(a, theta, 1, dispatch);
+    pub fn step_with(&mut self, a: ArrayView2<f32>, theta: f64, level: CpuFeatureLevel) {
+        self.steps_with(a, theta, 1, level);
     }
 
     /// `n` primal-dual steps for the same `a` and `θ` (what one DTAM iteration runs between two
@@ -221,7 +221,7 @@ impl HuberTv {
     ///
     /// # Panics
     /// If `a` differs in shape from `d`.
-    pub fn steps_with(&mut self, a: ArrayView2<f32>, theta: f64, n: usize, dispatch: Dispatch) {
+    pub fn steps_with(&mut self, a: ArrayView2<f32>, theta: f64, n: usize, level: CpuFeatureLevel) {
         assert_eq!(a.dim(), self.d.dim(), "a must match d");
         let (h, w) = self.d.dim();
         if h == 0 || w == 0 || n == 0 {
@@ -230,11 +230,11 @@ impl HuberTv {
         let a = a.as_standard_layout();
         let a = a.as_slice().expect("standard layout is contiguous");
         if self.slope.is_some() {
-            // The normal prior has one build (portable, row-parallel): `dispatch` changes nothing.
+            // The normal prior has one build (portable, row-parallel): `level` changes nothing.
             self.slope_steps(a, theta, n);
             return;
         }
-        let avx512 = dispatch.use_avx512();
+        let avx512 = level.avx512f();
         let k = Coefficients::new(self.eps, theta);
         let mut a_term = std::mem::take(&mut self.a_term);
         a_term.resize(h * w, 0.0);
@@ -453,7 +453,7 @@ mod kernels {
     pub(super) fn dual_row(rows: DualRows, k: &Coefficients, avx512: bool) {
         #[cfg(target_arch = "x86_64")]
         if avx512 {
-            // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`Dispatch::use_avx512`).
+            // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`CpuFeatureLevel::avx512f`).
             unsafe { dual_row_avx512(rows, k) };
             return;
         }

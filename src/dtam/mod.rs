@@ -23,7 +23,7 @@
 //! the primal-dual step ([`HuberTv::step`]), then one pass over the cost volume that runs the
 //! a-search 8 pixels at a time and measures the energy and the `d - a` gap on the way
 //! ([`search_with_energy`]). The row kernels have a portable and an AVX-512 build, chosen at run
-//! time ([`Dispatch`]). The unfused formulation ([`solve_reference`]: [`HuberTv::step_reference`],
+//! time from the [`CpuFeatureLevel`] the caller passes (a backend its own; [`solve`] the process's). The unfused formulation ([`solve_reference`]: [`HuberTv::step_reference`],
 //! [`exhaustive_search_reference`], [`total_energy`], [`rms_gap`]) is kept as the definition;
 //! [`solve`] returns its bits for any thread count and either build (tests/dtam.rs).
 
@@ -45,42 +45,13 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::geometry::InverseDepthBins;
+use crate::runtime::CpuFeatureLevel;
 
 pub use edge::edge_weights;
 pub use fused::{search_with_energy, IterationMeasures};
 pub use huber_tv::{HuberTv, HuberTvReport};
 pub use normal_prior::SlopeField;
 pub use search::{exhaustive_search, exhaustive_search_reference, exhaustive_search_with, CostRange};
-
-/// Which build of the solver's row kernels to run. Both give the same bits; `Portable` exists to
-/// test that.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Dispatch {
-    /// The AVX-512 build where the CPU reports AVX-512F (run-time detection), else the portable one.
-    #[default]
-    Auto,
-    /// The baseline-target build only.
-    Portable,
-}
-
-impl Dispatch {
-    /// Whether this choice runs the AVX-512 build on this CPU.
-    pub fn use_avx512(self) -> bool {
-        match self {
-            Dispatch::Portable => false,
-            Dispatch::Auto => {
-                #[cfg(target_arch = "x86_64")]
-                {
-                    crate::runtime::has_avx512f()
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                {
-                    false
-                }
-            }
-        }
-    }
-}
 
 /// Parameters of [`solve`]. Every field has a CLI flag (`densefeat reconstruct --help`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -272,10 +243,10 @@ pub fn solve(
     init: ArrayView2<f32>,
     params: &DtamParams,
 ) -> Result<(DtamResult, DtamReport)> {
-    solve_with(costs, bins, grey, init, params, Dispatch::Auto)
+    solve_with(costs, bins, grey, init, params, CpuFeatureLevel::get())
 }
 
-/// [`solve`] with an explicit choice of kernel build (the same bits for every build).
+/// [`solve`] at an explicit CPU-feature level (the same bits at every level; a backend passes its own).
 ///
 /// # Errors
 /// As [`solve`].
@@ -285,7 +256,7 @@ pub fn solve_with(
     grey: ArrayView2<f32>,
     init: ArrayView2<f32>,
     params: &DtamParams,
-    dispatch: Dispatch,
+    level: CpuFeatureLevel,
 ) -> Result<(DtamResult, DtamReport)> {
     check_inputs(costs, bins, grey, init, params)?;
     let start = Instant::now();
@@ -294,8 +265,8 @@ pub fn solve_with(
     let range = CostRange::new(costs);
     Ok(iterate(start, grey, init, params, bins, None, |n, tv, a| {
         let theta = params.theta(n);
-        tv.steps_with(a.view(), theta, params.steps_per_search, dispatch);
-        let m = search_with_energy(costs, &range, bins, tv, theta, params.lambda, a, dispatch);
+        tv.steps_with(a.view(), theta, params.steps_per_search, level);
+        let m = search_with_energy(costs, &range, bins, tv, theta, params.lambda, a, level);
         (m.energy, m.gap)
     }))
 }
@@ -343,6 +314,22 @@ pub fn solve_normals(
     slope: &SlopeField,
     params: &DtamParams,
 ) -> Result<(DtamResult, DtamReport)> {
+    solve_normals_with(costs, bins, grey, init, slope, params, CpuFeatureLevel::get())
+}
+
+/// [`solve_normals`] at an explicit CPU-feature level (the same bits at every level).
+///
+/// # Errors
+/// As [`solve_normals`].
+pub fn solve_normals_with(
+    costs: ArrayView3<f32>,
+    bins: &InverseDepthBins,
+    grey: ArrayView2<f32>,
+    init: ArrayView2<f32>,
+    slope: &SlopeField,
+    params: &DtamParams,
+    level: CpuFeatureLevel,
+) -> Result<(DtamResult, DtamReport)> {
     check_inputs(costs, bins, grey, init, params)?;
     if slope.dim() != grey.dim() {
         return Err(Error::invalid_argument(
@@ -356,8 +343,8 @@ pub fn solve_normals(
     let range = CostRange::new(costs);
     Ok(iterate(start, grey, init, params, bins, Some(slope), |n, tv, a| {
         let theta = params.theta(n);
-        tv.steps_with(a.view(), theta, params.steps_per_search, Dispatch::Auto);
-        let m = search_with_energy(costs, &range, bins, tv, theta, params.lambda, a, Dispatch::Auto);
+        tv.steps_with(a.view(), theta, params.steps_per_search, level);
+        let m = search_with_energy(costs, &range, bins, tv, theta, params.lambda, a, level);
         (m.energy, m.gap)
     }))
 }

@@ -25,7 +25,7 @@
 //! multiply-adds, no reordered reductions; `ρ_k` by [`InverseDepthBins::rho`]'s own formula or a
 //! table of its values), so the result is the definition's bit for bit, ties, infinities and NaNs
 //! included. Two builds: portable (lane arrays, `search_lanes`) and AVX-512 (`dtam::avx512`,
-//! intrinsics, run-time dispatch by [`Dispatch`]); tests/dtam.rs checks both against the scalar
+//! intrinsics, run-time dispatch by the [`CpuFeatureLevel`] passed in); tests/dtam.rs checks both against the scalar
 //! definition ([`exhaustive_search_full`]) and the original one-pixel-at-a-time implementation
 //! ([`exhaustive_search_reference`]).
 
@@ -33,9 +33,9 @@ use ndarray::{Array1, Array2, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
 use super::bounds;
-use super::Dispatch;
 use crate::costvolume::{parabola_offset, UNSEEN_COST};
 use crate::geometry::InverseDepthBins;
+use crate::runtime::CpuFeatureLevel;
 use crate::util::alloc::zeroed_aligned;
 
 /// Cells at or above this are unseen (`crate::costvolume::UNSEEN_COST`).
@@ -184,7 +184,7 @@ pub fn exhaustive_search(
     theta: f64,
     lambda: f64,
 ) -> Array2<f32> {
-    exhaustive_search_with(costs, range, bins, d, theta, lambda, Dispatch::Auto)
+    exhaustive_search_with(costs, range, bins, d, theta, lambda, CpuFeatureLevel::get())
 }
 
 /// [`exhaustive_search`] with an explicit choice of kernel build (the same bits for every build).
@@ -198,7 +198,7 @@ pub fn exhaustive_search_with(
     d: ArrayView2<f32>,
     theta: f64,
     lambda: f64,
-    dispatch: Dispatch,
+    level: CpuFeatureLevel,
 ) -> Array2<f32> {
     let (h, w, k) = costs.dim();
     assert_eq!(d.dim(), (h, w), "d must match the cost volume");
@@ -212,7 +212,7 @@ pub fn exhaustive_search_with(
     let d = d.as_standard_layout();
     let d = d.as_slice().expect("standard layout is contiguous");
     let p = SearchParams::new(bins, theta, lambda);
-    let avx512 = dispatch.use_avx512();
+    let avx512 = level.avx512f();
     let ranges = range.as_slice();
     let (minima, g) = (range.minima(), p.blocks);
     let out = a.as_slice_mut().expect("owned arrays are contiguous");
@@ -296,7 +296,7 @@ pub(crate) struct SearchRow<'a> {
 fn search_row(rows: &SearchRow, p: &SearchParams, out: &mut [f32], avx512: bool) {
     #[cfg(target_arch = "x86_64")]
     if avx512 {
-        // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`Dispatch::use_avx512`).
+        // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`CpuFeatureLevel::avx512f`).
         unsafe { search_row_avx512(rows, p, out) };
         return;
     }
@@ -544,7 +544,7 @@ fn search_group<const AVX512: bool>(
     #[cfg(target_arch = "x86_64")]
     let mut a = if AVX512 {
         // SAFETY: `AVX512` is only set inside functions built with AVX-512F, which run only where the
-        // CPU reported it (`Dispatch::use_avx512`); every curve offset plus hypothesis is in `costs`.
+        // CPU reported it (`CpuFeatureLevel::avx512f`); every curve offset plus hypothesis is in `costs`.
         unsafe { super::avx512::refine_lanes(costs, p, &lanes, &scan) }
     } else {
         refine_lanes(costs, p, &lanes, &scan)

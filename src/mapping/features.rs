@@ -22,7 +22,8 @@ use crate::geometry::{InverseDepthBins, PinholeCamera};
 use crate::image::sample::axis;
 use crate::image::{sample_bilinear, to_gray, RgbImage};
 use crate::nn::{FeatureNet, NetworkWeights};
-use crate::ops::downsample2x;
+use crate::ops::downsample2x_at;
+use crate::runtime::CpuFeatureLevel;
 use std::sync::Arc;
 
 /// The weights shipped in `fixtures/weights/`, compiled into the binary so that the demo and
@@ -293,6 +294,7 @@ impl FeatureExtractor {
     /// Shape errors from the kernels (not `[H, W, 3]`).
     pub fn extract(&self, rgb: &RgbImage) -> Result<FeatureMap> {
         let (h0, w0, _) = rgb.dim();
+        let cpu = self.backend.cpu_level();
         let data = match (&self.net, self.net_level) {
             (Some(net), Some(nl)) => {
                 let f = match self.kind {
@@ -301,10 +303,10 @@ impl FeatureExtractor {
                 };
                 match self.level.cmp(&nl) {
                     std::cmp::Ordering::Equal => f,
-                    std::cmp::Ordering::Greater => downsample_to(f.view(), self.level - nl)?,
+                    std::cmp::Ordering::Greater => downsample_to_at(f.view(), self.level - nl, cpu)?,
                     std::cmp::Ordering::Less => {
                         let s = 1usize << self.level;
-                        upsample_to(f.view(), nl - self.level, h0.div_ceil(s), w0.div_ceil(s))
+                        upsample_to_at(f.view(), nl - self.level, h0.div_ceil(s), w0.div_ceil(s), cpu)
                     }
                 }
             }
@@ -313,14 +315,14 @@ impl FeatureExtractor {
                 if self.level == 0 {
                     d
                 } else {
-                    downsample_to(d.view(), self.level)?
+                    downsample_to_at(d.view(), self.level, cpu)?
                 }
             }
             _ if self.kind == FeatureKind::Patch7 => {
-                let grey = to_gray(&downsample_to(rgb.view(), self.level)?);
+                let grey = to_gray(&downsample_to_at(rgb.view(), self.level, cpu)?);
                 grey.insert_axis(ndarray::Axis(2))
             }
-            _ => downsample_to(rgb.view(), self.level)?,
+            _ => downsample_to_at(rgb.view(), self.level, cpu)?,
         };
         Ok(FeatureMap { data, level: self.level })
     }
@@ -368,11 +370,19 @@ impl FeatureExtractor {
 /// Apply the 2x tent downsampling `level` times.
 ///
 /// # Errors
-/// Shape errors from [`downsample2x`].
+/// Shape errors from [`downsample2x_at`].
 pub fn downsample_to(x: ArrayView3<f32>, level: u32) -> Result<Array3<f32>> {
+    downsample_to_at(x, level, CpuFeatureLevel::get())
+}
+
+/// [`downsample_to`] with the SIMD builds `cpu` allows (the same bits at every level).
+///
+/// # Errors
+/// As [`downsample_to`].
+pub fn downsample_to_at(x: ArrayView3<f32>, level: u32, cpu: CpuFeatureLevel) -> Result<Array3<f32>> {
     let mut out = x.to_owned();
     for _ in 0..level {
-        out = downsample2x(out.view())?;
+        out = downsample2x_at(out.view(), cpu)?;
     }
     Ok(out)
 }
@@ -392,6 +402,21 @@ pub fn downsample_to(x: ArrayView3<f32>, level: u32) -> Result<Array3<f32>> {
 /// # Panics
 /// If `x` has no pixel.
 pub fn upsample_to(x: ArrayView3<f32>, levels: u32, out_h: usize, out_w: usize) -> Array3<f32> {
+    upsample_to_at(x, levels, out_h, out_w, CpuFeatureLevel::get())
+}
+
+/// [`upsample_to`] with the SIMD builds `cpu` allows (the same bits at every level; the extractor
+/// passes its backend's [`Backend::cpu_level`]).
+///
+/// # Panics
+/// As [`upsample_to`].
+pub fn upsample_to_at(
+    x: ArrayView3<f32>,
+    levels: u32,
+    out_h: usize,
+    out_w: usize,
+    cpu: CpuFeatureLevel,
+) -> Array3<f32> {
     let (h, w, c) = x.dim();
     assert!(h > 0 && w > 0, "cannot upsample an empty feature map");
     if c == 0 || out_h == 0 || out_w == 0 {
@@ -410,7 +435,7 @@ pub fn upsample_to(x: ArrayView3<f32>, levels: u32, out_h: usize, out_w: usize) 
     let mut map = crate::util::alloc::zeroed_map_aligned([out_h, out_w, c]);
     let Some(out) = map.as_slice_mut() else { unreachable!("a new map is standard layout") };
     #[cfg(target_arch = "x86_64")]
-    let avx512 = crate::runtime::has_avx512f();
+    let avx512 = cpu.avx512f();
     out.par_chunks_mut(out_w * c).enumerate().for_each(|(i, row)| {
         let (y0, y1, b) = corner(i, h);
         let rows = (&src[y0 * w * c..][..w * c], &src[y1 * w * c..][..w * c]);

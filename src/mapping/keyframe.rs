@@ -21,7 +21,7 @@ use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
 use crate::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
 use crate::image::{to_gray, DepthMap, RgbImage};
-use crate::mapping::features::downsample_to;
+use crate::mapping::features::downsample_to_at;
 use crate::mapping::normals::{self, NormalsSource};
 use crate::mapping::photometric::{self, PhotometricFit, PhotometricMode};
 use crate::mapping::{FeatureExtractor, FeatureKind};
@@ -617,7 +617,7 @@ pub fn reconstruct_with(
         // After the memory check: each live frame is loaded and reduced to the coarse level at
         // once (only the coarse images are kept; the volume loop loads them again).
         let lc = photometric::coarse_level(&key_camera, level);
-        let coarse = |rgb: &RgbImage| downsample_to(rgb.view(), lc);
+        let coarse = |rgb: &RgbImage| downsample_to_at(rgb.view(), lc, backend.cpu_level());
         let all = live
             .par_iter()
             .map(|&m| seq.load_frame_rgb(m).and_then(|f| Ok((coarse(&f.rgb)?, f.pose, f.camera))))
@@ -626,7 +626,7 @@ pub fn reconstruct_with(
         timings.photometric = t.elapsed().as_secs_f64();
         fit
     };
-    let colour = downsample_to(key.rgb.view(), level)?;
+    let colour = downsample_to_at(key.rgb.view(), level, backend.cpu_level())?;
     let gt_depth = key.depth.as_ref().map(|d| depth_at_level(d, level));
     progress(Stage::Keyframe, 1, 1);
 

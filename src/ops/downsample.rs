@@ -6,6 +6,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::ops::geometry::DownsampleGeometry;
+use crate::runtime::CpuFeatureLevel;
 use crate::util::alloc::zeroed_map;
 
 /// Tent filter `[1/4, 1/2, 1/4]`, centred on input pixel `2j` for output pixel `j`.
@@ -39,6 +40,15 @@ fn tap(j: usize, t: usize, n: usize) -> usize {
 /// # Errors
 /// [`Error::InvalidArgument`] if a dimension is zero.
 pub fn downsample2x(input: ArrayView3<f32>) -> Result<Array3<f32>> {
+    downsample2x_at(input, CpuFeatureLevel::get())
+}
+
+/// [`downsample2x`] with the SIMD builds `level` allows (the same bits at every level; a backend
+/// passes its own).
+///
+/// # Errors
+/// As [`downsample2x`].
+pub fn downsample2x_at(input: ArrayView3<f32>, level: CpuFeatureLevel) -> Result<Array3<f32>> {
     let (h, w, c) = input.dim();
     let geom = DownsampleGeometry::new(h, w, c)?;
     let [h_out, w_out, _] = geom.output_shape();
@@ -46,7 +56,7 @@ pub fn downsample2x(input: ArrayView3<f32>) -> Result<Array3<f32>> {
     let Some(out_slice) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
     let input = input.as_standard_layout();
     let Some(src) = input.as_slice() else { unreachable!("standard layout is contiguous") };
-    let avx512 = crate::runtime::has_avx512f();
+    let avx512 = level.avx512f();
     out_slice.par_chunks_mut(w_out * c).enumerate().for_each_init(
         || TentRows::new(w_out, c),
         |taps, (j, row)| {

@@ -26,7 +26,7 @@ pub use conv2d::{
 };
 pub use deconv2d::{deconv2d, deconv2d_into, deconv2d_prepared_into, Deconv2dImpl};
 pub use downsample::{
-    add, concat_channels, concat_channels_backward, concat_channels_into, downsample2x,
+    add, concat_channels, concat_channels_backward, concat_channels_into, downsample2x, downsample2x_at,
     downsample2x_backward, downsample2x_reference,
 };
 pub use geometry::{Conv2dGeometry, Deconv2dGeometry, DownsampleGeometry};

@@ -501,7 +501,9 @@ fn eval_auto_depth_range_is_estimated_per_keyframe() {
 /// One CPU-feature level handed to every mapping kernel through the backend (issue 33 item 3):
 /// a keyframe reconstructed on `CpuBackend`s at the portable, AVX2 and AVX-512 levels gives the same
 /// bits (cost volume, winner-take-all, Huber-TV, the normal prior, the feature maps' resampling and
-/// the colour pyramid), in this process, with no environment variable.
+/// the colour pyramid), in this process, with no environment variable. The network runs the GEMM
+/// kernels at every level here: its fastest kernels differ by level (Winograd with SIMD, the GEMM
+/// without; `network::every_cpu_level_of_the_backend_runs_its_own_kernels_within_the_budget`).
 #[test]
 fn every_cpu_level_of_the_backend_gives_the_same_keyframe() {
     use densefeat::backend::{Backend, CpuBackend};
@@ -514,7 +516,11 @@ fn every_cpu_level_of_the_backend_gives_the_same_keyframe() {
     cfg.normals = Some(NormalsSource::GroundTruth);
     cfg.level = 0;
     let run = |level: CpuFeatureLevel| {
-        let backend = CpuBackend { level, ..CpuBackend::default() };
+        let network = densefeat::ops::NetworkImpl {
+            conv: densefeat::ops::Conv2dImpl::Im2colGemm,
+            deconv: densefeat::ops::Deconv2dImpl::ParityGemm,
+        };
+        let backend = CpuBackend { level, network, ..CpuBackend::default() };
         assert_eq!(backend.cpu_level(), level);
         let mut c = cfg.clone();
         c.backend = std::sync::Arc::new(backend);

@@ -253,6 +253,43 @@ fn fast_network_matches_reference_network_within_relative_budget() {
     eprintln!("largest max|fast - ref| / max|ref|: {worst:e}");
 }
 
+/// The backend's CPU-feature level reaches the network's kernels (issue 33 item 3): at every level
+/// the kernels it names are that level's (no AVX-512 or AVX2 kernel below it), and the features stay
+/// within §8.7's budget of the reference network (the levels pick different algorithms, e.g.
+/// Winograd with SIMD and the GEMM without, so their bits differ within that budget).
+#[test]
+fn every_cpu_level_of_the_backend_runs_its_own_kernels_within_the_budget() {
+    use densefeat::runtime::CpuFeatureLevel;
+    let config = NetworkConfig::default();
+    let (h, w) = (33, 47);
+    let net = FeatureNet::new(weights(&config, 31)).unwrap();
+    let img = image(h, w, 32);
+    let reference = net.forward(img.view(), &CpuBackend::reference()).unwrap();
+    let budget = relative_budget(&config);
+    for level in CpuFeatureLevel::ALL {
+        let backend = CpuBackend { level, ..CpuBackend::default() };
+        let kernels = backend.network_kernels(&config, h, w).unwrap();
+        for (layer, kernel) in &kernels {
+            if !level.avx512f() {
+                assert!(!kernel.contains("avx512"), "{level:?}: {layer} runs {kernel}");
+            }
+            if !level.avx2_fma() {
+                assert!(!kernel.contains("avx2"), "{level:?}: {layer} runs {kernel}");
+            }
+        }
+        if level == CpuFeatureLevel::get() {
+            assert_eq!(kernels, CpuBackend::default().network_kernels(&config, h, w).unwrap());
+        }
+        let fast = net.forward(img.view(), &backend).unwrap();
+        for (k, (g, r)) in fast.aggregated.iter().zip(&reference.aggregated).enumerate() {
+            let rel = max_diff(g, r) / max_abs(r);
+            assert!(rel <= budget, "{level:?} aggregate {k}: relative error {rel:e} > budget {budget:e}");
+        }
+        let again = net.forward(img.view(), &backend).unwrap();
+        assert_eq!(bits(&again.aggregated[0]), bits(&fast.aggregated[0]), "{level:?}: repeatable");
+    }
+}
+
 #[test]
 fn relative_budget_of_the_paper_network() {
     // 5 blocks: 15 convs + 4 deconvs; K_max = 9 · 35.

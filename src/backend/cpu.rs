@@ -52,7 +52,7 @@ impl CpuBackend {
     /// im2col, SPEC.md §7.11), otherwise `network.conv` itself.
     pub fn conv_impl_for(&self, geom: &crate::ops::Conv2dGeometry) -> Conv2dImpl {
         match self.network.conv {
-            Conv2dImpl::Direct => Conv2dImpl::fastest_for(geom),
+            Conv2dImpl::Direct => Conv2dImpl::fastest_for_at(geom, self.level),
             other => other,
         }
     }
@@ -62,7 +62,7 @@ impl CpuBackend {
     /// SPEC.md §7.3), otherwise `network.deconv` itself.
     pub fn deconv_impl_for(&self, geom: &crate::ops::Deconv2dGeometry) -> Deconv2dImpl {
         match self.network.deconv {
-            Deconv2dImpl::Direct => Deconv2dImpl::fastest_for(geom),
+            Deconv2dImpl::Direct => Deconv2dImpl::fastest_for_at(geom, self.level),
             other => other,
         }
     }
@@ -86,8 +86,10 @@ impl CpuBackend {
         let mut conv = |name: String, g: Conv2dGeometry| {
             let imp = self.conv_impl_for(&g);
             let kernel = match imp {
-                Conv2dImpl::WinogradF2 | Conv2dImpl::WinogradF4 => WinogradKernel::select(&g).name(),
-                Conv2dImpl::Direct => crate::ops::conv2d::direct::kernel_name(&g),
+                Conv2dImpl::WinogradF2 | Conv2dImpl::WinogradF4 => {
+                    WinogradKernel::select_for_at(&g, OutputLayout::Conv, self.level).name()
+                }
+                Conv2dImpl::Direct => crate::ops::conv2d::DirectKernel::select_at(&g, self.level).name(),
                 Conv2dImpl::Im2colGemm => "matrixmultiply sgemm",
                 _ => "f64 loops",
             };
@@ -105,10 +107,13 @@ impl CpuBackend {
             let kernel = match imp {
                 Deconv2dImpl::WinogradF2 | Deconv2dImpl::WinogradF4 => {
                     let e = crate::ops::deconv2d::winograd::equivalent_geometry(&g)?;
-                    WinogradKernel::select_for(&e, OutputLayout::Deconv).name()
+                    WinogradKernel::select_for_at(&e, OutputLayout::Deconv, self.level).name()
                 }
-                Deconv2dImpl::Direct if crate::ops::deconv2d::direct::supported(&g) => {
-                    crate::ops::deconv2d::direct::select(&g).name()
+                Deconv2dImpl::Direct
+                    if crate::ops::deconv2d::direct::select_at(&g, self.level)
+                        != crate::ops::conv2d::DirectKernel::Portable =>
+                {
+                    crate::ops::deconv2d::direct::select_at(&g, self.level).name()
                 }
                 Deconv2dImpl::Direct | Deconv2dImpl::ParityGemm => "parity GEMMs, matrixmultiply",
                 _ => "f64 loops",
@@ -229,7 +234,7 @@ impl Backend for CpuBackend {
         let imp = self.conv_impl_for(&g);
         let mut out = output_array(g.output_shape(), spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
-        conv2d_prepared_into(imp, &g, x.view(), p, act, o)?;
+        conv2d_prepared_into(imp, &g, x.view(), p, act, o, self.level)?;
         Ok(Tensor::host(out))
     }
 
@@ -249,7 +254,7 @@ impl Backend for CpuBackend {
         let imp = self.conv_impl_for(&g);
         let mut out = output_array(g.output_shape(), spare);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
-        conv2d_concat_prepared_into(imp, &g, a.view(), b.view(), p, act, o)?;
+        conv2d_concat_prepared_into(imp, &g, a.view(), b.view(), p, act, o, self.level)?;
         Ok(Tensor::host(out))
     }
 
@@ -259,7 +264,7 @@ impl Backend for CpuBackend {
         let g = deconv_geometry(x.dim(), l.params())?;
         let mut out = output_array(g.output_shape(), None);
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
-        deconv2d_prepared_into(self.deconv_impl_for(&g), &g, x.view(), p, None, o)?;
+        deconv2d_prepared_into(self.deconv_impl_for(&g), &g, x.view(), p, None, o, self.level)?;
         Ok(Tensor::host(out))
     }
 
@@ -284,7 +289,7 @@ impl Backend for CpuBackend {
         let Some(o) = out.as_slice_mut() else { unreachable!("output arrays are contiguous") };
         // Direct and Winograd fuse the sum into their store; the others add in a second pass (same
         // bits).
-        deconv2d_prepared_into(self.deconv_impl_for(&g), &g, x.view(), p, Some(ss), o)?;
+        deconv2d_prepared_into(self.deconv_impl_for(&g), &g, x.view(), p, Some(ss), o, self.level)?;
         Ok(Tensor::host(out))
     }
 

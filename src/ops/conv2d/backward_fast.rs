@@ -27,6 +27,7 @@ use crate::ops::gemm::{rows_per_chunk, sgemm, sum_of_chunks, MatRef};
 use crate::ops::geometry::{Conv2dGeometry, CONV_KERNEL};
 use crate::ops::prepared::PreparedConv;
 use crate::ops::{expect_shape, Activation};
+use crate::runtime::CpuFeatureLevel;
 use crate::util::alloc::with_scratch;
 
 /// Output pixels per chunk of the weight gradient's reduction (fixed: the chunks decide the
@@ -93,7 +94,7 @@ fn stride1_input_gradient(
     let imp = if imp.supports(&transposed) { imp } else { Conv2dImpl::Direct };
     let mut out = crate::util::alloc::zeroed_map(transposed.output_shape());
     let Some(y) = out.as_slice_mut() else { unreachable!("a new array is contiguous") };
-    conv2d_prepared_into(imp, &transposed, d_out, flipped, Activation::None, y)?;
+    conv2d_prepared_into(imp, &transposed, d_out, flipped, Activation::None, y, CpuFeatureLevel::get())?;
     Ok(out)
 }
 

@@ -38,6 +38,7 @@ use super::PackedConv2d;
 use crate::error::{Error, Result};
 use crate::ops::geometry::{Conv2dGeometry, CONV_KERNEL, CONV_PADDING};
 use crate::ops::{expect_len, Activation};
+use crate::runtime::CpuFeatureLevel;
 
 /// Output pixels per strip of the AVX-512 micro-kernel: `2 · 14 = 28` accumulators, two weight
 /// registers and one broadcast fill 31 of the 32 zmm registers.
@@ -74,7 +75,12 @@ impl DirectKernel {
     /// The kernel [`conv2d_direct`] runs for `geom` on this CPU: the first of AVX-512F, AVX2+FMA
     /// (both for `c_out = 32`) and portable that it supports.
     pub fn select(geom: &Conv2dGeometry) -> DirectKernel {
-        DirectKernel::ALL.into_iter().find(|k| k.supports(geom)).unwrap_or(DirectKernel::Portable)
+        Self::select_at(geom, CpuFeatureLevel::get())
+    }
+
+    /// [`DirectKernel::select`] at the CPU-feature level `level` (a backend passes its own).
+    pub fn select_at(geom: &Conv2dGeometry, level: CpuFeatureLevel) -> DirectKernel {
+        DirectKernel::ALL.into_iter().find(|k| k.supports_at(geom, level)).unwrap_or(DirectKernel::Portable)
     }
 
     /// `Ok` if this kernel can run `geom` on this CPU ([`DirectKernel::supports`]).
@@ -122,16 +128,26 @@ impl DirectKernel {
 
     /// Whether this kernel can run `geom` on this CPU.
     pub fn supports(self, geom: &Conv2dGeometry) -> bool {
-        self == DirectKernel::Portable || (geom.c_out() == AVX512_C_OUT && self.cpu_has())
+        self.supports_at(geom, CpuFeatureLevel::get())
+    }
+
+    /// [`DirectKernel::supports`] at the CPU-feature level `level`.
+    pub fn supports_at(self, geom: &Conv2dGeometry, level: CpuFeatureLevel) -> bool {
+        self == DirectKernel::Portable || (geom.c_out() == AVX512_C_OUT && self.cpu_has_at(level))
     }
 
     /// Whether this CPU has the instructions of this kernel's strips (the portable kernel: always).
     /// The SIMD strips compute 32 output channels; [`DirectKernel::supports`] adds that condition,
     /// and the transposed convolution's strips (`nn::deconv2d::direct`) use the same two.
     pub fn cpu_has(self) -> bool {
+        self.cpu_has_at(CpuFeatureLevel::get())
+    }
+
+    /// [`DirectKernel::cpu_has`] at the CPU-feature level `level` (which also checks the CPU).
+    pub fn cpu_has_at(self, level: CpuFeatureLevel) -> bool {
         match self {
-            DirectKernel::Avx512F => avx512f_detected(),
-            DirectKernel::Avx2Fma => crate::runtime::has_avx2_fma(),
+            DirectKernel::Avx512F => level.avx512f(),
+            DirectKernel::Avx2Fma => level.avx2_fma(),
             DirectKernel::Portable => true,
         }
     }
@@ -149,11 +165,6 @@ impl DirectKernel {
 /// Name of the kernel [`conv2d_direct`] runs for `geom` on this CPU ([`DirectKernel::select`]).
 pub fn kernel_name(geom: &Conv2dGeometry) -> &'static str {
     DirectKernel::select(geom).name()
-}
-
-/// Whether the CPU has AVX-512F ([`crate::runtime::has_avx512f`]).
-pub(crate) fn avx512f_detected() -> bool {
-    crate::runtime::has_avx512f()
 }
 
 /// Output rows per parallel work unit (fixed by the geometry; results do not depend on it).

@@ -59,6 +59,7 @@ pub use winograd::{
 use crate::error::Result;
 use crate::ops::prepared::PreparedConv;
 use crate::ops::{concat_channels, default_lanes, expect_len, expect_shape, Activation, Conv2dGeometry};
+use crate::runtime::CpuFeatureLevel;
 
 /// Which conv2d implementation to run. Every variant is always compiled and always tested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -117,7 +118,8 @@ impl Conv2dImpl {
     /// `Im2colGemm` (Direct's portable kernel is 3-4x slower than the GEMM). [`Default`] returns
     /// this. When the geometry is known, [`Conv2dImpl::fastest_for`] also accounts for `c_out`.
     pub fn fastest() -> Conv2dImpl {
-        if direct::avx512f_detected() || crate::runtime::has_avx2_fma() {
+        let level = CpuFeatureLevel::get();
+        if level.avx512f() || level.avx2_fma() {
             Conv2dImpl::Direct
         } else {
             Conv2dImpl::Im2colGemm
@@ -129,9 +131,16 @@ impl Conv2dImpl {
     /// its SIMD kernels (AVX-512F, AVX2+FMA; `c_out` a multiple of 32) runs; else [`Conv2dImpl::Direct`] when
     /// one of its SIMD kernels runs `geom`; otherwise [`Conv2dImpl::Im2colGemm`].
     pub fn fastest_for(geom: &Conv2dGeometry) -> Conv2dImpl {
-        if geom.c_in() >= WINOGRAD_MIN_C_IN && WinogradKernel::select(geom) != WinogradKernel::Portable {
+        Self::fastest_for_at(geom, CpuFeatureLevel::get())
+    }
+
+    /// [`Conv2dImpl::fastest_for`] at the CPU-feature level `level` (a backend passes its own).
+    pub fn fastest_for_at(geom: &Conv2dGeometry, level: CpuFeatureLevel) -> Conv2dImpl {
+        if geom.c_in() >= WINOGRAD_MIN_C_IN
+            && WinogradKernel::select_for_at(geom, OutputLayout::Conv, level) != WinogradKernel::Portable
+        {
             FASTEST_WINOGRAD
-        } else if DirectKernel::select(geom) != DirectKernel::Portable {
+        } else if DirectKernel::select_at(geom, level) != DirectKernel::Portable {
             Conv2dImpl::Direct
         } else {
             Conv2dImpl::Im2colGemm
@@ -189,7 +198,7 @@ pub fn conv2d_into(
     out: &mut [f32],
 ) -> Result<()> {
     let layer = PreparedConv::from_views(weight, bias);
-    conv2d_prepared_into(imp, geom, input, &layer, activation, out)
+    conv2d_prepared_into(imp, geom, input, &layer, activation, out, CpuFeatureLevel::get())
 }
 
 /// [`conv2d_into`] with the layer's packed weights from `layer` (packed on first use, SPEC.md
@@ -197,6 +206,7 @@ pub fn conv2d_into(
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] if an array's shape or `out`'s length disagrees with `geom`.
+#[allow(clippy::too_many_arguments)]
 pub fn conv2d_prepared_into(
     imp: Conv2dImpl,
     geom: &Conv2dGeometry,
@@ -204,6 +214,7 @@ pub fn conv2d_prepared_into(
     layer: &PreparedConv,
     activation: Activation,
     out: &mut [f32],
+    level: CpuFeatureLevel,
 ) -> Result<()> {
     expect_shape("conv2d input", input.shape(), &geom.input_shape())?;
     expect_len("conv2d output", out.len(), geom.output_shape().iter().product())?;
@@ -235,14 +246,15 @@ pub fn conv2d_prepared_into(
             let packed = layer.packed(geom)?;
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
-            conv2d_direct(&packed, x, activation, out).map(|_| ())
+            conv2d_direct_with(DirectKernel::select_at(geom, level), &packed, x, activation, out)
         }
         Conv2dImpl::WinogradF2 | Conv2dImpl::WinogradF4 => {
             let tile = imp.winograd_tile().unwrap_or(WinogradTile::F2x2);
             let packed = layer.winograd(tile, geom)?;
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
-            conv2d_winograd(&packed, x, activation, out).map(|_| ())
+            let kernel = WinogradKernel::select_for_at(geom, OutputLayout::Conv, level);
+            conv2d_winograd_with(kernel, &packed, x, activation, out)
         }
     }
 }
@@ -267,13 +279,14 @@ pub fn conv2d_concat_into(
     out: &mut [f32],
 ) -> Result<()> {
     let layer = PreparedConv::from_views(weight, bias);
-    conv2d_concat_prepared_into(imp, geom, a, b, &layer, activation, out)
+    conv2d_concat_prepared_into(imp, geom, a, b, &layer, activation, out, CpuFeatureLevel::get())
 }
 
 /// [`conv2d_concat_into`] with the layer's packed weights from `layer` (SPEC.md §7.9).
 ///
 /// # Errors
 /// As [`conv2d_concat_into`].
+#[allow(clippy::too_many_arguments)]
 pub fn conv2d_concat_prepared_into(
     imp: Conv2dImpl,
     geom: &Conv2dGeometry,
@@ -282,6 +295,7 @@ pub fn conv2d_concat_prepared_into(
     layer: &PreparedConv,
     activation: Activation,
     out: &mut [f32],
+    level: CpuFeatureLevel,
 ) -> Result<()> {
     let [h, w, c_in] = geom.input_shape();
     let (ca, cb) = (a.dim().2, b.dim().2);
@@ -289,13 +303,13 @@ pub fn conv2d_concat_prepared_into(
     expect_shape("conv2d concat input b", b.shape(), &[h, w, c_in.saturating_sub(ca)])?;
     if imp != Conv2dImpl::Direct || ca == 0 || cb == 0 {
         let x = concat_channels(a, b)?;
-        return conv2d_prepared_into(imp, geom, x.view(), layer, activation, out);
+        return conv2d_prepared_into(imp, geom, x.view(), layer, activation, out, level);
     }
     let packed = layer.packed(geom)?;
     let (a, b) = (a.as_standard_layout(), b.as_standard_layout());
     let (Some(sa), Some(sb)) = (a.as_slice(), b.as_slice()) else {
         unreachable!("standard-layout arrays are contiguous")
     };
-    let kernel = DirectKernel::select(geom);
+    let kernel = DirectKernel::select_at(geom, level);
     conv2d_direct_concat_with(kernel, &packed, (sa, ca), (sb, cb), activation, out)
 }

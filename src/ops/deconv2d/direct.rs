@@ -25,6 +25,7 @@ use crate::error::{Error, Result};
 use crate::ops::conv2d::direct::{DirectKernel, AVX512_C_OUT};
 use crate::ops::expect_len;
 use crate::ops::geometry::Deconv2dGeometry;
+use crate::runtime::CpuFeatureLevel;
 
 /// Whether [`deconv2d_direct`] can run `geom` on this CPU: `c_out = 32` and AVX-512F or AVX2+FMA.
 pub fn supported(geom: &Deconv2dGeometry) -> bool {
@@ -35,12 +36,17 @@ pub fn supported(geom: &Deconv2dGeometry) -> bool {
 /// for `c_out = 32`, SPEC.md §7.7), else [`DirectKernel::Portable`], meaning none (use
 /// [`Deconv2dImpl::ParityGemm`](super::Deconv2dImpl::ParityGemm)).
 pub fn select(geom: &Deconv2dGeometry) -> DirectKernel {
-    DirectKernel::ALL.into_iter().find(|&k| kernel_supports(k, geom)).unwrap_or(DirectKernel::Portable)
+    select_at(geom, CpuFeatureLevel::get())
 }
 
-/// Whether the SIMD strip kernel `kernel` can run `geom` on this CPU.
-fn kernel_supports(kernel: DirectKernel, geom: &Deconv2dGeometry) -> bool {
-    kernel != DirectKernel::Portable && geom.c_out() == AVX512_C_OUT && kernel.cpu_has()
+/// [`select`] at the CPU-feature level `level` (a backend passes its own).
+pub fn select_at(geom: &Deconv2dGeometry, level: CpuFeatureLevel) -> DirectKernel {
+    DirectKernel::ALL.into_iter().find(|&k| kernel_supports(k, geom, level)).unwrap_or(DirectKernel::Portable)
+}
+
+/// Whether the SIMD strip kernel `kernel` can run `geom` at `level`.
+fn kernel_supports(kernel: DirectKernel, geom: &Deconv2dGeometry, level: CpuFeatureLevel) -> bool {
+    kernel != DirectKernel::Portable && geom.c_out() == AVX512_C_OUT && kernel.cpu_has_at(level)
 }
 
 /// Valid taps `lo .. hi` (indices into the parity's increasing tap offsets `ds`) for input index
@@ -88,7 +94,7 @@ pub fn deconv2d_direct_with(
     if let Some(s) = skip {
         expect_len("deconv2d skip", s.len(), out.len())?;
     }
-    if !kernel_supports(kernel, geom) {
+    if !kernel_supports(kernel, geom, CpuFeatureLevel::get()) {
         return Err(Error::invalid_argument(
             "deconv2d direct kernel",
             format!("{} cannot run c_out = {c_out} on this CPU; use ParityGemm", kernel.name()),

@@ -42,9 +42,10 @@ pub use winograd::{
 };
 
 use crate::error::Result;
-use crate::ops::conv2d::{OutputLayout, WinogradKernel, WinogradTile, WINOGRAD_MIN_C_IN};
+use crate::ops::conv2d::{DirectKernel, OutputLayout, WinogradKernel, WinogradTile, WINOGRAD_MIN_C_IN};
 use crate::ops::prepared::PreparedDeconv;
 use crate::ops::{default_lanes, expect_len, expect_shape, Deconv2dGeometry};
+use crate::runtime::CpuFeatureLevel;
 
 /// Which transposed-convolution implementation to run. Every variant is always compiled and tested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -94,8 +95,14 @@ impl Deconv2dImpl {
     /// kernels runs the equivalent convolution, else [`Deconv2dImpl::Direct`] (which falls back to
     /// [`Deconv2dImpl::ParityGemm`] itself).
     pub fn fastest_for(geom: &Deconv2dGeometry) -> Deconv2dImpl {
-        let simd = winograd::equivalent_geometry(geom)
-            .is_ok_and(|g| WinogradKernel::select_for(&g, OutputLayout::Deconv) != WinogradKernel::Portable);
+        Self::fastest_for_at(geom, CpuFeatureLevel::get())
+    }
+
+    /// [`Deconv2dImpl::fastest_for`] at the CPU-feature level `level` (a backend passes its own).
+    pub fn fastest_for_at(geom: &Deconv2dGeometry, level: CpuFeatureLevel) -> Deconv2dImpl {
+        let simd = winograd::equivalent_geometry(geom).is_ok_and(|g| {
+            WinogradKernel::select_for_at(&g, OutputLayout::Deconv, level) != WinogradKernel::Portable
+        });
         if simd && geom.c_in() >= WINOGRAD_MIN_C_IN {
             FASTEST_WINOGRAD_DECONV
         } else {
@@ -143,7 +150,7 @@ pub fn deconv2d_into(
     out: &mut [f32],
 ) -> Result<()> {
     let layer = PreparedDeconv::from_views(weight, bias);
-    deconv2d_prepared_into(imp, geom, input, &layer, skip, out)
+    deconv2d_prepared_into(imp, geom, input, &layer, skip, out, CpuFeatureLevel::get())
 }
 
 /// [`deconv2d_into`] with the layer's packed weights from `layer` (packed on first use, SPEC.md
@@ -158,6 +165,7 @@ pub fn deconv2d_prepared_into(
     layer: &PreparedDeconv,
     skip: Option<&[f32]>,
     out: &mut [f32],
+    level: CpuFeatureLevel,
 ) -> Result<()> {
     expect_shape("deconv2d input", input.shape(), &geom.input_shape())?;
     expect_len("deconv2d output", out.len(), geom.output_shape().iter().product())?;
@@ -178,18 +186,19 @@ pub fn deconv2d_prepared_into(
                 *o = *v as f32;
             }
         }
-        Deconv2dImpl::Direct if direct::supported(geom) => {
+        Deconv2dImpl::Direct if direct::select_at(geom, level) != DirectKernel::Portable => {
             let packed = layer.packed(geom)?;
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
-            return deconv2d_direct(&packed, x, skip, out);
+            return deconv2d_direct_with(direct::select_at(geom, level), &packed, x, skip, out);
         }
         Deconv2dImpl::WinogradF2 | Deconv2dImpl::WinogradF4 => {
             let tile = imp.winograd_tile().unwrap_or(WinogradTile::F2x2);
             let packed = layer.winograd(tile, geom)?;
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
-            return deconv2d_winograd(&packed, x, skip, out).map(|_| ());
+            let kernel = WinogradKernel::select_for_at(packed.geometry(), OutputLayout::Deconv, level);
+            return deconv2d_winograd_with(kernel, &packed, x, skip, out);
         }
         Deconv2dImpl::ParityGemm | Deconv2dImpl::Direct => {
             let packed = layer.packed(geom)?;

@@ -53,6 +53,7 @@ use tiles::{transform_weights, Tile, F2, F4};
 use crate::error::{Error, Result};
 use crate::ops::geometry::Conv2dGeometry;
 use crate::ops::{expect_len, expect_shape, Activation};
+use crate::runtime::CpuFeatureLevel;
 
 /// Tiles per group: the AVX-512 dot products hold `TILES` tiles x 32 output channels in 28 zmm
 /// accumulators (the direct kernel's register blocking).
@@ -265,9 +266,18 @@ impl WinogradKernel {
 
     /// [`WinogradKernel::select`] for outputs stored by `layout`.
     pub fn select_for(geom: &Conv2dGeometry, layout: OutputLayout) -> WinogradKernel {
+        Self::select_for_at(geom, layout, CpuFeatureLevel::get())
+    }
+
+    /// [`WinogradKernel::select_for`] at the CPU-feature level `level` (a backend passes its own).
+    pub fn select_for_at(
+        geom: &Conv2dGeometry,
+        layout: OutputLayout,
+        level: CpuFeatureLevel,
+    ) -> WinogradKernel {
         WinogradKernel::ALL
             .into_iter()
-            .find(|k| k.supports_layout(geom, layout))
+            .find(|k| k.supports_layout_at(geom, layout, level))
             .unwrap_or(WinogradKernel::Portable)
     }
 
@@ -281,17 +291,24 @@ impl WinogradKernel {
     /// SIMD kernels also need its `c_out / 4` a multiple of their vector width: 16 for AVX-512F,
     /// 8 for AVX2).
     pub fn supports_layout(self, geom: &Conv2dGeometry, layout: OutputLayout) -> bool {
+        self.supports_layout_at(geom, layout, CpuFeatureLevel::get())
+    }
+
+    /// [`WinogradKernel::supports_layout`] at the CPU-feature level `level` (which also checks the
+    /// CPU).
+    pub fn supports_layout_at(
+        self,
+        geom: &Conv2dGeometry,
+        layout: OutputLayout,
+        level: CpuFeatureLevel,
+    ) -> bool {
         let c_out = geom.c_out();
         let simd = cfg!(target_arch = "x86_64") && c_out > 0 && c_out.is_multiple_of(SIMD_C_OUT);
         geom.stride() == 1
             && match self {
-                WinogradKernel::Avx512F => {
-                    simd && layout.fits_lanes(c_out, 16) && crate::runtime::has_avx512f()
-                }
+                WinogradKernel::Avx512F => simd && layout.fits_lanes(c_out, 16) && level.avx512f(),
                 WinogradKernel::Avx2Fma => {
-                    simd && layout.fits_lanes(c_out, 8)
-                        && geom.c_in().is_multiple_of(8)
-                        && crate::runtime::has_avx2_fma()
+                    simd && layout.fits_lanes(c_out, 8) && geom.c_in().is_multiple_of(8) && level.avx2_fma()
                 }
                 WinogradKernel::Portable => true,
             }

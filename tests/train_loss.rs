@@ -3,9 +3,10 @@
 //! masking and the per-pixel terms.
 
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
+use densefeat::runtime::CpuFeatureLevel;
 use densefeat::train::loss::{
     pixel_sampled, pixel_terms, scale_loss, scale_loss_multi, scale_loss_multi_reference,
-    scale_loss_reference, scale_loss_with, uses_avx512, LiveView, LossConfig, LossKernel,
+    scale_loss_reference, scale_loss_with, uses_avx512, LiveView, LossConfig,
 };
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{Array2, Array3};
@@ -201,8 +202,8 @@ fn bits_equal(a: &Array3<f32>, b: &Array3<f32>) -> bool {
 #[test]
 fn fast_loss_with_32_channels_matches_reference_portable_and_threads() {
     let c = case(11, 14, 18, 32, 40);
-    eprintln!("AVX-512 kernels: {}", uses_avx512(LossKernel::Auto, 32));
-    assert!(!uses_avx512(LossKernel::Portable, 32) && !uses_avx512(LossKernel::Auto, 8));
+    eprintln!("AVX-512 kernels: {}", uses_avx512(CpuFeatureLevel::get(), 32));
+    assert!(!uses_avx512(CpuFeatureLevel::Portable, 32) && !uses_avx512(CpuFeatureLevel::get(), 8));
     let fr = c.f_ref.mapv(|v| v as f32);
     let fl = c.f_live.mapv(|v| v as f32);
     let want = scale_loss_reference(
@@ -213,11 +214,11 @@ fn fast_loss_with_32_channels_matches_reference_portable_and_threads() {
         &c.warp,
     )
     .unwrap();
-    let run = |n: usize, k: LossKernel| {
+    let run = |n: usize, k: CpuFeatureLevel| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
         pool.install(|| scale_loss_with(k, &c.cfg, fr.view(), fl.view(), c.depth.view(), &c.warp).unwrap())
     };
-    let got = run(1, LossKernel::Auto);
+    let got = run(1, CpuFeatureLevel::get());
     assert!(got.sums.pixels > 10);
     assert_eq!(got.sums.pixels, want.sums.pixels);
     assert_eq!(got.sums.delta125_wta, want.sums.delta125_wta);
@@ -230,9 +231,12 @@ fn fast_loss_with_32_channels_matches_reference_portable_and_threads() {
             assert!((f64::from(*a) - b).abs() <= 1e-4 * scale + 1e-12, "{a} vs {b} (max {scale})");
         }
     }
-    for (n, k) in
-        [(1, LossKernel::Portable), (2, LossKernel::Auto), (3, LossKernel::Portable), (8, LossKernel::Auto)]
-    {
+    for (n, k) in [
+        (1, CpuFeatureLevel::Portable),
+        (2, CpuFeatureLevel::get()),
+        (3, CpuFeatureLevel::Portable),
+        (8, CpuFeatureLevel::get()),
+    ] {
         let o = run(n, k);
         assert_eq!(o.sums, got.sums, "{n} threads, {k:?}");
         assert!(bits_equal(&o.d_ref, &got.d_ref), "{n} threads, {k:?}: d_ref");

@@ -179,6 +179,7 @@ pub fn conv2d_backward_weight(
     };
     let rpc = rows_per_chunk(w_out, h_out, WEIGHT_CHUNK_PIXELS);
     let chunks = h_out.div_ceil(rpc);
+    let level = CpuFeatureLevel::get();
     // d_wᵀ [k, c_out], row (3 ky + kx) c_in + c.
     let d_wt = sum_of_chunks(chunks, k * c_out, |i| {
         let y0 = i * rpc;
@@ -186,7 +187,7 @@ pub fn conv2d_backward_weight(
         let m = rows * w_out;
         let mut part = vec![0.0f32; k * c_out];
         if weight_grad::supports(geom) {
-            weight_grad::chunk(geom, x_in, g, y0, rows, &mut part);
+            weight_grad::chunk(geom, x_in, g, y0, rows, &mut part, level);
             return part;
         }
         let g_rows = &g[y0 * w_out * c_out..][..m * c_out];

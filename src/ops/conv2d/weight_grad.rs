@@ -38,7 +38,8 @@ fn tap_rows(ys: std::ops::Range<usize>, ky: usize, s: usize, h: usize) -> Vec<(u
 /// overwritten). `x_in` is the `[h, w, C_in]` input, `g` the `[h_out, w_out, 32]` output gradient.
 ///
 /// # Panics
-/// If `geom` is not [`supports`]ed or a slice is shorter than its shape.
+/// If `geom` is not [`supports`]ed or a slice is shorter than its shape. `level`: the SIMD builds it
+/// may use (the same bits at every level).
 pub(crate) fn chunk(
     geom: &Conv2dGeometry,
     x_in: &[f32],
@@ -46,6 +47,7 @@ pub(crate) fn chunk(
     y0: usize,
     rows: usize,
     part: &mut [f32],
+    level: crate::runtime::CpuFeatureLevel,
 ) {
     assert!(supports(geom));
     let [h, w, c_in] = geom.input_shape();
@@ -66,13 +68,13 @@ pub(crate) fn chunk(
             let out = &mut part[(ky * CONV_KERNEL + kx) * c_in * C_OUT..][..c_in * C_OUT];
             #[cfg(target_arch = "x86_64")]
             {
-                if crate::runtime::has_avx512f() {
-                    // SAFETY: the CPU has AVX-512F; the asserts above bound every access.
+                if level.avx512f() {
+                    // SAFETY: the CPU has AVX-512F (`avx512f` checks it); the asserts above bound every access.
                     unsafe { simd::avx512::tap(&tap, x_in, g, out) };
                     continue;
                 }
-                if crate::runtime::has_avx2_fma() {
-                    // SAFETY: the CPU has AVX2 and FMA; as above.
+                if level.avx2_fma() {
+                    // SAFETY: the CPU has AVX2 and FMA (`avx2_fma` checks them); as above.
                     unsafe { simd::avx2::tap(&tap, x_in, g, out) };
                     continue;
                 }
@@ -235,9 +237,15 @@ mod tests {
                     portable_tap(&t, &x, &g, &mut want[(ky * 3 + kx) * c_in * C_OUT..][..c_in * C_OUT]);
                 }
             }
+            // Every CPU-feature level (AVX-512, AVX2 and portable on an AVX-512 machine): the
+            // portable tap's bits.
             let mut got = vec![f32::NAN; 9 * c_in * C_OUT];
-            chunk(&geom, &x, &g, y0, rows, &mut got);
-            assert!(got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()), "{:?}", (h, w, c_in, s));
+            for level in crate::runtime::CpuFeatureLevel::ALL {
+                got.fill(f32::NAN);
+                chunk(&geom, &x, &g, y0, rows, &mut got, level);
+                let same = got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(same, "{level:?} {:?}", (h, w, c_in, s));
+            }
             // Against a plain f64 sum.
             for (i, &v) in got.iter().enumerate() {
                 let (t, c, o) = (i / (c_in * C_OUT), i / C_OUT % c_in, i % C_OUT);

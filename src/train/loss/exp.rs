@@ -55,11 +55,11 @@ pub fn exp_nonpositive(x: f64) -> f64 {
     }
 }
 
-/// `out[l] = exp_nonpositive(shift − values[l])`, elementwise (AVX-512 where the CPU has it; the
-/// same bits either way).
-pub fn exp_shifted(values: &[f64], shift: f64, out: &mut [f64]) {
+/// `out[l] = exp_nonpositive(shift − values[l])`, elementwise (AVX-512 where `level` and the CPU
+/// have it; the same bits either way).
+pub fn exp_shifted(values: &[f64], shift: f64, out: &mut [f64], level: crate::runtime::CpuFeatureLevel) {
     #[cfg(target_arch = "x86_64")]
-    if crate::runtime::has_avx512f() {
+    if level.avx512f() {
         // SAFETY: the CPU has AVX-512F.
         unsafe { exp_shifted_avx512(values, shift, out) };
         return;
@@ -112,7 +112,7 @@ mod tests {
         let shift = values.iter().copied().fold(f64::INFINITY, f64::min);
         let mut a = vec![0.0; values.len()];
         let mut b = vec![0.0; values.len()];
-        exp_shifted(&values, shift, &mut a);
+        exp_shifted(&values, shift, &mut a, crate::runtime::CpuFeatureLevel::get());
         exp_shifted_body(&values, shift, &mut b);
         assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
         assert!(a

@@ -9,12 +9,13 @@
 use ndarray::{Array3, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
-use super::kernel::{self, LiveRows, LossKernel, Tap, TILE_PX};
+use super::kernel::{self, LiveRows, Tap, TILE_PX};
 use super::taps::{self, PixelRay};
 use super::{check_inputs, check_lives, multi_target, pixel_sampled, pixel_terms_with, PixelScratch};
 use super::{LiveView, LossConfig, LossSums, MultiScaleLoss, ScaleLoss};
 use crate::error::Result;
 use crate::geometry::Warp;
+use crate::runtime::CpuFeatureLevel;
 
 /// Most chunks the reference rows are split into (fixed, so results do not depend on threads).
 const CHUNKS: usize = 16;
@@ -45,23 +46,23 @@ pub fn scale_loss(
     depth: ArrayView2<f32>,
     warp: &Warp,
 ) -> Result<ScaleLoss<f32>> {
-    scale_loss_with(LossKernel::Auto, cfg, f_ref, f_live, depth, warp)
+    scale_loss_with(CpuFeatureLevel::get(), cfg, f_ref, f_live, depth, warp)
 }
 
-/// [`scale_loss`] with a chosen kernel implementation (both give the same bits; for tests and
+/// [`scale_loss`] at a chosen CPU-feature level (every level gives the same bits; for tests and
 /// benches).
 ///
 /// # Errors
 /// As [`scale_loss`].
 pub fn scale_loss_with(
-    kernel: LossKernel,
+    level: CpuFeatureLevel,
     cfg: &LossConfig,
     f_ref: ArrayView3<f32>,
     f_live: ArrayView3<f32>,
     depth: ArrayView2<f32>,
     warp: &Warp,
 ) -> Result<ScaleLoss<f32>> {
-    let m = scale_loss_multi_with(kernel, cfg, f_ref, &[LiveView { features: f_live, warp }], depth)?;
+    let m = scale_loss_multi_with(level, cfg, f_ref, &[LiveView { features: f_live, warp }], depth)?;
     let Some(d_live) = m.d_lives.into_iter().next() else {
         unreachable!("one live frame in, one gradient out")
     };
@@ -82,15 +83,15 @@ pub fn scale_loss_multi(
     lives: &[LiveView<'_, f32>],
     depth: ArrayView2<f32>,
 ) -> Result<MultiScaleLoss<f32>> {
-    scale_loss_multi_with(LossKernel::Auto, cfg, f_ref, lives, depth)
+    scale_loss_multi_with(CpuFeatureLevel::get(), cfg, f_ref, lives, depth)
 }
 
-/// [`scale_loss_multi`] with a chosen kernel implementation.
+/// [`scale_loss_multi`] at a chosen CPU-feature level.
 ///
 /// # Errors
 /// As [`scale_loss_multi`].
 pub fn scale_loss_multi_with(
-    kernel: LossKernel,
+    level: CpuFeatureLevel,
     cfg: &LossConfig,
     f_ref: ArrayView3<f32>,
     lives: &[LiveView<'_, f32>],
@@ -103,7 +104,7 @@ pub fn scale_loss_multi_with(
     }
     let (h, w, c) = f_ref.dim();
     let n_live = lives.len();
-    let avx512 = kernel::uses_avx512(kernel, c);
+    let avx512 = kernel::uses_avx512(level, c);
     let f_ref = f_ref.as_standard_layout();
     let Some(fr) = f_ref.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
     let live_maps: Vec<_> = lives.iter().map(|l| l.features.as_standard_layout()).collect();
@@ -187,7 +188,8 @@ pub fn scale_loss_multi_with(
                             *e *= inv_live;
                         }
                     }
-                    let terms = pixel_terms_with(cfg, &energies, target, rho_star, &mut grad, &mut scratch);
+                    let terms =
+                        pixel_terms_with(cfg, &energies, target, rho_star, &mut grad, &mut scratch, level);
                     sums.add_pixel(cfg, &terms, rho_star, m);
                     let d_u = &mut d_ref_rows[((y - rows.start) * w + x) * c..][..c];
                     for (pl, dl) in per_live.iter().zip(&mut d_live) {

@@ -4,6 +4,8 @@
 //! and sums unfused, a fixed tree for the lane reduction), so they give the same bits: a portable
 //! one and an AVX-512 one (x86-64, chosen at run time when the CPU has AVX-512F and `C % 16 == 0`).
 
+use crate::runtime::CpuFeatureLevel;
+
 /// Channel lanes of one vector (an AVX-512 register of f32).
 pub(super) const LANES: usize = 16;
 
@@ -31,24 +33,16 @@ impl Tap {
     }
 }
 
-/// Which implementation of the kernels to use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LossKernel {
-    /// AVX-512 where the CPU has it and the channel count is a multiple of 16, else portable.
-    Auto,
-    /// The portable implementation (same bits as AVX-512).
-    Portable,
-}
-
-/// Whether [`LossKernel::Auto`] uses AVX-512 for `c` channels on this machine.
-pub fn uses_avx512(kernel: LossKernel, c: usize) -> bool {
+/// Whether the loss kernels use AVX-512 for `c` channels at the CPU-feature level `level`: the
+/// level (and the CPU) has AVX-512F and `c` is a multiple of 16.
+pub fn uses_avx512(level: CpuFeatureLevel, c: usize) -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        kernel == LossKernel::Auto && c.is_multiple_of(LANES) && crate::runtime::has_avx512f()
+        c.is_multiple_of(LANES) && level.avx512f()
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        let _ = (kernel, c);
+        let _ = (level, c);
         false
     }
 }

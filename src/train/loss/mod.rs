@@ -25,7 +25,7 @@ mod reference;
 mod taps;
 
 pub use fast::{scale_loss, scale_loss_multi, scale_loss_multi_with, scale_loss_with};
-pub use kernel::{uses_avx512, LossKernel};
+pub use kernel::uses_avx512;
 
 pub use reference::{scale_loss_multi_reference, scale_loss_reference};
 
@@ -35,6 +35,7 @@ use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, Warp};
 use crate::image::is_valid_depth;
 use crate::image::sample::axis;
+use crate::runtime::CpuFeatureLevel;
 
 /// Hyper-parameters of the loss (SPEC.md §13.1); `Default` is the paper's.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -235,7 +236,7 @@ pub fn pixel_terms(
     grad: &mut [f64],
 ) -> PixelTerms {
     let mut scratch = PixelScratch::default();
-    pixel_terms_with(cfg, energies, target, rho_star, grad, &mut scratch)
+    pixel_terms_with(cfg, energies, target, rho_star, grad, &mut scratch, CpuFeatureLevel::get())
 }
 
 /// Per-bin buffers of [`pixel_terms_with`], reused across pixels.
@@ -251,7 +252,8 @@ pub struct PixelScratch {
 /// shifted exponentials, their normalisation, `1 / (1 − P_l)`, the final gradient) or sums taken
 /// in 8 lanes (`lane = l mod 8`, bins in order within a lane, then a fixed tree), so every pass
 /// vectorises; compiled for AVX-512 where the CPU has it, with the same bits either way (IEEE
-/// operations only, no fused multiply-add). Both loss implementations call this one function.
+/// operations only, no fused multiply-add), at the CPU-feature level `level`. Both loss
+/// implementations call this one function.
 pub fn pixel_terms_with(
     cfg: &LossConfig,
     energies: &[f64],
@@ -259,6 +261,7 @@ pub fn pixel_terms_with(
     rho_star: f64,
     grad: &mut [f64],
     scratch: &mut PixelScratch,
+    level: CpuFeatureLevel,
 ) -> PixelTerms {
     let k = energies.len();
     let bins = &cfg.bins;
@@ -270,11 +273,11 @@ pub fn pixel_terms_with(
     let (rho, inv_q) = (&scratch.rho[..k], &mut scratch.inv_q[..k]);
     let grad = &mut grad[..k];
     #[cfg(target_arch = "x86_64")]
-    if crate::runtime::has_avx512f() {
-        // SAFETY: the CPU has AVX-512F.
-        return unsafe { pixel_terms_avx512(cfg, energies, target, rho_star, grad, rho, inv_q) };
+    if level.avx512f() {
+        // SAFETY: the CPU has AVX-512F (`CpuFeatureLevel::avx512f` checks it).
+        return unsafe { pixel_terms_avx512(cfg, energies, target, rho_star, grad, rho, inv_q, level) };
     }
-    pixel_terms_body(cfg, energies, target, rho_star, grad, rho, inv_q)
+    pixel_terms_body(cfg, energies, target, rho_star, grad, rho, inv_q, level)
 }
 
 /// Lanes of the per-pixel sums.
@@ -300,6 +303,7 @@ fn lane_sum(x: &[f64], y: &[f64], f: impl Fn(f64, f64) -> f64) -> f64 {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn pixel_terms_avx512(
     cfg: &LossConfig,
     energies: &[f64],
@@ -308,12 +312,14 @@ unsafe fn pixel_terms_avx512(
     grad: &mut [f64],
     rho: &[f64],
     inv_q: &mut [f64],
+    level: CpuFeatureLevel,
 ) -> PixelTerms {
-    pixel_terms_body(cfg, energies, target, rho_star, grad, rho, inv_q)
+    pixel_terms_body(cfg, energies, target, rho_star, grad, rho, inv_q, level)
 }
 
 #[inline(always)]
 #[allow(clippy::needless_range_loop)] // bins index several parallel arrays
+#[allow(clippy::too_many_arguments)]
 fn pixel_terms_body(
     cfg: &LossConfig,
     energies: &[f64],
@@ -322,6 +328,7 @@ fn pixel_terms_body(
     grad: &mut [f64],
     rho: &[f64],
     inv_q: &mut [f64],
+    level: CpuFeatureLevel,
 ) -> PixelTerms {
     let k = energies.len();
     // Softmax of s = −E, shifted by the smallest cost (a minimum is exact in any order; NaNs are
@@ -337,7 +344,7 @@ fn pixel_terms_body(
     let e_min = mins.iter().fold(f64::INFINITY, |a, &b| if b < a { b } else { a });
     let wta = energies.iter().position(|&e| e == e_min).unwrap_or(0);
     // exp(E_min − E_l), elementwise (exp.rs), then their sum.
-    exp::exp_shifted(energies, e_min, grad);
+    exp::exp_shifted(energies, e_min, grad, level);
     let sum = lane_sum(grad, grad, |g, _| g);
     // grad holds P for now.
     for g in grad.iter_mut() {
@@ -522,9 +529,26 @@ mod tests {
             let mut g1 = vec![0.0; k];
             let mut g2 = vec![0.0; k];
             let mut q1 = vec![0.0; k];
-            let a = pixel_terms_body(&cfg, &energies, target, rho_star, &mut g1, &rho, &mut q1);
+            let a = pixel_terms_body(
+                &cfg,
+                &energies,
+                target,
+                rho_star,
+                &mut g1,
+                &rho,
+                &mut q1,
+                CpuFeatureLevel::Portable,
+            );
             let mut scratch = PixelScratch::default();
-            let b = pixel_terms_with(&cfg, &energies, target, rho_star, &mut g2, &mut scratch);
+            let b = pixel_terms_with(
+                &cfg,
+                &energies,
+                target,
+                rho_star,
+                &mut g2,
+                &mut scratch,
+                CpuFeatureLevel::get(),
+            );
             assert_eq!(
                 [a.ce, a.rho, a.depth, a.rho_hat].map(f64::to_bits),
                 [b.ce, b.rho, b.depth, b.rho_hat].map(f64::to_bits),

@@ -33,10 +33,6 @@
 pub mod backward;
 pub mod backward_fast;
 pub mod direct;
-#[cfg(target_arch = "x86_64")]
-pub(crate) mod direct_avx2;
-#[cfg(target_arch = "x86_64")]
-pub(crate) mod direct_avx512;
 pub mod direct_concat;
 pub mod im2col;
 pub mod reference;

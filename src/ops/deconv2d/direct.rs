@@ -6,7 +6,7 @@
 //! the parity's taps `d` (increasing), against [`PackedDeconv2d`]'s `[t_y][t_x][c_in][c_out]`
 //! weights. For a fixed tap row the taps `(d_x, c)` read `n_dx c_in` *contiguous* input values
 //! against as many contiguous weight rows, which is exactly the 3x3 direct convolution's strip
-//! kernel (`nn::conv2d::direct_avx512`, 14 pixels x 32 channels in 28 zmm accumulators) with
+//! kernel (`ops::conv2d::direct::avx512`, 14 pixels x 32 channels in 28 zmm accumulators) with
 //! stride 1 and an output pixel stride of two pixels. The U-Net sum `skip + deconv(x)` can be fused
 //! into the store (one f32 addition per value, the same bits as a separate `add`).
 //!
@@ -131,12 +131,12 @@ unsafe fn row_pair(
     skip: Option<&[f32]>,
     pair: &mut [f32],
 ) {
-    use crate::ops::conv2d::direct_avx512::{Store, StripFn, Taps};
+    use crate::ops::conv2d::direct::{Store, StripFn, Taps};
     let (width, run_strip): (usize, StripFn) = match kernel {
         DirectKernel::Avx512F => {
-            (crate::ops::conv2d::direct::STRIP, crate::ops::conv2d::direct_avx512::any_strip)
+            (crate::ops::conv2d::direct::STRIP, crate::ops::conv2d::direct::avx512::any_strip)
         }
-        _ => (crate::ops::conv2d::direct_avx2::AVX2_STRIP, crate::ops::conv2d::direct_avx2::any_strip),
+        _ => (crate::ops::conv2d::direct::avx2::AVX2_STRIP, crate::ops::conv2d::direct::avx2::any_strip),
     };
     let geom = packed.geometry();
     let (h, w, c_in, w_out) = (geom.h(), geom.w(), geom.c_in(), geom.w_out());

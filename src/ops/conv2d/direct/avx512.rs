@@ -1,89 +1,19 @@
-//! The AVX-512F micro-kernel of [`DirectKernel::Avx512F`](super::direct::DirectKernel::Avx512F):
+//! The AVX-512F micro-kernel of [`DirectKernel::Avx512F`](super::DirectKernel::Avx512F):
 //! a strip of `P <= STRIP` output pixels of one row x 32 output channels in `2 P` zmm accumulators
-//! (layout and loop order in [`super::direct`]). x86-64 only; callers check AVX-512F at run time.
+//! (layout and loop order in [`super`]). x86-64 only; callers check AVX-512F at run time.
 
 use std::arch::x86_64::{
     __m512, _mm512_add_ps, _mm512_fmadd_ps, _mm512_loadu_ps, _mm512_max_ps, _mm512_set1_ps,
     _mm512_setzero_ps, _mm512_storeu_ps,
 };
 
-use super::direct::{interior_columns, tap_range, AVX512_C_OUT, STRIP};
-use super::PackedConv2d;
-use crate::ops::geometry::{CONV_KERNEL, CONV_PADDING};
-use crate::ops::Activation;
+use super::{
+    interior_columns, tap_range, Activation, PackedConv2d, Store, Taps, AVX512_C_OUT, CONV_KERNEL,
+    CONV_PADDING, STRIP,
+};
 
 /// f32 lanes of a zmm register.
 const LANES: usize = 16;
-
-/// Where a strip's taps live: input and weights of its first valid tap, and the loop extents.
-/// Shared with the transposed convolution's direct kernel (`nn::deconv2d::direct`), whose output
-/// parities are small ordinary convolutions.
-pub(crate) struct Taps {
-    /// `in[s y + ky_lo - 1, s x0 + kx_lo - 1, 0]`.
-    pub(crate) input: *const f32,
-    /// Floats between input rows (`w c_in`).
-    pub(crate) row_stride: usize,
-    /// Floats between the strip's pixels (`s c_in`).
-    pub(crate) pix_stride: usize,
-    /// Valid tap rows.
-    pub(crate) n_ky: usize,
-    /// Contiguous input values (and weight rows) per tap row: `n_kx c_in`.
-    pub(crate) run: usize,
-    /// `W[ky_lo][kx_lo][0][0]`.
-    pub(crate) weights: *const f32,
-    /// Floats between weight tap rows (`3 c_in · 32`).
-    pub(crate) w_row_stride: usize,
-}
-
-impl Taps {
-    /// The taps of output pixels `x0 ..` of output row `y`: tap rows `ky_lo .. ky_hi` and tap columns
-    /// `kx_lo .. kx_hi` (all inside the image), `input` holding the image's rows from `row0` on.
-    pub(crate) fn of(
-        packed: &PackedConv2d,
-        input: &[f32],
-        row0: usize,
-        y: usize,
-        (ky_lo, ky_hi): (usize, usize),
-        x0: usize,
-        (kx_lo, kx_hi): (usize, usize),
-    ) -> Self {
-        let geom = packed.geometry();
-        let (w, c_in, s) = (geom.w(), geom.c_in(), geom.stride());
-        let iy = s * y + ky_lo - CONV_PADDING - row0;
-        let ix = s * x0 + kx_lo - CONV_PADDING;
-        Taps {
-            input: input[(iy * w + ix) * c_in..].as_ptr(),
-            row_stride: w * c_in,
-            pix_stride: s * c_in,
-            n_ky: ky_hi - ky_lo,
-            run: (kx_hi - kx_lo) * c_in,
-            weights: packed.weights()[(ky_lo * CONV_KERNEL + kx_lo) * c_in * AVX512_C_OUT..].as_ptr(),
-            w_row_stride: CONV_KERNEL * c_in * AVX512_C_OUT,
-        }
-    }
-}
-
-/// Where a strip's results go: pixel `p`'s 32 channels at `ptr + p stride`; with a non-null `skip`,
-/// `skip + p stride`'s 32 values are added to them after the activation (the U-Net sum, one f32
-/// addition, the same bits as a separate `add`).
-pub(crate) struct Store {
-    pub(crate) ptr: *mut f32,
-    pub(crate) stride: usize,
-    pub(crate) skip: *const f32,
-    pub(crate) relu: bool,
-}
-
-impl Store {
-    /// Pixel `p`'s destination, `p` pixels on.
-    pub(crate) fn at(&self, p: usize) -> Store {
-        Store {
-            ptr: self.ptr.wrapping_add(p * self.stride),
-            stride: self.stride,
-            skip: if self.skip.is_null() { self.skip } else { self.skip.wrapping_add(p * self.stride) },
-            relu: self.relu,
-        }
-    }
-}
 
 /// Computes `P` output pixels x 32 channels into `o` (see [`Store`]).
 ///
@@ -182,9 +112,6 @@ pub(crate) unsafe fn short_strip(n: usize, t: &Taps, bias: *const f32, o: &Store
         }
     }
 }
-
-/// A strip kernel of `n` pixels (this one or `direct_avx2::any_strip`), chosen once per call.
-pub(crate) type StripFn = unsafe fn(usize, &Taps, *const f32, &Store);
 
 /// A strip of `n <= STRIP` pixels: [`full_strip`] or [`short_strip`].
 ///

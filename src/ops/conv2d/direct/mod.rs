@@ -35,6 +35,12 @@
 use rayon::prelude::*;
 
 use super::PackedConv2d;
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx512;
+mod portable;
 use crate::error::{Error, Result};
 use crate::ops::geometry::{Conv2dGeometry, CONV_KERNEL, CONV_PADDING};
 use crate::ops::{expect_len, Activation};
@@ -114,15 +120,11 @@ impl DirectKernel {
         match self {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `check` found AVX-512F and c_out = 32; rows per the caller.
-            DirectKernel::Avx512F => unsafe {
-                super::direct_avx512::conv_row(packed, input, row0, y, activation, out_row)
-            },
+            DirectKernel::Avx512F => unsafe { avx512::conv_row(packed, input, row0, y, activation, out_row) },
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `check` found AVX2, FMA and c_out = 32; rows per the caller.
-            DirectKernel::Avx2Fma => unsafe {
-                super::direct_avx2::conv_row(packed, input, row0, y, activation, out_row)
-            },
-            _ => conv_row_portable(packed, input, row0, y, activation, out_row),
+            DirectKernel::Avx2Fma => unsafe { avx2::conv_row(packed, input, row0, y, activation, out_row) },
+            _ => portable::conv_row(packed, input, row0, y, activation, out_row),
         }
     }
 
@@ -238,37 +240,75 @@ pub fn conv2d_direct_with(
     Ok(())
 }
 
-/// One output row with the portable kernel; `input` holds the image's rows from `row0` on.
-fn conv_row_portable(
-    packed: &PackedConv2d,
-    input: &[f32],
-    row0: usize,
-    y: usize,
-    activation: Activation,
-    out_row: &mut [f32],
-) {
-    let geom = packed.geometry();
-    let (h, w, c_in, c_out, s) = (geom.h(), geom.w(), geom.c_in(), geom.c_out(), geom.stride());
-    let (ky_lo, ky_hi) = tap_range(y, s, h);
-    let weights = packed.weights();
-    for (x, acc) in out_row.chunks_exact_mut(c_out).enumerate() {
-        let (kx_lo, kx_hi) = tap_range(x, s, w);
-        let run = (kx_hi - kx_lo) * c_in;
-        acc.copy_from_slice(packed.bias());
-        for ky in ky_lo..ky_hi {
-            let at = ((s * y + ky - CONV_PADDING - row0) * w + s * x + kx_lo - CONV_PADDING) * c_in;
-            let taps = &input[at..at + run];
-            let w_at = (ky * CONV_KERNEL + kx_lo) * c_in * c_out;
-            for (&v, w_row) in taps.iter().zip(weights[w_at..w_at + run * c_out].chunks_exact(c_out)) {
-                for (a, &wv) in acc.iter_mut().zip(w_row) {
-                    *a += v * wv;
-                }
-            }
-        }
-        if activation != Activation::None {
-            for a in acc.iter_mut() {
-                *a = activation.apply_f32(*a);
-            }
+/// Where a strip's taps live: input and weights of its first valid tap, and the loop extents.
+/// Shared with the transposed convolution's direct kernel (`nn::deconv2d::direct`), whose output
+/// parities are small ordinary convolutions.
+pub(crate) struct Taps {
+    /// `in[s y + ky_lo - 1, s x0 + kx_lo - 1, 0]`.
+    pub(crate) input: *const f32,
+    /// Floats between input rows (`w c_in`).
+    pub(crate) row_stride: usize,
+    /// Floats between the strip's pixels (`s c_in`).
+    pub(crate) pix_stride: usize,
+    /// Valid tap rows.
+    pub(crate) n_ky: usize,
+    /// Contiguous input values (and weight rows) per tap row: `n_kx c_in`.
+    pub(crate) run: usize,
+    /// `W[ky_lo][kx_lo][0][0]`.
+    pub(crate) weights: *const f32,
+    /// Floats between weight tap rows (`3 c_in · 32`).
+    pub(crate) w_row_stride: usize,
+}
+
+impl Taps {
+    /// The taps of output pixels `x0 ..` of output row `y`: tap rows `ky_lo .. ky_hi` and tap columns
+    /// `kx_lo .. kx_hi` (all inside the image), `input` holding the image's rows from `row0` on.
+    pub(crate) fn of(
+        packed: &PackedConv2d,
+        input: &[f32],
+        row0: usize,
+        y: usize,
+        (ky_lo, ky_hi): (usize, usize),
+        x0: usize,
+        (kx_lo, kx_hi): (usize, usize),
+    ) -> Self {
+        let geom = packed.geometry();
+        let (w, c_in, s) = (geom.w(), geom.c_in(), geom.stride());
+        let iy = s * y + ky_lo - CONV_PADDING - row0;
+        let ix = s * x0 + kx_lo - CONV_PADDING;
+        Taps {
+            input: input[(iy * w + ix) * c_in..].as_ptr(),
+            row_stride: w * c_in,
+            pix_stride: s * c_in,
+            n_ky: ky_hi - ky_lo,
+            run: (kx_hi - kx_lo) * c_in,
+            weights: packed.weights()[(ky_lo * CONV_KERNEL + kx_lo) * c_in * AVX512_C_OUT..].as_ptr(),
+            w_row_stride: CONV_KERNEL * c_in * AVX512_C_OUT,
         }
     }
 }
+
+/// Where a strip's results go: pixel `p`'s 32 channels at `ptr + p stride`; with a non-null `skip`,
+/// `skip + p stride`'s 32 values are added to them after the activation (the U-Net sum, one f32
+/// addition, the same bits as a separate `add`).
+pub(crate) struct Store {
+    pub(crate) ptr: *mut f32,
+    pub(crate) stride: usize,
+    pub(crate) skip: *const f32,
+    pub(crate) relu: bool,
+}
+
+impl Store {
+    /// Pixel `p`'s destination, `p` pixels on.
+    pub(crate) fn at(&self, p: usize) -> Store {
+        Store {
+            ptr: self.ptr.wrapping_add(p * self.stride),
+            stride: self.stride,
+            skip: if self.skip.is_null() { self.skip } else { self.skip.wrapping_add(p * self.stride) },
+            relu: self.relu,
+        }
+    }
+}
+
+/// A strip kernel of `n` pixels (`avx512::any_strip` or `avx2::any_strip`), chosen once per call.
+pub(crate) type StripFn = unsafe fn(usize, &Taps, *const f32, &Store);

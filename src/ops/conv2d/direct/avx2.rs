@@ -1,4 +1,4 @@
-//! The AVX2+FMA micro-kernel of [`DirectKernel::Avx2Fma`](super::direct::DirectKernel::Avx2Fma),
+//! The AVX2+FMA micro-kernel of [`DirectKernel::Avx2Fma`](super::DirectKernel::Avx2Fma),
 //! for x86-64 CPUs without AVX-512 (SPEC.md §7.7). x86-64 only; callers check AVX2 and FMA at run
 //! time.
 //!
@@ -13,11 +13,7 @@ use std::arch::x86_64::{
     _mm256_setzero_ps, _mm256_storeu_ps,
 };
 
-use super::direct::{interior_columns, tap_range, AVX512_C_OUT};
-use super::direct_avx512::{Store, Taps};
-use super::PackedConv2d;
-use crate::ops::geometry::CONV_KERNEL;
-use crate::ops::Activation;
+use super::{interior_columns, tap_range, Activation, PackedConv2d, Store, Taps, AVX512_C_OUT, CONV_KERNEL};
 
 /// Output pixels per strip of this kernel.
 pub const AVX2_STRIP: usize = 6;
@@ -32,7 +28,7 @@ const HALF: usize = 16;
 /// pixel stride as a constant, or 0 to read it from `t.pix_stride`.
 ///
 /// # Safety
-/// As `direct_avx512::strip` (the same `Taps` / `Store` contract for `P` pixels x 32 channels), and
+/// As `avx512::strip` (the same `Taps` / `Store` contract for `P` pixels x 32 channels), and
 /// the CPU has AVX2 and FMA; `h < 2`.
 #[target_feature(enable = "avx2,fma")]
 unsafe fn strip_half<const P: usize, const PS: usize>(t: &Taps, bias: *const f32, o: &Store, h: usize) {
@@ -120,7 +116,7 @@ pub(crate) unsafe fn any_strip(n: usize, t: &Taps, bias: *const f32, o: &Store) 
 /// Output row `y` of the convolution; `input` holds the image's rows from `row0` on.
 ///
 /// # Safety
-/// The CPU has AVX2 and FMA; otherwise as `direct_avx512::conv_row`.
+/// The CPU has AVX2 and FMA; otherwise as `avx512::conv_row`.
 #[target_feature(enable = "avx2,fma")]
 pub(super) unsafe fn conv_row(
     packed: &PackedConv2d,
@@ -144,7 +140,7 @@ pub(super) unsafe fn conv_row(
     let (x_lo, x_hi) = interior_columns(geom);
     for x in (0..x_lo).chain(x_hi..geom.w_out()) {
         let (kx_lo, kx_hi) = tap_range(x, s, w);
-        // SAFETY: as in `direct_avx512::conv_row`: tap_range keeps every read inside the image rows
+        // SAFETY: as in `avx512::conv_row`: tap_range keeps every read inside the image rows
         // held by `input`, pixel x is inside `out_row`; AVX2 and FMA per the caller.
         unsafe { any_strip(1, &taps(x, kx_lo, kx_hi), bias, &store.at(x)) };
     }

@@ -49,8 +49,6 @@
 
 pub mod curve;
 mod fast;
-#[cfg(target_arch = "x86_64")]
-mod fast_avx512;
 pub mod patch;
 mod reference;
 mod wta;

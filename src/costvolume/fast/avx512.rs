@@ -21,13 +21,13 @@
 
 use std::arch::x86_64::*;
 
-use super::fast::{Geometry, Slices};
+use super::{row_any, Geometry, Scratch, Slices};
 
 /// Hypotheses per block (one `zmm` of `f32`).
 const BLOCK: usize = 16;
 
 /// Whether this CPU runs the kernel (AVX-512F, BW for the `u16` count update, VL, DQ), at the
-/// process's level (the tests' probe; `fast::add_frame` asks the level it is handed).
+/// process's level (the tests' probe; `add_frame` asks the level it is handed).
 #[cfg(test)]
 fn available() -> bool {
     crate::runtime::has_avx512_bw_vl_dq()
@@ -200,7 +200,24 @@ fn block(g: &RowGeo, rhos: &[f64], k: usize) -> Block {
     Block { ok, offset, w }
 }
 
-/// One reference row of `add_frame` (see `fast::row`, whose bits this reproduces).
+/// The portable row kernel ([`super::portable`]'s body) compiled with AVX-512F: the same bits.
+///
+/// # Safety
+/// The CPU has AVX-512F.
+#[target_feature(enable = "avx512f")]
+pub(super) unsafe fn row_generic(
+    geo: &Geometry,
+    feats: &Slices,
+    rhos: &[f64],
+    y: usize,
+    sum_row: &mut [f32],
+    count_row: &mut [u16],
+    scratch: &mut Scratch,
+) {
+    row_any(geo, feats, rhos, y, sum_row, count_row, scratch);
+}
+
+/// One reference row of `add_frame` (see `portable::row`, whose bits this reproduces).
 ///
 /// # Safety
 /// The CPU must have the features `CpuFeatureLevel::avx512_bw_vl_dq` checks, and [`fits_i32`] must hold for the map.
@@ -620,7 +637,7 @@ fn fold16(v: [__m512; BLOCK]) -> __m512 {
 mod tests {
     use super::*;
     use crate::costvolume::fast::l1_distance;
-    use crate::costvolume::fast::tests::value;
+    use crate::costvolume::fast::portable::tests::value;
     use proptest::prelude::*;
 
     fn same(a: f32, b: f32) -> bool {

@@ -13,6 +13,15 @@
 
 use crate::ops::geometry::{Conv2dGeometry, CONV_KERNEL, CONV_PADDING};
 
+#[cfg(target_arch = "x86_64")]
+#[macro_use]
+mod simd;
+#[cfg(target_arch = "x86_64")]
+mod avx2;
+#[cfg(target_arch = "x86_64")]
+mod avx512;
+mod portable;
+
 /// Output channels of the fused kernel.
 pub(crate) const C_OUT: usize = 32;
 
@@ -70,16 +79,16 @@ pub(crate) fn chunk(
             {
                 if level.avx512f() {
                     // SAFETY: the CPU has AVX-512F (`avx512f` checks it); the asserts above bound every access.
-                    unsafe { simd::avx512::tap(&tap, x_in, g, out) };
+                    unsafe { avx512::tap(&tap, x_in, g, out) };
                     continue;
                 }
                 if level.avx2_fma() {
                     // SAFETY: the CPU has AVX2 and FMA (`avx2_fma` checks them); as above.
-                    unsafe { simd::avx2::tap(&tap, x_in, g, out) };
+                    unsafe { avx2::tap(&tap, x_in, g, out) };
                     continue;
                 }
             }
-            portable_tap(&tap, x_in, g, out);
+            portable::tap(&tap, x_in, g, out);
         }
     }
 }
@@ -101,106 +110,6 @@ impl Tap<'_> {
     fn offsets(&self, y: usize, iy: usize, x: usize) -> (usize, usize) {
         let ix = self.s * x + self.kx - CONV_PADDING;
         ((iy * self.w + ix) * self.c_in, (y * self.w_out + x) * C_OUT)
-    }
-}
-
-/// The portable tap: the chains by `f32::mul_add` (fused on every target).
-fn portable_tap(t: &Tap<'_>, x_in: &[f32], g: &[f32], out: &mut [f32]) {
-    for &(y, iy) in t.ys {
-        for x in t.cols.clone() {
-            let (xo, go) = t.offsets(y, iy, x);
-            let gv = &g[go..go + C_OUT];
-            for (c, &xv) in x_in[xo..xo + t.c_in].iter().enumerate() {
-                for (acc, &gv) in out[c * C_OUT..(c + 1) * C_OUT].iter_mut().zip(gv) {
-                    *acc = xv.mul_add(gv, *acc);
-                }
-            }
-        }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-mod simd {
-    /// Generates `tap` for one vector type: input channels in blocks of `$cb` (the last block
-    /// shorter), the block's `$cb x 32` accumulators in registers across the tap's pixels.
-    macro_rules! tap_kernel {
-        ($feat:literal, $v:ty, $lanes:expr, $cb:expr, $load:path, $store:path, $set1:path, $fma:path) => {
-            use super::super::{Tap, C_OUT};
-            use std::arch::x86_64::*;
-
-            const NV: usize = C_OUT / $lanes;
-
-            /// # Safety
-            /// The CPU has `$feat`; every offset of `t` plus its run is inside `x_in` and `g`,
-            /// `out` holds `c_in · 32` values.
-            #[target_feature(enable = $feat)]
-            pub(in super::super) unsafe fn tap(t: &Tap<'_>, x_in: &[f32], g: &[f32], out: &mut [f32]) {
-                let mut c0 = 0;
-                while c0 < t.c_in {
-                    let n = (t.c_in - c0).min($cb);
-                    // SAFETY: as this function's.
-                    unsafe { block(t, x_in, g, &mut out[c0 * C_OUT..(c0 + n) * C_OUT], c0, n) };
-                    c0 += n;
-                }
-            }
-
-            /// Channels `c0..c0 + n` (`n <= $cb`).
-            #[target_feature(enable = $feat)]
-            unsafe fn block(t: &Tap<'_>, x_in: &[f32], g: &[f32], out: &mut [f32], c0: usize, n: usize) {
-                // Every chain starts from 0 (`out` was zeroed, so this is its value).
-                // SAFETY: an all-zero vector register is 0.0 in every lane.
-                let mut acc: [[$v; NV]; $cb] = [[unsafe { std::mem::zeroed() }; NV]; $cb];
-                for &(y, iy) in t.ys {
-                    for x in t.cols.clone() {
-                        let (xo, go) = t.offsets(y, iy, x);
-                        // SAFETY: the caller bounds every offset plus its run (chunk's asserts).
-                        unsafe {
-                            let gp = g.as_ptr().add(go);
-                            let gv: [$v; NV] = std::array::from_fn(|j| $load(gp.add(j * $lanes)));
-                            let xp = x_in.as_ptr().add(xo + c0);
-                            for (i, a) in acc.iter_mut().enumerate().take(n) {
-                                let xb = $set1(*xp.add(i));
-                                for j in 0..NV {
-                                    a[j] = $fma(xb, gv[j], a[j]);
-                                }
-                            }
-                        }
-                    }
-                }
-                for (i, a) in acc.iter().enumerate().take(n) {
-                    for (j, v) in a.iter().enumerate() {
-                        // SAFETY: as above.
-                        unsafe { $store(out.as_mut_ptr().add(i * C_OUT + j * $lanes), *v) };
-                    }
-                }
-            }
-        };
-    }
-
-    pub(super) mod avx512 {
-        tap_kernel!(
-            "avx512f",
-            __m512,
-            16,
-            8,
-            _mm512_loadu_ps,
-            _mm512_storeu_ps,
-            _mm512_set1_ps,
-            _mm512_fmadd_ps
-        );
-    }
-
-    pub(super) mod avx2 {
-        tap_kernel!(
-            "avx2,fma",
-            __m256,
-            8,
-            2,
-            _mm256_loadu_ps,
-            _mm256_storeu_ps,
-            _mm256_set1_ps,
-            _mm256_fmadd_ps
-        );
     }
 }
 
@@ -234,7 +143,7 @@ mod tests {
                         w_out: geom.w_out(),
                         c_in,
                     };
-                    portable_tap(&t, &x, &g, &mut want[(ky * 3 + kx) * c_in * C_OUT..][..c_in * C_OUT]);
+                    portable::tap(&t, &x, &g, &mut want[(ky * 3 + kx) * c_in * C_OUT..][..c_in * C_OUT]);
                 }
             }
             // Every CPU-feature level (AVX-512, AVX2 and portable on an AVX-512 machine): the

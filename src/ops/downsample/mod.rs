@@ -7,7 +7,14 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::ops::geometry::DownsampleGeometry;
 use crate::runtime::CpuFeatureLevel;
+
+#[cfg(target_arch = "x86_64")]
+mod avx512;
+mod portable;
+
 use crate::util::alloc::zeroed_map;
+#[cfg(target_arch = "x86_64")]
+use portable::combine as combine_portable;
 
 /// Tent filter `[1/4, 1/2, 1/4]`, centred on input pixel `2j` for output pixel `j`.
 const TENT: [f64; 3] = [0.25, 0.5, 0.25];
@@ -136,55 +143,13 @@ impl TentRows {
         let odd = [0, 1, 2].map(|a| self.odd[a * c + ch].as_slice());
         #[cfg(target_arch = "x86_64")]
         if avx512 {
-            // SAFETY: the CPU has AVX-512F (`runtime::has_avx512f`).
-            unsafe { combine_avx512(even, odd, &mut self.plane) };
+            // SAFETY: the CPU has AVX-512F (`CpuFeatureLevel::avx512f` checked it).
+            unsafe { avx512::combine(even, odd, &mut self.plane) };
             return;
         }
         let _ = avx512;
-        combine(even, odd, &mut self.plane);
+        portable::combine(even, odd, &mut self.plane);
     }
-}
-
-/// The tent's nine weights `t_a t_b`, `a` (rows) outer: each is a power of two.
-const TENT2: [[f64; 3]; 3] = {
-    let mut t = [[0.0; 3]; 3];
-    let mut a = 0;
-    while a < 3 {
-        let mut b = 0;
-        while b < 3 {
-            t[a][b] = TENT[a] * TENT[b];
-            b += 1;
-        }
-        a += 1;
-    }
-    t
-};
-
-/// The nine-term sum per output column, `acc = 0`, then `acc += t_a t_b x` for `a`, then `b`
-/// ascending, as the reference (no contraction to FMA: Rust does not contract).
-#[inline(always)]
-fn combine(even: [&[f64]; 3], odd: [&[f64]; 3], plane: &mut [f32]) {
-    let n = plane.len();
-    let (e, o) = (even.map(|v| &v[..n + 1]), odd.map(|v| &v[..n]));
-    for (i, out) in plane.iter_mut().enumerate() {
-        let mut acc = 0.0f64;
-        for a in 0..3 {
-            acc += TENT2[a][0] * e[a][i];
-            acc += TENT2[a][1] * o[a][i];
-            acc += TENT2[a][2] * e[a][i + 1];
-        }
-        *out = acc as f32;
-    }
-}
-
-/// [`combine`] compiled for AVX-512F, so the column loop vectorises eight columns per instruction.
-///
-/// # Safety
-/// The CPU must have AVX-512F.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn combine_avx512(even: [&[f64]; 3], odd: [&[f64]; 3], plane: &mut [f32]) {
-    combine(even, odd, plane);
 }
 
 /// The definition of [`downsample2x`] as plain loops (the nine terms per output value in f64, in the

@@ -111,7 +111,7 @@ impl CpuFeatureLevel {
     pub fn get() -> Self {
         static LEVEL: std::sync::OnceLock<CpuFeatureLevel> = std::sync::OnceLock::new();
         *LEVEL.get_or_init(|| {
-            let mut level = Self::detected();
+            let mut level = Self::cpu();
             if let Some(cap) = std::env::var(CPU_LEVEL_ENV).ok().and_then(|v| Self::parse(&v)) {
                 level = level.min(cap);
             }

@@ -109,10 +109,7 @@ impl CpuBackend {
                     let e = crate::ops::deconv2d::winograd::equivalent_geometry(&g)?;
                     WinogradKernel::select_for_at(&e, OutputLayout::Deconv, self.level).name()
                 }
-                Deconv2dImpl::Direct
-                    if crate::ops::deconv2d::direct::select_at(&g, self.level)
-                        != crate::ops::conv2d::DirectKernel::Portable =>
-                {
+                Deconv2dImpl::Direct if crate::ops::deconv2d::direct::supported_at(&g, self.level) => {
                     crate::ops::deconv2d::direct::select_at(&g, self.level).name()
                 }
                 Deconv2dImpl::Direct | Deconv2dImpl::ParityGemm => "parity GEMMs, matrixmultiply",

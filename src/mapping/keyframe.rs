@@ -21,9 +21,9 @@ use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
 use crate::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
 use crate::image::{to_gray, DepthMap, RgbImage};
-use crate::mapping::resample::downsample_to_at;
 use crate::mapping::normals::{self, NormalsSource};
 use crate::mapping::photometric::{self, PhotometricFit, PhotometricMode};
+use crate::mapping::resample::downsample_to_at;
 use crate::mapping::{FeatureExtractor, FeatureKind};
 use crate::sequence::Sequence;
 

@@ -251,6 +251,7 @@ impl MapConfig {
     /// What makes a keyframe folder reusable: every setting that changes its files.
     fn fingerprint(&self, seq: &Sequence, k: &PlannedKeyframe) -> String {
         let c = self.keyframe_config(k);
+        let taper = c.border_taper_px();
         format!(
             "sequence={} keyframe={} window={},{} features={:?} near={} far={} bins={} regularizer={:?} \
              normals={:?} dtam={:?} lambda_normals={} level={} min_evidence={} min_confidence={} backend={}",
@@ -270,11 +271,7 @@ impl MapConfig {
             c.min_evidence,
             self.min_confidence,
             c.backend.name()
-        ) + &if c.border_taper_px() > 0.0 {
-            format!(" border_taper={}", c.border_taper_px())
-        } else {
-            String::new()
-        }
+        ) + &if taper > 0.0 { format!(" border_taper={taper}") } else { String::new() }
     }
 }
 

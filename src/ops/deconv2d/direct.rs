@@ -29,7 +29,12 @@ use crate::runtime::CpuFeatureLevel;
 
 /// Whether [`deconv2d_direct`] can run `geom` on this CPU: `c_out = 32` and AVX-512F or AVX2+FMA.
 pub fn supported(geom: &Deconv2dGeometry) -> bool {
-    select(geom) != DirectKernel::Portable
+    supported_at(geom, CpuFeatureLevel::get())
+}
+
+/// [`supported`] at the CPU-feature level `level`.
+pub fn supported_at(geom: &Deconv2dGeometry, level: CpuFeatureLevel) -> bool {
+    select_at(geom, level) != DirectKernel::Portable
 }
 
 /// The strip kernel [`deconv2d_direct`] runs for `geom` on this CPU: AVX-512F, else AVX2+FMA (both

@@ -42,7 +42,7 @@ pub use winograd::{
 };
 
 use crate::error::Result;
-use crate::ops::conv2d::{DirectKernel, OutputLayout, WinogradKernel, WinogradTile, WINOGRAD_MIN_C_IN};
+use crate::ops::conv2d::{OutputLayout, WinogradKernel, WinogradTile, WINOGRAD_MIN_C_IN};
 use crate::ops::prepared::PreparedDeconv;
 use crate::ops::{default_lanes, expect_len, expect_shape, Deconv2dGeometry};
 use crate::runtime::CpuFeatureLevel;
@@ -186,7 +186,7 @@ pub fn deconv2d_prepared_into(
                 *o = *v as f32;
             }
         }
-        Deconv2dImpl::Direct if direct::select_at(geom, level) != DirectKernel::Portable => {
+        Deconv2dImpl::Direct if direct::supported_at(geom, level) => {
             let packed = layer.packed(geom)?;
             let input = input.as_standard_layout();
             let Some(x) = input.as_slice() else { unreachable!("standard-layout arrays are contiguous") };

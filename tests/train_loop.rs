@@ -409,3 +409,47 @@ fn mixed_synthetic_styles_alternate_by_seed_and_keep_old_fingerprints() {
     }
     assert!(differ > 0 && differ < 8, "{differ} of 8 draws differ from the classic-only run");
 }
+
+/// `--live-crop same` (SPEC.md §13.5): every live crop is cut at the reference window's own image
+/// coordinates (one camera, so the crop cameras are equal), while `flow` shifts it by the mean
+/// flow (the crop cameras differ on some draws); the flag parses and a bad one is refused naming
+/// it; `flow` leaves the fingerprint's text as it was and `same` enters it; the crops still give
+/// valid tuples whose matches mostly land inside the live crop.
+#[test]
+fn live_crops_cut_at_the_reference_window_keep_its_coordinates() {
+    use densefeat::geometry::Warp;
+    use densefeat::train::data::{DataSet, LiveCrop};
+    assert_eq!("same".parse::<LiveCrop>().unwrap(), LiveCrop::Same);
+    assert_eq!("flow".parse::<LiveCrop>().unwrap(), LiveCrop::Flow);
+    let err = "shift".parse::<LiveCrop>().expect_err("refused").to_string();
+    assert!(err.contains("--live-crop") && err.contains("same"), "{err}");
+    assert!(!tiny().fingerprint().contains("live_crop"), "{}", tiny().fingerprint());
+    let data = |live_crop| DataConfig { crop: (128, 96), live_frames: 3, live_crop, ..tiny().data };
+    let same_cfg = TrainConfig { data: data(LiveCrop::Same), ..tiny() };
+    assert!(same_cfg.fingerprint().contains("live_crop: Same"), "{}", same_cfg.fingerprint());
+    let (same, flow) =
+        (DataSet::open(data(LiveCrop::Same)).unwrap(), DataSet::open(data(LiveCrop::Flow)).unwrap());
+    let mut shifted = 0;
+    let (mut inside, mut valid) = (0usize, 0usize);
+    for step in 1..9 {
+        let p = same.train_pair(5, step, 0).unwrap();
+        p.validate().unwrap();
+        assert_eq!(p.more_lives.len(), 2);
+        assert_eq!(p.live_camera, p.ref_camera, "step {step}");
+        for e in &p.more_lives {
+            assert_eq!(e.camera, p.ref_camera, "step {step}");
+        }
+        let warp = Warp::new(&p.ref_camera, &p.live_camera, &p.t_lr);
+        for ((y, x), &z) in p.ref_depth.indexed_iter() {
+            if z > 0.0 && z.is_finite() {
+                valid += 1;
+                let q = warp.apply(x as f64, y as f64, 1.0 / f64::from(z));
+                inside += usize::from(q.is_some_and(|q| p.live_camera.contains(q.uv.x, q.uv.y)));
+            }
+        }
+        let q = flow.train_pair(5, step, 0).unwrap();
+        shifted += usize::from(q.live_camera != q.ref_camera);
+    }
+    assert!(shifted > 0, "the flow crops never moved");
+    assert!(inside * 2 > valid, "{inside} of {valid} matches inside the live crop");
+}

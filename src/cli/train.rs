@@ -126,6 +126,11 @@ pub struct TrainArgs {
     /// does (the multi-frame loss, SPEC.md §13.1b).
     #[arg(long, default_value_t = 1)]
     pub live_frames: usize,
+    /// Where each live crop is cut (SPEC.md §13.5): `flow` (the reference window shifted by the
+    /// mean flow, so it sees the same surfaces) or `same` (the reference window's own image
+    /// coordinates, as the mapper compares full frames)
+    #[arg(long, default_value = "flow")]
+    pub live_crop: String,
     /// Loss pixel sampling (SPEC.md §13.1a): evaluate one pixel per SxS block at the finest
     /// supervised level (S/2 one level coarser, ...), weighted S²: unbiased; 1 evaluates every
     /// pixel (the paper).
@@ -199,6 +204,7 @@ impl TrainArgs {
                 synthetic_style: self.synthetic_style.parse()?,
                 val_fraction: self.val_fraction,
                 live_frames: self.live_frames,
+                live_crop: self.live_crop.parse()?,
                 ..DataConfig::default()
             },
             val_every: self.val_every,

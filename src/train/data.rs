@@ -85,7 +85,41 @@ pub struct DataConfig {
     /// Live frames per training reference (1: pairs, the paper; more: the multi-frame loss of
     /// SPEC.md §13.1b). Validation pairs always have one.
     pub live_frames: usize,
+    /// Where each live crop is cut (SPEC.md §13.5): at the reference window shifted by the mean
+    /// flow, or at the reference window itself, as the mapper sees full frames.
+    pub live_crop: LiveCrop,
 }
+
+/// Where the live crops are cut (`--live-crop flow | same`, SPEC.md §13.5).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LiveCrop {
+    /// The reference window shifted by the mean image displacement of its valid pixels, so the
+    /// live crop sees the same surfaces (every run before 2026-12-05).
+    #[default]
+    Flow,
+    /// The reference window's own image coordinates (clamped inside the live frame), as the mapper
+    /// compares full frames: a feature that encodes the position in the image (the network's zero
+    /// padding makes one) then favours the same pixel, i.e. far depth, in training as at run time,
+    /// and the loss can penalise it.
+    Same,
+}
+
+impl std::str::FromStr for LiveCrop {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "flow" => Ok(LiveCrop::Flow),
+            "same" => Ok(LiveCrop::Same),
+            _ => Err(Error::invalid_argument("--live-crop", format!("{s:?}: expected flow or same"))),
+        }
+    }
+}
+
+/// With `LiveCrop::Same`, the reference window is redrawn (up to this many times) until at least
+/// `SAME_MIN_OVERLAP` of its valid pixels match inside every live window.
+const SAME_WINDOW_DRAWS: usize = 8;
+/// See `SAME_WINDOW_DRAWS`.
+const SAME_MIN_OVERLAP: f64 = 0.5;
 
 /// First seed of the synthetic training scenes (the shipped fixture and the evaluation scenes
 /// use seeds below 1000, so training never sees them).
@@ -113,6 +147,7 @@ impl Default for DataConfig {
             synthetic_style: SyntheticStyles::One(Style::Classic),
             val_fraction: 0.2,
             live_frames: 1,
+            live_crop: LiveCrop::Flow,
         }
     }
 }
@@ -241,8 +276,23 @@ fn overlap_and_flow(
     t_lr: &Pose,
     window: (usize, usize, usize, usize),
 ) -> (f64, f64, f64) {
+    overlap_and_flow_in(depth, (cam, live), t_lr, window, (0, 0, live.width, live.height))
+}
+
+/// `overlap_and_flow` with the live side restricted to the pixel rectangle `live_window`
+/// `(x0, y0, w, h)`: a match counts as inside when it lies in `[x0, x0 + w - 1] x [y0, y0 + h - 1]`.
+fn overlap_and_flow_in(
+    depth: &Array2<f32>,
+    (cam, live): (&PinholeCamera, &PinholeCamera),
+    t_lr: &Pose,
+    window: (usize, usize, usize, usize),
+    live_window: (usize, usize, usize, usize),
+) -> (f64, f64, f64) {
     let warp = Warp::new(cam, live, t_lr);
     let (x0, y0, w, h) = window;
+    let (lx0, ly0, lw, lh) = live_window;
+    let (lx0, ly0) = (lx0 as f64, ly0 as f64);
+    let (lx1, ly1) = (lx0 + lw as f64 - 1.0, ly0 + lh as f64 - 1.0);
     let (mut n, mut inside, mut du, mut dv) = (0usize, 0usize, 0.0, 0.0);
     for y in (y0..y0 + h).step_by(GRID) {
         for x in (x0..x0 + w).step_by(GRID) {
@@ -252,7 +302,8 @@ fn overlap_and_flow(
             }
             n += 1;
             if let Some(p) = warp.apply(x as f64, y as f64, 1.0 / f64::from(z)) {
-                if live.contains(p.uv.x, p.uv.y) {
+                let (u, v) = (p.uv.x, p.uv.y);
+                if live.contains(u, v) && (lx0..=lx1).contains(&u) && (ly0..=ly1).contains(&v) {
                     inside += 1;
                     du += p.uv.x - x as f64;
                     dv += p.uv.y - y as f64;
@@ -493,18 +544,60 @@ impl DataSet {
         let (cw, ch) = self.cfg.crop;
         let cam = &r.camera;
         let (w, h) = (cam.width, cam.height);
-        let (x0, y0) = match rng {
-            Some(rng) => (rng.below(w - cw + 1), rng.below(h - ch + 1)),
-            None => ((w - cw) / 2, (h - ch) / 2),
+        // With `LiveCrop::Same`, the live window of a reference window `(x, y)` in a live frame.
+        let same = |l: &Frame, x: usize, y: usize| (x.min(l.camera.width - cw), y.min(l.camera.height - ch));
+        let (x0, y0) = match (rng, self.cfg.live_crop) {
+            (Some(rng), LiveCrop::Flow) => (rng.below(w - cw + 1), rng.below(h - ch + 1)),
+            (Some(rng), LiveCrop::Same) => {
+                // Redraw until every live window holds enough of the reference window's matches
+                // (else keep the best draw): a window whose matches all fall outside the live
+                // crop would train on nothing.
+                let mut best = (0, 0, -1.0);
+                for _ in 0..SAME_WINDOW_DRAWS {
+                    let (x, y) = (rng.below(w - cw + 1), rng.below(h - ch + 1));
+                    let worst = lives
+                        .iter()
+                        .map(|l| {
+                            let t_lr = relative_pose(&r.pose, &l.pose);
+                            let (lx, ly) = same(l, x, y);
+                            overlap_and_flow_in(
+                                &r.depth,
+                                (cam, &l.camera),
+                                &t_lr,
+                                (x, y, cw, ch),
+                                (lx, ly, cw, ch),
+                            )
+                            .0
+                        })
+                        .fold(f64::INFINITY, f64::min);
+                    if worst > best.2 {
+                        best = (x, y, worst);
+                    }
+                    if worst >= SAME_MIN_OVERLAP {
+                        break;
+                    }
+                }
+                (best.0, best.1)
+            }
+            (None, _) => ((w - cw) / 2, (h - ch) / 2),
         };
-        // Each live window: the reference window shifted by the mean flow, in the live frame's own
-        // camera (its size bounds the window).
+        // Each live window, in the live frame's own camera (its size bounds the window): the
+        // reference window shifted by the mean flow, or the reference window itself.
         let window = |l: &Frame| {
             let t_lr = relative_pose(&r.pose, &l.pose);
-            let (_, du, dv) = overlap_and_flow(&r.depth, (cam, &l.camera), &t_lr, (x0, y0, cw, ch));
-            let shift = |o: usize, d: f64, max: usize| ((o as f64 + d).round().max(0.0) as usize).min(max);
             let (lw, lh) = (l.camera.width, l.camera.height);
-            (t_lr, shift(x0, du, lw - cw), shift(y0, dv, lh - ch))
+            match self.cfg.live_crop {
+                LiveCrop::Flow => {
+                    let (_, du, dv) = overlap_and_flow(&r.depth, (cam, &l.camera), &t_lr, (x0, y0, cw, ch));
+                    let shift =
+                        |o: usize, d: f64, max: usize| ((o as f64 + d).round().max(0.0) as usize).min(max);
+                    (t_lr, shift(x0, du, lw - cw), shift(y0, dv, lh - ch))
+                }
+                LiveCrop::Same => {
+                    let (lx, ly) = same(l, x0, y0);
+                    (t_lr, lx, ly)
+                }
+            }
         };
         let (t_lr, lx, ly) = window(l);
         let crop_cam = |c: &PinholeCamera, x: usize, y: usize| {

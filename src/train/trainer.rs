@@ -60,7 +60,9 @@ impl TrainConfig {
         // `live_frames` joined DataConfig after chain b1s2 had started (SPEC.md §13.10): it is
         // written only when it is not 1, so the fingerprints of pair runs stay what they were and
         // their checkpoints remain resumable.
+        // `live_crop` (2026-12-05) likewise only when it is not `Flow`.
         let data = format!("{:?}", self.data);
+        let data = data.strip_suffix(", live_crop: Flow }").map_or(data.clone(), |d| format!("{d} }}"));
         let data = data.strip_suffix(", live_frames: 1 }").map_or(data.clone(), |d| format!("{d} }}"));
         let mut f = format!(
             "network={:?} init_seed={} seed={} steps={} batch={} optim={:?} loss={:?} supervision={:?} data={data}",

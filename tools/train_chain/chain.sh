@@ -103,6 +103,15 @@ derive args_mf4c args_mf4 \
 derive args_mf4s1 args_mf4 --b1-stride 1 --loss-sample-stride 4 \
   --init-weights fixtures/weights/featurenet_trained_b1s1.safetensors --steps 5000 --seed 5
 
+# The position code (2026-12-05): on a constant image the network's features vary by up to an L1 of
+# 7.6 within ~80 level-1 pixels of the image border (its zero padding), as large as the learned cost's
+# spread. Training cut each live crop at the reference window shifted by the mean flow, so that code
+# pointed at the true match on average; the mapper compares full frames at the same coordinates,
+# where it points at zero motion, i.e. far depth: the far-biased valleys on textureless walls
+# (issue 30). mf4sc is mf4c (its control: mf4l's final weights, 5 000 steps, data seed 4) with the live
+# crops cut at the reference window itself (--live-crop same, SPEC.md §13.5).
+args_mf4sc=("${args_mf4c[@]}" --live-crop same)
+
 case "${1:-}" in
   start)
     var="args_${name}[@]"

@@ -15,7 +15,8 @@ use ndarray::{Array2, ArrayView3};
 use rayon::prelude::*;
 
 use super::huber_tv::{regulariser_row, slope_regulariser_row};
-use super::search::{for_each_group, GroupSink, SearchParams, SearchRow, LANES, UNSEEN};
+use super::lanes::{self, LANES};
+use super::search::{for_each_group, GroupSink, SearchParams, SearchRow};
 use super::HuberTv;
 use crate::dtam::search::{exhaustive_search_reference, CostRange};
 use crate::geometry::InverseDepthBins;
@@ -157,7 +158,7 @@ fn fused_row_any<const AVX512: bool>(row: &Row, p: &SearchParams, a: &mut [f32])
 }
 
 /// Writes `a` and adds `total_energy`'s per-pixel coupling and data terms while the group's curves
-/// are in cache: the terms are computed lane-wise ([`terms_lanes`] or its AVX-512 build), then
+/// are in cache: the terms are computed lane-wise ([`lanes::terms`]), then
 /// added one pixel at a time, `x` ascending.
 struct Terms<'a, const AVX512: bool> {
     a: &'a mut [f32],
@@ -176,16 +177,7 @@ impl<const AVX512: bool> GroupSink for Terms<'_, AVX512> {
         let x = |j: usize| (x0 + j).min(w - 1);
         let off: [usize; LANES] = std::array::from_fn(|j| x(j) * k);
         let d: [f64; LANES] = std::array::from_fn(|j| self.d[x(j)] as f64);
-        #[cfg(target_arch = "x86_64")]
-        let (a32, coupling, data, seen) = if AVX512 {
-            // SAFETY: `AVX512` is only set inside functions built with AVX-512F, run only where the
-            // CPU reported it; every offset plus hypothesis lies in `costs`.
-            unsafe { super::avx512::terms_lanes(self.costs, self.p, &off, &d, a) }
-        } else {
-            terms_lanes(self.costs, self.p, &off, &d, a)
-        };
-        #[cfg(not(target_arch = "x86_64"))]
-        let (a32, coupling, data, seen) = terms_lanes(self.costs, self.p, &off, &d, a);
+        let (a32, coupling, data, seen) = lanes::terms::<AVX512>(self.costs, self.p, &off, &d, a);
         for j in 0..n {
             self.a[x0 + j] = a32[j];
             self.coupling += coupling[j];
@@ -194,36 +186,4 @@ impl<const AVX512: bool> GroupSink for Terms<'_, AVX512> {
             }
         }
     }
-}
-
-/// Per lane: `a as f32`, then `total_energy`'s coupling term `(d - a)² / (2θ)` and data term
-/// (`C` interpolated linearly at `a`'s bin, over `λ`), and whether the data term counts (both
-/// interpolated cells seen). The reference's expressions, term by term.
-#[inline(always)]
-fn terms_lanes(
-    costs: &[f32],
-    p: &SearchParams,
-    off: &[usize; LANES],
-    d: &[f64; LANES],
-    a: &[f64; LANES],
-) -> ([f32; LANES], [f64; LANES], [f64; LANES], [bool; LANES]) {
-    let k = p.k;
-    let last = (k - 1) as f64;
-    let cell = |i: usize| costs[i.min(costs.len() - 1)]; // in bounds by construction
-    let (mut a32, mut coupling, mut data, mut seen) =
-        ([0.0f32; LANES], [0.0; LANES], [0.0; LANES], [false; LANES]);
-    for j in 0..LANES {
-        let a = a[j] as f32;
-        a32[j] = a;
-        let diff = d[j] - a as f64;
-        coupling[j] = diff * diff / (2.0 * p.theta);
-        let b = ((a as f64 - p.rho_min) / p.step).clamp(0.0, last);
-        let k0 = (b.floor() as usize).min(k.saturating_sub(2));
-        let t = b - k0 as f64;
-        let c0 = cell(off[j] + k0);
-        let c1 = cell(off[j] + (k0 + 1).min(k - 1));
-        seen[j] = c0 < UNSEEN && c1 < UNSEEN;
-        data[j] = ((1.0 - t) * c0 as f64 + t * c1 as f64) / p.lambda;
-    }
-    (a32, coupling, data, seen)
 }

@@ -27,14 +27,11 @@
 //! [`exhaustive_search_reference`], [`total_energy`], [`rms_gap`]) is kept as the definition;
 //! [`solve`] returns its bits for any thread count and either build (tests/dtam.rs).
 
-#[cfg(target_arch = "x86_64")]
-mod avx512;
 mod bounds;
-#[cfg(target_arch = "x86_64")]
-mod bounds_avx512;
 mod edge;
 mod fused;
 pub mod huber_tv;
+mod lanes;
 pub mod normal_prior;
 pub mod search;
 

@@ -24,7 +24,7 @@
 //! lane-wise. Every value is the scalar definition's sequence of IEEE operations (no fused
 //! multiply-adds, no reordered reductions; `ρ_k` by [`InverseDepthBins::rho`]'s own formula or a
 //! table of its values), so the result is the definition's bit for bit, ties, infinities and NaNs
-//! included. Two builds: portable (lane arrays, `search_lanes`) and AVX-512 (`dtam::avx512`,
+//! included. Two builds: portable and AVX-512 (`dtam::lanes`,
 //! intrinsics, run-time dispatch by the [`CpuFeatureLevel`] passed in); tests/dtam.rs checks both against the scalar
 //! definition ([`exhaustive_search_full`]) and the original one-pixel-at-a-time implementation
 //! ([`exhaustive_search_reference`]).
@@ -33,6 +33,7 @@ use ndarray::{Array1, Array2, ArrayView2, ArrayView3};
 use rayon::prelude::*;
 
 use super::bounds;
+use super::lanes::{self, Lanes, Scan, LANES};
 use crate::costvolume::{parabola_offset, UNSEEN_COST};
 use crate::geometry::InverseDepthBins;
 use crate::runtime::CpuFeatureLevel;
@@ -310,9 +311,6 @@ unsafe fn search_row_avx512(rows: &SearchRow, p: &SearchParams, out: &mut [f32])
     for_each_group::<true>(rows, p, &mut Output(out));
 }
 
-/// Pixels searched together, one per lane (one AVX-512 register of `f64`).
-pub(crate) const LANES: usize = 8;
-
 /// Pixels per block of the row pipeline: a block's pixels are planned (and their cost-curve cache
 /// lines prefetched) while the previous block is searched.
 const BLOCK: usize = 2 * LANES;
@@ -408,7 +406,8 @@ fn plan_block<const AVX512: bool>(plans: &mut Plans, rows: &SearchRow, p: &Searc
         let curve = &rows.costs[x * p.k..][..p.k];
         let (lo, hi) = (plans.lo[i] as usize, plans.hi[i] as usize);
         if hi - lo >= NARROW {
-            let at = least_block::<AVX512>(&rows.minima[x * p.blocks..][..p.blocks]) * bounds::BLOCK_BINS;
+            let at =
+                lanes::least_block::<AVX512>(&rows.minima[x * p.blocks..][..p.blocks]) * bounds::BLOCK_BINS;
             // SAFETY: a prefetch is a hint; it never faults, and `at < K` is inside the curve.
             unsafe { _mm_prefetch::<_MM_HINT_T0>(curve[at..].as_ptr().cast()) };
         } else {
@@ -430,31 +429,6 @@ fn plan_block<const AVX512: bool>(plans: &mut Plans, rows: &SearchRow, p: &Searc
 /// `f32` values per 64-byte cache line.
 const LINE_FLOATS: usize = 16;
 
-/// The index of a least block minimum (a prefetch hint only: any index below the length is safe).
-#[inline(always)]
-fn least_block<const AVX512: bool>(minima: &[f32]) -> usize {
-    #[cfg(target_arch = "x86_64")]
-    if AVX512 && minima.len() <= 16 {
-        use std::arch::x86_64::*;
-        // SAFETY: `AVX512` is only set inside functions built with AVX-512F, which run only where the
-        // CPU reported it; the masked load reads `minima.len()` floats.
-        unsafe {
-            let m = ((1u32 << minima.len()) - 1) as u16;
-            let v = _mm512_mask_loadu_ps(_mm512_set1_ps(f32::INFINITY), m, minima.as_ptr());
-            let least = _mm512_reduce_min_ps(v);
-            let at = _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(v, _mm512_set1_ps(least));
-            return (at.trailing_zeros() as usize).min(minima.len() - 1);
-        }
-    }
-    let mut best = 0;
-    for (j, &m) in minima.iter().enumerate() {
-        if m < minima[best] {
-            best = j;
-        }
-    }
-    best
-}
-
 /// One pixel's plan: [`search_pixel`]'s `c_min > c_max`, `nearest`, `lo.min(nearest)` and
 /// `hi.max(nearest)`, with `ρ_nearest` evaluated by [`InverseDepthBins::rho`]'s formula (no table
 /// lookup, so the loop over pixels vectorises). The indices are at most `K - 1`, so `u32` holds them
@@ -471,20 +445,6 @@ fn plan(range: (f32, f32), p: &SearchParams, d: f64) -> (bool, u32, u32, u32) {
     let lo = ((d - r - p.rho_min) / p.step).floor().clamp(0.0, last) as u32;
     let hi = ((d + r - p.rho_min) / p.step).ceil().clamp(0.0, last) as u32;
     (c_min > c_max, nearest, lo.min(nearest), hi.max(nearest))
-}
-
-/// [`LANES`] consecutive pixels of a row, one per lane, ready to search: the offset of each curve
-/// in the row's costs, `d`, whether the lane is flat (nothing seen, or past the row's end) and its
-/// range `lo..=hi`: the planned pruned range, or the full curve where the hypothesis nearest `d` is
-/// unseen (`full`), as in [`search_pixel`]. `span`: the longest live range.
-pub(crate) struct Lanes {
-    pub off: [usize; LANES],
-    pub d: [f64; LANES],
-    pub flat: [bool; LANES],
-    pub full: [bool; LANES],
-    pub lo: [usize; LANES],
-    pub hi: [usize; LANES],
-    pub span: usize,
 }
 
 impl Lanes {
@@ -521,10 +481,9 @@ impl Lanes {
 }
 
 /// [`search_pixel`] for the [`LANES`] pixels `x0..` of a row (planned in `plans` from index `i0`):
-/// the definition's argmin over each live lane's `lo..=hi`, by the lane scan ([`scan_group`]) when
+/// the definition's argmin over each live lane's `lo..=hi`, by the lane scan ([`lanes::scan`]) when
 /// the longest range is at most [`NARROW`], else by each lane's bounded search ([`bounded_group`]);
-/// then the parabola refinement of all lanes at once, by [`refine_lanes`] or its AVX-512 build
-/// (`AVX512`); lanes past the row's end hold junk.
+/// then the parabola refinement of all lanes at once ([`lanes::refine`]); lanes past the row's end hold junk.
 #[inline(always)]
 fn search_group<const AVX512: bool>(
     rows: &SearchRow,
@@ -537,20 +496,11 @@ fn search_group<const AVX512: bool>(
     let costs = &rows.costs[..w * k];
     let lanes = Lanes::new(rows, p, plans, i0, x0);
     let scan = if lanes.span <= NARROW {
-        scan_group::<AVX512>(costs, p, &lanes)
+        lanes::scan::<AVX512>(costs, p, &lanes)
     } else {
         bounded_group::<AVX512>(rows, p, &lanes, x0)
     };
-    #[cfg(target_arch = "x86_64")]
-    let mut a = if AVX512 {
-        // SAFETY: `AVX512` is only set inside functions built with AVX-512F, which run only where the
-        // CPU reported it (`CpuFeatureLevel::avx512f`); every curve offset plus hypothesis is in `costs`.
-        unsafe { super::avx512::refine_lanes(costs, p, &lanes, &scan) }
-    } else {
-        refine_lanes(costs, p, &lanes, &scan)
-    };
-    #[cfg(not(target_arch = "x86_64"))]
-    let mut a = refine_lanes(costs, p, &lanes, &scan);
+    let mut a = lanes::refine::<AVX512>(costs, p, &lanes, &scan);
     for (j, a) in a.iter_mut().enumerate().take(LANES.min(w - x0)) {
         if !lanes.flat[j] && !lanes.full[j] && !scan.found[j] {
             // A pruned range with nothing seen in it cannot happen (it holds the seen nearest
@@ -562,20 +512,7 @@ fn search_group<const AVX512: bool>(
     a
 }
 
-/// The lane scan of a group ([`scan_lanes`] or its AVX-512 build).
-#[inline(always)]
-fn scan_group<const AVX512: bool>(costs: &[f32], p: &SearchParams, lanes: &Lanes) -> Scan {
-    #[cfg(target_arch = "x86_64")]
-    if AVX512 {
-        // SAFETY: `AVX512` is only set inside functions built with AVX-512F, which run only where the
-        // CPU reported it; every curve offset plus hypothesis is in `costs`.
-        return unsafe { super::avx512::scan_lanes(costs, p, lanes) };
-    }
-    scan_lanes(costs, p, lanes)
-}
-
-/// The bounded search of each live lane of a group ([`bounds::bounded_search`] or its AVX-512
-/// build).
+/// The bounded search of each live lane of a group ([`lanes::bounded`]).
 #[inline(always)]
 fn bounded_group<const AVX512: bool>(rows: &SearchRow, p: &SearchParams, lanes: &Lanes, x0: usize) -> Scan {
     let (k, w) = (p.k, rows.d.len());
@@ -587,15 +524,7 @@ fn bounded_group<const AVX512: bool>(rows: &SearchRow, p: &SearchParams, lanes: 
         let x = x0 + j;
         let (curve, minima) = (&rows.costs[x * k..][..k], &rows.minima[x * p.blocks..][..p.blocks]);
         let (d, lo, hi) = (lanes.d[j], lanes.lo[j], lanes.hi[j]);
-        #[cfg(target_arch = "x86_64")]
-        let found = if AVX512 {
-            // SAFETY: as in `scan_group`; `curve` and `minima` are the pixel's whole slices.
-            unsafe { super::bounds_avx512::bounded_search(curve, minima, p, d, lo, hi) }
-        } else {
-            bounds::bounded_search(curve, minima, p, d, lo, hi)
-        };
-        #[cfg(not(target_arch = "x86_64"))]
-        let found = bounds::bounded_search(curve, minima, p, d, lo, hi);
+        let found = lanes::bounded::<AVX512>(curve, minima, p, d, lo, hi);
         if let Some((kk, e)) = found {
             (scan.best[j], scan.arg[j], scan.found[j]) = (e, kk, true);
         }
@@ -603,70 +532,10 @@ fn bounded_group<const AVX512: bool>(rows: &SearchRow, p: &SearchParams, lanes: 
     scan
 }
 
-/// Groups whose longest range is at most this many hypotheses run the lane scan ([`scan_lanes`]);
+/// Groups whose longest range is at most this many hypotheses run the lane scan ([`lanes::scan`]);
 /// wider ones the bounded search of each lane ([`bounds`]). Both give the definition's argmin, so
 /// this affects the speed only.
 const NARROW: usize = 6 * bounds::BLOCK_BINS;
-
-/// The portable lane scan: each lane runs the scalar definition's scan over its own `lo..=hi`,
-/// skipping unseen cells: the first seen hypothesis is taken, then any with a strictly lower
-/// energy, so ties, infinities and NaNs resolve exactly as in [`search_range`]. The lanes step
-/// through their ranges together for `span` steps (a lane past its `hi` idles).
-/// [`crate::dtam::avx512`]'s build performs the same operations on whole registers.
-#[inline(always)]
-pub(crate) fn scan_lanes(costs: &[f32], p: &SearchParams, l: &Lanes) -> Scan {
-    let k = p.k;
-    let cell = |i: usize| costs[i.min(costs.len() - 1)]; // in bounds by construction
-    let rho = |i: usize| p.rho[i.min(k - 1)];
-    let (mut best, mut arg, mut found) = ([f64::INFINITY; LANES], [0usize; LANES], [false; LANES]);
-    for t in 0..l.span {
-        for j in 0..LANES {
-            let kk = l.lo[j] + t;
-            let active = !l.flat[j] && kk <= l.hi[j];
-            let kk = if active { kk } else { l.lo[j] };
-            let c = cell(l.off[j] + kk);
-            let e = energy_scaled(l.d[j], rho(kk), c, p.inv_two_theta, p.inv_lambda);
-            // `!(c >= UNSEEN)`: the scan skips only cells at or above UNSEEN (a NaN is scanned).
-            let scanned = c < UNSEEN || c.is_nan();
-            let take = active && scanned && (!found[j] || e < best[j]);
-            best[j] = if take { e } else { best[j] };
-            arg[j] = if take { kk } else { arg[j] };
-            found[j] |= take;
-        }
-    }
-    Scan { best, arg, found }
-}
-
-/// The result of each lane's scan: the least energy, its hypothesis and whether any was seen.
-pub(crate) struct Scan {
-    pub best: [f64; LANES],
-    pub arg: [usize; LANES],
-    pub found: [bool; LANES],
-}
-
-/// The portable refinement: per lane the parabola through the energies at `k* - 1, k*, k* + 1`
-/// (none at the ends or next to an unseen cell), `a = d` where the lane is flat or found nothing.
-/// [`crate::dtam::avx512`]'s build performs the same operations on whole registers.
-#[inline(always)]
-pub(crate) fn refine_lanes(costs: &[f32], p: &SearchParams, l: &Lanes, s: &Scan) -> [f64; LANES] {
-    let k = p.k;
-    let cell = |i: usize| costs[i.min(costs.len() - 1)]; // in bounds by construction
-    let rho = |i: usize| p.rho[i.min(k - 1)];
-    let mut a = [0.0; LANES];
-    for (j, a) in a.iter_mut().enumerate() {
-        let kk = s.arg[j];
-        let inner = kk > 0 && kk + 1 < k;
-        let (km, kp) = if inner { (kk - 1, kk + 1) } else { (kk, kk) };
-        let (cm, cp) = (cell(l.off[j] + km), cell(l.off[j] + kp));
-        let em = energy_scaled(l.d[j], rho(km), cm, p.inv_two_theta, p.inv_lambda);
-        let ep = energy_scaled(l.d[j], rho(kp), cp, p.inv_two_theta, p.inv_lambda);
-        let delta =
-            if inner && cm < UNSEEN && cp < UNSEEN { parabola_offset(em, s.best[j], ep) } else { 0.0 };
-        let refined = if delta == 0.0 { rho(kk) } else { p.rho_min + (kk as f64 + delta) * p.step };
-        *a = if l.flat[j] || !s.found[j] { l.d[j] } else { refined };
-    }
-    a
-}
 
 /// The original scalar implementation of [`exhaustive_search`] (ndarray indexing, one pixel at a
 /// time through `search_pixel`): the reference the vectorised search is tested against

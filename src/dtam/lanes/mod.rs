@@ -1,0 +1,121 @@
+//! The lane kernels of DTAM's a-search and of its energy terms (SPEC.md §10.1): [`LANES`]
+//! consecutive pixels of a row, one per lane, searched and measured together.
+//!
+//! Layout (issue 33 item 3, as `ops/conv2d/direct/`): this file holds the types shared by the builds
+//! and the dispatch; `portable.rs` the plain-Rust lane loops (which the compiler may vectorise);
+//! `avx512.rs` the same IEEE operations, lane for lane and in the same order, on `__m512d` registers,
+//! with the costs gathered from the pixels' curves. The two ISA files import only from here. Which
+//! build runs is the `AVX512` constant of the caller's row loop (`search::for_each_group`,
+//! `fused::fused_row_any`), true only inside functions built with AVX-512F that run where the
+//! [`crate::runtime::CpuFeatureLevel`] passed to the solver reported it; both builds give the same
+//! bits (tests/dtam.rs checks each against the scalar definition).
+
+#[cfg(target_arch = "x86_64")]
+mod avx512;
+mod portable;
+
+pub(crate) use super::bounds::{applies, bounded_search as bounded_search_portable, BLOCK_BINS};
+pub(crate) use super::search::{energy_scaled, SearchParams, UNSEEN};
+pub(crate) use crate::costvolume::{parabola_offset, MAX_PARABOLA_OFFSET};
+
+/// Pixels searched together, one per lane (one AVX-512 register of `f64`).
+pub(crate) const LANES: usize = 8;
+
+/// [`LANES`] consecutive pixels of a row, one per lane, ready to search: the offset of each curve
+/// in the row's costs, `d`, whether the lane is flat (nothing seen, or past the row's end) and its
+/// range `lo..=hi`: the planned pruned range, or the full curve where the hypothesis nearest `d` is
+/// unseen (`full`), as in `search::search_pixel`. `span`: the longest live range.
+pub(crate) struct Lanes {
+    pub off: [usize; LANES],
+    pub d: [f64; LANES],
+    pub flat: [bool; LANES],
+    pub full: [bool; LANES],
+    pub lo: [usize; LANES],
+    pub hi: [usize; LANES],
+    pub span: usize,
+}
+
+/// The result of each lane's scan: the least energy, its hypothesis and whether any was seen.
+pub(crate) struct Scan {
+    pub best: [f64; LANES],
+    pub arg: [usize; LANES],
+    pub found: [bool; LANES],
+}
+
+/// The scan of each live lane over its `lo..=hi` ([`portable::scan_lanes`] or its AVX-512 build):
+/// the first seen hypothesis, then any with a strictly lower energy.
+#[inline(always)]
+pub(crate) fn scan<const AVX512: bool>(costs: &[f32], p: &SearchParams, lanes: &Lanes) -> Scan {
+    #[cfg(target_arch = "x86_64")]
+    if AVX512 {
+        // SAFETY: `AVX512` is only set inside functions built with AVX-512F, which run only where the
+        // CPU reported it (`CpuFeatureLevel::avx512f`); every curve offset plus hypothesis is in `costs`.
+        return unsafe { avx512::scan_lanes(costs, p, lanes) };
+    }
+    portable::scan_lanes(costs, p, lanes)
+}
+
+/// The parabola refinement of the lanes' scan results ([`portable::refine_lanes`] or its AVX-512
+/// build).
+#[inline(always)]
+pub(crate) fn refine<const AVX512: bool>(
+    costs: &[f32],
+    p: &SearchParams,
+    lanes: &Lanes,
+    s: &Scan,
+) -> [f64; LANES] {
+    #[cfg(target_arch = "x86_64")]
+    if AVX512 {
+        // SAFETY: as in `scan`.
+        return unsafe { avx512::refine_lanes(costs, p, lanes, s) };
+    }
+    portable::refine_lanes(costs, p, lanes, s)
+}
+
+/// Per lane `a as f32`, the coupling term, the data term and whether it counts
+/// ([`portable::terms_lanes`] or its AVX-512 build).
+#[inline(always)]
+pub(crate) fn terms<const AVX512: bool>(
+    costs: &[f32],
+    p: &SearchParams,
+    off: &[usize; LANES],
+    d: &[f64; LANES],
+    a: &[f64; LANES],
+) -> ([f32; LANES], [f64; LANES], [f64; LANES], [bool; LANES]) {
+    #[cfg(target_arch = "x86_64")]
+    if AVX512 {
+        // SAFETY: as in `scan`; every `off[j]` plus hypothesis lies in `costs`.
+        return unsafe { avx512::terms_lanes(costs, p, off, d, a) };
+    }
+    portable::terms_lanes(costs, p, off, d, a)
+}
+
+/// One pixel's bounded search of `lo..=hi` ([`super::bounds::bounded_search`] or its AVX-512
+/// build): the least `(E(k), k)` over the seen cells, the definition's first strict minimum.
+#[inline(always)]
+pub(crate) fn bounded<const AVX512: bool>(
+    curve: &[f32],
+    minima: &[f32],
+    p: &SearchParams,
+    d: f64,
+    lo: usize,
+    hi: usize,
+) -> Option<(usize, f64)> {
+    #[cfg(target_arch = "x86_64")]
+    if AVX512 {
+        // SAFETY: as in `scan`; `curve` and `minima` are the pixel's whole slices, `lo <= hi < K`.
+        return unsafe { avx512::bounded_search(curve, minima, p, d, lo, hi) };
+    }
+    bounded_search_portable(curve, minima, p, d, lo, hi)
+}
+
+/// The index of a least block minimum (a prefetch hint only: any index below the length is safe).
+#[inline(always)]
+pub(crate) fn least_block<const AVX512: bool>(minima: &[f32]) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if AVX512 && minima.len() <= 16 {
+        // SAFETY: as in `scan`; the masked load reads `minima.len()` floats.
+        return unsafe { avx512::least_block(minima) };
+    }
+    portable::least_block(minima)
+}

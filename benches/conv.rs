@@ -2,7 +2,7 @@
 //! `<impl>_<op>_<shape>`.
 //! Throughput is reported in elements = FLOPs (`2 · 9 c_in · h_out · w_out · c_out`), so criterion's
 //! "elem/s" reads as FLOP/s. Threads: rayon's global pool, so `RAYON_NUM_THREADS=1 cargo bench
-//! --bench conv` measures one thread. Winograd (stride-1 shapes) multiplies 2.25x (F2) or 4x (F4)
+//! -p densefeat-benches --bench conv` measures one thread. Winograd (stride-1 shapes) multiplies 2.25x (F2) or 4x (F4)
 //! less; its "elem/s" uses the same direct count, so it reads as an effective rate. Transposed
 //! convolutions (`deconv2d`, with the U-Net sum as the decoder runs them) count `2 · 25 c_in c_out h w`
 //! for an `h x w` input.

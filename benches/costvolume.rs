@@ -1,5 +1,5 @@
 //! Adding one live frame to a cost volume at the size the paper's mapping runs: 320x240, K = 64
-//! hypotheses, C = 32 learned channels (and RGB), on 1 and 2 threads. `cargo bench --bench costvolume`.
+//! hypotheses, C = 32 learned channels (and RGB), on 1 and 2 threads. `cargo bench -p densefeat-benches --bench costvolume`.
 //! The same inputs as `densefeat bench costvolume` (`perf::bench_inputs`). `_portable_` entries run
 //! `CostVolumeImpl::FastPortable` (the same bits without the AVX-512 block kernel) on one thread.
 

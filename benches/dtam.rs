@@ -1,5 +1,5 @@
 //! The DTAM Huber-TV solver at the mapping size: 320x240, K = 64, on 1 and 2 threads, on the
-//! synthetic volume of `densefeat bench tv` (`perf::tv_inputs`). `cargo bench --bench dtam`.
+//! synthetic volume of `densefeat bench tv` (`perf::tv_inputs`). `cargo bench -p densefeat-benches --bench dtam`.
 //! One iteration at θ_start (the widest pruned a-search) and its parts (the primal-dual step, the
 //! a-search alone, the fused a-search with energy and gap, the reference energy), then a full
 //! default solve.

@@ -1,5 +1,5 @@
 //! Rendering speed of the synthetic scene generator: one frame (2×2 anti-aliasing, full camera
-//! response; realistic style: with blur and JPEG) at the sizes training uses. `cargo bench --bench synth`.
+//! response; realistic style: with blur and JPEG) at the sizes training uses. `cargo bench -p densefeat-benches --bench synth`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use densefeat::synth::{Scene, SceneConfig, Style};

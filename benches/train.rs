@@ -1,6 +1,6 @@
 //! One training step (both forwards with tape, the six scale losses, both backwards) on the
 //! synthetic pair of `densefeat bench train`, 256x192, K = 256, on 1 and 2 threads, and the loss of
-//! one scale alone (L1, 128x96). `cargo bench --bench train`.
+//! one scale alone (L1, 128x96). `cargo bench -p densefeat-benches --bench train`.
 
 use std::time::Duration;
 

@@ -22,7 +22,7 @@
 //! rendered in parallel with each pixel computed independently. A seed gives bit-identical frames
 //! for any thread count, and the same files on any platform with the same `Cargo.lock`.
 //!
-//! Speed (`cargo bench --bench synth`, 2×2 samples, 2 CPU cores): about 30 ms per 320×240 frame and
+//! Speed (`cargo bench -p densefeat-benches --bench synth`, 2×2 samples, 2 CPU cores): about 30 ms per 320×240 frame and
 //! 117 ms per 640×480 frame, i.e. fast enough to render training data on the fly.
 //!
 //! ```

@@ -268,11 +268,24 @@ fn shipped_chain_end(name: &str, b1_stride: usize, steps: usize) -> Vec<u8> {
 
 #[test]
 fn shipped_trained_weights_load_and_are_the_built_in_default() {
-    // Chain mf4l: 10 000 steps x 4 tuples of the multi-frame loss, fine-tuning chain b1s2's end.
-    let bytes = shipped_chain_end("featurenet_trained_mf4l.safetensors", 2, 10000);
+    // Chain mf4sc: 5 000 steps x 4 tuples of the multi-frame loss with same-window live crops,
+    // fine-tuning chain mf4l's end (SPEC.md §13.8).
+    let bytes = shipped_chain_end("featurenet_trained_mf4sc.safetensors", 2, 5000);
     assert_eq!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
+    let w = NetworkWeights::from_safetensors_bytes(&bytes, Path::new("mf4sc")).unwrap();
+    assert!(w.provenance.contains("live_frames: 4, live_crop: Same"), "{}", w.provenance);
+    assert!(w.provenance.contains("init_weights=docs/training/chain_mf4l/best_weights.safetensors"));
+}
+
+#[test]
+fn shipped_flow_crop_weights_load_and_are_the_end_of_their_chain() {
+    // Chain mf4l: 10 000 steps x 4 tuples of the multi-frame loss (flow-shifted live crops),
+    // fine-tuning chain b1s2's end; the default from 2026-12-04 to 2026-12-05 and mf4sc's start.
+    let bytes = shipped_chain_end("featurenet_trained_mf4l.safetensors", 2, 10000);
+    assert_ne!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
     let w = NetworkWeights::from_safetensors_bytes(&bytes, Path::new("mf4l")).unwrap();
     assert!(w.provenance.contains("live_frames: 4"), "{}", w.provenance);
+    assert!(!w.provenance.contains("live_crop"), "{}", w.provenance);
     assert!(w.provenance.contains("init_weights=fixtures/weights/featurenet_trained_b1s2.safetensors"));
 }
 

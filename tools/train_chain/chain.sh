@@ -112,6 +112,13 @@ derive args_mf4s1 args_mf4 --b1-stride 1 --loss-sample-stride 4 \
 # crops cut at the reference window itself (--live-crop same, SPEC.md §13.5).
 args_mf4sc=("${args_mf4c[@]}" --live-crop same)
 
+# mf4sc beat its control mf4c on the 101 validation scenes (learned-TV +0.011, learned-normals +0.008,
+# learned-WTA +0.009; docs/training/README.md), so the same-crop fine-tune continues from mf4sc's final
+# weights for 10 000 steps = 40 000 tuples, its own schedule and data draws (--seed 6): a chain over
+# sessions.
+derive args_mf4sc2 args_mf4sc --init-weights docs/training/chain_mf4sc/weights.safetensors \
+  --steps 10000 --seed 6
+
 case "${1:-}" in
   start)
     var="args_${name}[@]"

@@ -280,7 +280,8 @@ fn overlap_and_flow(
 }
 
 /// `overlap_and_flow` with the live side restricted to the pixel rectangle `live_window`
-/// `(x0, y0, w, h)`: a match counts as inside when it lies in `[x0, x0 + w - 1] x [y0, y0 + h - 1]`.
+/// `(x0, y0, w, h)` (inside the live frame): a match counts as inside when it lies in
+/// `[x0, x0 + w - 1] x [y0, y0 + h - 1]`; for the whole frame that is `PinholeCamera::contains`.
 fn overlap_and_flow_in(
     depth: &Array2<f32>,
     (cam, live): (&PinholeCamera, &PinholeCamera),
@@ -303,7 +304,7 @@ fn overlap_and_flow_in(
             n += 1;
             if let Some(p) = warp.apply(x as f64, y as f64, 1.0 / f64::from(z)) {
                 let (u, v) = (p.uv.x, p.uv.y);
-                if live.contains(u, v) && (lx0..=lx1).contains(&u) && (ly0..=ly1).contains(&v) {
+                if (lx0..=lx1).contains(&u) && (ly0..=ly1).contains(&v) {
                     inside += 1;
                     du += p.uv.x - x as f64;
                     dv += p.uv.y - y as f64;
@@ -552,18 +553,19 @@ impl DataSet {
                 // Redraw until every live window holds enough of the reference window's matches
                 // (else keep the best draw): a window whose matches all fall outside the live
                 // crop would train on nothing.
+                let poses: Vec<Pose> = lives.iter().map(|l| relative_pose(&r.pose, &l.pose)).collect();
                 let mut best = (0, 0, -1.0);
                 for _ in 0..SAME_WINDOW_DRAWS {
                     let (x, y) = (rng.below(w - cw + 1), rng.below(h - ch + 1));
                     let worst = lives
                         .iter()
-                        .map(|l| {
-                            let t_lr = relative_pose(&r.pose, &l.pose);
+                        .zip(&poses)
+                        .map(|(l, t_lr)| {
                             let (lx, ly) = same(l, x, y);
                             overlap_and_flow_in(
                                 &r.depth,
                                 (cam, &l.camera),
-                                &t_lr,
+                                t_lr,
                                 (x, y, cw, ch),
                                 (lx, ly, cw, ch),
                             )

@@ -14,9 +14,10 @@
 mod avx512;
 mod portable;
 
-pub(crate) use super::bounds::{applies, bounded_search as bounded_search_portable, BLOCK_BINS};
-pub(crate) use super::search::{energy_scaled, SearchParams, UNSEEN};
-pub(crate) use crate::costvolume::{parabola_offset, MAX_PARABOLA_OFFSET};
+// What the ISA files use from outside this op (they import only from here).
+use super::bounds::{applies, bounded_search as bounded_search_portable, BLOCK_BINS};
+use super::search::{energy_scaled, SearchParams, UNSEEN};
+use crate::costvolume::{parabola_offset, MAX_PARABOLA_OFFSET};
 
 /// Pixels searched together, one per lane (one AVX-512 register of `f64`).
 pub(crate) const LANES: usize = 8;

@@ -119,6 +119,14 @@ args_mf4sc=("${args_mf4c[@]}" --live-crop same)
 derive args_mf4sc2 args_mf4sc --init-weights docs/training/chain_mf4sc/weights.safetensors \
   --steps 10000 --seed 6
 
+# mf4sc2 ended +0.0012 over mf4sc on validation (docs/training/wide_validation/mf4sc2.csv) with the
+# position code still shrinking. A 256x192 crop is mostly border zone (the code reaches ~80 level-1
+# px in), while the mapper matches 640x480 frames; mf4sc3 continues the same-window fine-tune from
+# mf4sc2's final weights on 320x240 crops (the largest every training sequence holds:
+# tsdffusion_desk_box is 320x240), 6 000 steps = 24 000 tuples, its own data draws (--seed 7).
+derive args_mf4sc3 args_mf4sc --init-weights docs/training/chain_mf4sc2/weights.safetensors \
+  --crop 320x240 --steps 6000 --seed 7
+
 case "${1:-}" in
   start)
     var="args_${name}[@]"

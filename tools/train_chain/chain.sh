@@ -137,12 +137,10 @@ derive args_mf4sc3 args_mf4sc --init-weights docs/training/chain_mf4sc2/weights.
 derive args_mf4sr args_mf4sc --init-weights docs/training/chain_mf4sc2/weights.safetensors \
   --synthetic-fraction 0.25 --steps 5000 --seed 8
 
-# mf4sr ended flat on the renders (learned-TV 0.9110, learned-normals 0.9344 vs mf4sc 0.9093 / 0.9341)
-# and its real-room figure moved by 0.016 between its own step 2 400 and its end (learned-TV 0.788 ->
-# 0.772): one real validation room of three keyframes is noise at the 0.02 level, so mf4sc3's loss
-# there (-0.019) is no evidence against its render gain (+0.003 / +0.004, better on 63 / 68 of 101).
 # mf4sc4 continues mf4sc3's 320x240 same-window fine-tune from its end, 6 000 steps = 24 000 tuples,
-# its own data draws (--seed 9): a chain over sessions.
+# its own data draws (--seed 9): does the render gain keep growing? Started before the nine-keyframe
+# check of the real room (docs/training/wide_validation/README.md), which found mf4sc3 worse there on
+# every keyframe: not a default candidate unless the real room recovers.
 derive args_mf4sc4 args_mf4sc3 --init-weights docs/training/chain_mf4sc3/weights.safetensors --seed 9
 
 case "${1:-}" in

@@ -18,6 +18,7 @@ numpy and Pillow (and matplotlib for --plot: the translation ratio of every pair
 Prints one line per pair and per sequence a summary (median translation ratio, its quartiles, the fraction of pairs within 2.5 %
 and 10 % of 1, mean rotation correction, mean grey error before / after).
 """
+import functools
 import os
 import sys
 
@@ -112,13 +113,16 @@ def check(seq, step, dscale):
     dnames = sorted(os.listdir(os.path.join(seq, "depth")))
     n = len(poses)
 
-    def grey(i):
-        return np.array(Image.open(os.path.join(seq, "images", names[i])).convert("L"), dtype=float)
+    @functools.lru_cache(maxsize=None)
+    def blurred_grey(i):
+        # Each frame is a keyframe once and a live frame of up to four pairs: decode it once.
+        img = np.array(Image.open(os.path.join(seq, "images", names[i])).convert("L"), dtype=float)
+        return blur(img)
 
     rows = []
     for kf in range(0, n, step):
         depth = np.array(Image.open(os.path.join(seq, "depth", dnames[kf])), dtype=float) / dscale
-        ref0 = blur(grey(kf))
+        ref0 = blurred_grey(kf)
         for off in (-20, -10, 10, 20):
             j = kf + off
             if not 0 <= j < n:
@@ -126,7 +130,7 @@ def check(seq, step, dscale):
             t0 = np.linalg.inv(poses[j]) @ poses[kf]
             if np.linalg.norm(t0[:3, 3]) < 0.02:
                 continue
-            live0 = blur(grey(j))
+            live0 = blurred_grey(j)
             t = t0.copy()
             # Coarse to fine: level 1 (half resolution), then level 0.
             for lvl in (1, 0):
@@ -142,12 +146,10 @@ def check(seq, step, dscale):
                 m = (dep > 0) & (np.hypot(gx, gy) > 2.0)
                 m[:2], m[-2:], m[:, :2], m[:, -2:] = False, False, False, False
                 pts = np.linalg.inv(kk) @ np.stack([xx[m], yy[m], np.ones(m.sum())]) * dep[m]
-                if lvl == 1:
-                    t = align(kk, t, pts, ref[m], live)
-                else:
-                    e0 = grey_error(kk, t0, pts, ref[m], live)
-                    t = align(kk, t, pts, ref[m], live)
-                    e1 = grey_error(kk, t, pts, ref[m], live)
+                t = align(kk, t, pts, ref[m], live)
+            # The grey error at full resolution, with the given and with the refined pose.
+            e0 = grey_error(kk, t0, pts, ref[m], live)
+            e1 = grey_error(kk, t, pts, ref[m], live)
             dt = t @ np.linalg.inv(t0)
             ang = np.degrees(np.arccos(np.clip((np.trace(dt[:3, :3]) - 1) / 2, -1, 1)))
             ratio = np.linalg.norm(t[:3, 3]) / np.linalg.norm(t0[:3, 3])

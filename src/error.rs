@@ -7,20 +7,17 @@ use std::path::PathBuf;
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 /// Everything that can go wrong on bad input. Broken internal invariants panic instead.
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug)]
 #[non_exhaustive]
 pub enum Error {
     /// A file could not be opened, read or written.
-    #[error("{}: {source}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
         /// The operating system's error.
-        #[source]
         source: std::io::Error,
     },
     /// A line of a text file is malformed.
-    #[error("{}:{line}: {what}", path.display())]
     Parse {
         /// The file.
         path: PathBuf,
@@ -31,7 +28,6 @@ pub enum Error {
     },
     /// A file exists but its content is unusable (undecodable or truncated image, wrong bit depth,
     /// wrong size, non-finite values, ...).
-    #[error("{}: {what}", path.display())]
     BadFile {
         /// The file.
         path: PathBuf,
@@ -39,7 +35,6 @@ pub enum Error {
         what: String,
     },
     /// A folder is not a sequence in any format we read, or is one with no usable frames.
-    #[error("{}: {what}", path.display())]
     BadSequence {
         /// The sequence folder.
         path: PathBuf,
@@ -48,7 +43,6 @@ pub enum Error {
     },
     /// A backend cannot run an op, a shape or a tensor it was given (SPEC.md §15): never a silent
     /// fallback to another backend.
-    #[error("backend {backend}: unsupported: {what}")]
     Unsupported {
         /// The backend's name (`--backend`).
         backend: String,
@@ -56,13 +50,37 @@ pub enum Error {
         what: String,
     },
     /// A command-line or API argument is out of range.
-    #[error("invalid {name}: {what}")]
     InvalidArgument {
         /// The argument's name (as on the command line where there is one).
         name: String,
         /// What is wrong with it.
         what: String,
     },
+}
+
+// Display and source by hand rather than through `thiserror`: its proc-macro (and the `syn` it
+// needs) sat on the critical path of every clean build for six format strings (issue 33).
+impl std::fmt::Display for Error {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Error::Io { path, source } => write!(f, "{}: {source}", path.display()),
+            Error::Parse { path, line, what } => write!(f, "{}:{line}: {what}", path.display()),
+            Error::BadFile { path, what } | Error::BadSequence { path, what } => {
+                write!(f, "{}: {what}", path.display())
+            }
+            Error::Unsupported { backend, what } => write!(f, "backend {backend}: unsupported: {what}"),
+            Error::InvalidArgument { name, what } => write!(f, "invalid {name}: {what}"),
+        }
+    }
+}
+
+impl std::error::Error for Error {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Error::Io { source, .. } => Some(source),
+            _ => None,
+        }
+    }
 }
 
 impl Error {

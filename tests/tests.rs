@@ -1,6 +1,7 @@
 //! The integration tests, one binary (issue 33 item 5): one module per area, the shared furniture
-//! in `common`. The GPU parity suite is its own target (`tests/parity.rs`), built only with
-//! `--features gpu` in CI.
+//! in `common`. The parity suite (`tests/parity.rs`: every backend this build has against the f64
+//! reference) is a module here in a build without `gpu`, and its own target, built only with
+//! `--features gpu` (`cargo test --features gpu --test parity`, CI on lavapipe).
 
 mod common;
 
@@ -28,6 +29,8 @@ mod nn_kernels;
 mod nn_winograd;
 mod nn_winograd_deconv;
 mod normals_net;
+#[cfg(not(feature = "gpu"))]
+mod parity;
 mod patch_volume;
 mod photometric;
 mod plot;

@@ -1,7 +1,7 @@
 //! Diagnostic (SPEC.md §11.8): render a classic synthetic scene with a chosen camera response, to
 //! see which photometric effect limits RGB matching.
 //!
-//! `cargo run --release --example synth_photometric -- SEED OUT GAIN BIAS VIGNETTING NOISE`
+//! `cargo run -p densefeat-benches --release --example synth_photometric -- SEED OUT GAIN BIAS VIGNETTING NOISE`
 //! (the default response is `0.12 5 0.35 1`; `0 0 0 0` is `PhotometricConfig::none()`).
 
 use densefeat::error::{Error, Result};

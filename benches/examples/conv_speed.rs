@@ -10,7 +10,7 @@
 //! ran about 25% below wall time for the FMA peak loop even when idle. The peak loop is printed
 //! before and after, to tell the host's fast and slow clock states apart.
 //!
-//! `cargo run --release --example conv_speed [rounds] [shape filter, e.g. 640]`; set
+//! `cargo run -p densefeat-benches --release --example conv_speed [rounds] [shape filter, e.g. 640]`; set
 //! `CONV_SHAPE=h,w,c_in,c_out,stride` to time another shape.
 
 use densefeat::ops::conv2d::{

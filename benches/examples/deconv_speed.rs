@@ -4,7 +4,7 @@
 //! report gives the median and best ms and the effective GFLOP/s (`2 · 25 c_in c_out h w / time`,
 //! the direct transposed convolution's count, also for Winograd).
 //!
-//! `cargo run --release --example deconv_speed [rounds]`; set `DECONV_SHAPE=h,w,c_in,c_out` to time
+//! `cargo run -p densefeat-benches --release --example deconv_speed [rounds]`; set `DECONV_SHAPE=h,w,c_in,c_out` to time
 //! another input shape.
 
 use densefeat::ops::{deconv2d_into, Deconv2dGeometry, Deconv2dImpl};

@@ -8,7 +8,8 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use densefeat::dtam::{
-    edge_weights, exhaustive_search, search_with_energy, solve, total_energy, CostRange, DtamParams, HuberTv,
+    edge_weights, exhaustive_search, search_with_energy, solve, total_energy, CostRange, DtamParams,
+    DtamProblem, HuberTv,
 };
 use densefeat::perf::{tv_inputs, TvInputs};
 use densefeat::runtime::CpuFeatureLevel;
@@ -57,7 +58,10 @@ fn dtam(c: &mut Criterion) {
         });
         c.bench_function(&format!("cpu_dtam_solve_320x240_k64_t{threads}"), |b| {
             b.iter(|| {
-                pool.install(|| solve(costs.view(), &bins, grey.view(), init.view(), &p).expect("valid"))
+                pool.install(|| {
+                    solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &p))
+                        .expect("valid")
+                })
             })
         });
     }

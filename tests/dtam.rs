@@ -7,7 +7,8 @@ use densefeat::costvolume::{CostVolume, UNSEEN_COST};
 use densefeat::dtam::search::exhaustive_search_full;
 use densefeat::dtam::{
     edge_weights, exhaustive_search, exhaustive_search_reference, exhaustive_search_with, rms_gap,
-    search_with_energy, solve, solve_reference, solve_with, total_energy, CostRange, DtamParams, HuberTv,
+    search_with_energy, solve, solve_reference, solve_with, total_energy, CostRange, DtamParams, DtamProblem,
+    HuberTv,
 };
 use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
 use densefeat::image::to_gray;
@@ -90,9 +91,9 @@ proptest! {
             lambda, theta_start, theta_end: theta_start * 1e-4, iterations: 12, max_iterations: 20,
             steps_per_search: steps, ..DtamParams::default()
         };
-        let reference = fingerprint(solve_reference(costs.view(), &bins, grey.view(), init.view(), &params).unwrap());
+        let reference = fingerprint(solve_reference(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)).unwrap());
         for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
-            let got = solve_with(costs.view(), &bins, grey.view(), init.view(), &params, dispatch).unwrap();
+            let got = solve_with(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params), dispatch).unwrap();
             prop_assert_eq!(&fingerprint(got), &reference, "{:?}", dispatch);
         }
     }
@@ -179,9 +180,9 @@ proptest! {
             lambda, theta_start, theta_end: theta_start * 1e-4, iterations: 8, max_iterations: 10,
             ..DtamParams::default()
         };
-        let reference = fingerprint(solve_reference(costs.view(), &bins, grey.view(), init.view(), &params).unwrap());
+        let reference = fingerprint(solve_reference(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)).unwrap());
         for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
-            let got = solve_with(costs.view(), &bins, grey.view(), init.view(), &params, dispatch).unwrap();
+            let got = solve_with(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params), dispatch).unwrap();
             prop_assert_eq!(&fingerprint(got), &reference, "{:?}", dispatch);
         }
     }
@@ -236,12 +237,19 @@ fn fused_solve_equals_the_reference_on_every_thread_count() {
     ];
     for (i, (costs, bins, grey, init, params)) in cases.into_iter().enumerate() {
         let reference = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| {
-            fingerprint(solve_reference(costs.view(), bins, grey.view(), init.view(), &params).unwrap())
+            fingerprint(
+                solve_reference(&DtamProblem::new(costs.view(), bins, grey.view(), init.view(), &params))
+                    .unwrap(),
+            )
         });
         for n in [1, 2, 3, 8] {
             for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
                 let got = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| {
-                    solve_with(costs.view(), bins, grey.view(), init.view(), &params, dispatch).unwrap()
+                    solve_with(
+                        &DtamProblem::new(costs.view(), bins, grey.view(), init.view(), &params),
+                        dispatch,
+                    )
+                    .unwrap()
                 });
                 assert!(fingerprint(got) == reference, "case {i}, {n} threads, {dispatch:?}");
             }
@@ -417,7 +425,9 @@ fn constant_cost_volume_and_constant_depth_are_a_fixed_point() {
     let mut r = stream(5);
     let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32); // any image
     let init = Array2::from_elem((h, w), bins.rho(5) as f32);
-    let (res, report) = solve(costs.view(), &bins, grey.view(), init.view(), &DtamParams::default()).unwrap();
+    let (res, report) =
+        solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &DtamParams::default()))
+            .unwrap();
     assert_eq!(res.inverse_depth, init);
     assert_eq!(res.auxiliary, init);
     assert_eq!(report.iterations, DtamParams::default().iterations);
@@ -432,7 +442,9 @@ fn constant_image_with_data_at_the_current_depth_is_a_fixed_point() {
     let costs = Array3::from_shape_fn((h, w, k), |(_, _, kk)| (kk as f32 - k0 as f32).abs() * 3.0);
     let grey = Array2::from_elem((h, w), 100.0f32);
     let init = Array2::from_elem((h, w), bins.rho(k0) as f32);
-    let (res, _) = solve(costs.view(), &bins, grey.view(), init.view(), &DtamParams::default()).unwrap();
+    let (res, _) =
+        solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &DtamParams::default()))
+            .unwrap();
     for &d in res.inverse_depth.iter() {
         assert!((d as f64 - bins.rho(k0)).abs() < 1e-6, "{d} vs {}", bins.rho(k0));
     }
@@ -449,7 +461,8 @@ fn solve_is_independent_of_thread_count() {
     let params = DtamParams { iterations: 40, ..DtamParams::default() };
     let run = |n: usize| {
         rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| {
-            let (res, rep) = solve(costs.view(), &bins, grey.view(), init.view(), &params).unwrap();
+            let (res, rep) =
+                solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)).unwrap();
             (res.inverse_depth.mapv(f32::to_bits), rep.energy.iter().map(|e| e.to_bits()).collect::<Vec<_>>())
         })
     };
@@ -470,10 +483,11 @@ fn bad_parameters_are_rejected() {
         DtamParams { iterations: 0, ..DtamParams::default() },
         DtamParams { epsilon: f64::NAN, ..DtamParams::default() },
     ] {
-        assert!(solve(costs.view(), &bins, img.view(), img.view(), &p).is_err(), "{p:?}");
+        assert!(solve(&DtamProblem::new(costs.view(), &bins, img.view(), img.view(), &p)).is_err(), "{p:?}");
     }
     let wrong = Array2::<f32>::zeros((3, 2));
-    assert!(solve(costs.view(), &bins, wrong.view(), img.view(), &DtamParams::default()).is_err());
+    assert!(solve(&DtamProblem::new(costs.view(), &bins, wrong.view(), img.view(), &DtamParams::default()))
+        .is_err());
 }
 
 /// Render a weakly textured plane from five cameras on a horizontal line, build the RGB cost
@@ -502,7 +516,8 @@ fn plane_case(plane: Quad) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     // per run.
     let params = DtamParams { lambda: 300.0, ..DtamParams::default() };
     let (tv, report) =
-        solve(cv.costs().view(), &bins, grey.view(), wta.inverse_depth.view(), &params).unwrap();
+        solve(&DtamProblem::new(cv.costs().view(), &bins, grey.view(), wta.inverse_depth.view(), &params))
+            .unwrap();
     eprintln!(
         "TV: {} iterations, {:.3} s, energy {:.4e} -> {:.4e}",
         report.iterations,

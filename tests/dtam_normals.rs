@@ -4,7 +4,7 @@
 
 use densefeat::costvolume::CostVolume;
 use densefeat::dtam::normal_prior::{adjoint, apply, slope, Reference};
-use densefeat::dtam::{solve, solve_normals, DtamParams, HuberTv, SlopeField};
+use densefeat::dtam::{solve, DtamParams, DtamProblem, HuberTv, SlopeField};
 use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
 use densefeat::image::to_gray;
 use densefeat::io::write_npy_f32;
@@ -83,6 +83,36 @@ proptest! {
 }
 
 #[test]
+fn a_normal_problem_solves_the_same_on_every_path_and_a_wrong_slope_is_refused() {
+    // One `DtamProblem` (issue 33 item 2): `dtam::solve`, the unfused `solve_reference` and the CPU
+    // backend give the same bits; a slope field of another size is refused before any work.
+    use densefeat::backend::{Backend, CpuBackend};
+    use densefeat::dtam::solve_reference;
+    let (h, w, k) = (23, 31, 40);
+    let mut r = stream(7);
+    let costs = Array3::from_shape_fn((h, w, k), |_| (r() * 50.0) as f32);
+    let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
+    let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
+    let init = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
+    let q = random_field(h, w, 0.05, 8);
+    let params =
+        DtamParams { iterations: 12, max_iterations: 16, steps_per_search: 2, ..DtamParams::default() };
+    let problem = DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params).with_slope(&q);
+    let bits = |(res, _): (densefeat::dtam::DtamResult, densefeat::dtam::DtamReport)| {
+        (res.inverse_depth.mapv(f32::to_bits), res.auxiliary.mapv(f32::to_bits))
+    };
+    let fused = bits(solve(&problem).unwrap());
+    assert!(bits(solve_reference(&problem).unwrap()) == fused, "the unfused definition differs");
+    assert!(bits(CpuBackend::default().dtam_solve(&problem).unwrap()) == fused, "the backend differs");
+    let tv = bits(solve(&DtamProblem { slope: None, ..problem }).unwrap());
+    assert!(tv != fused, "the slope field must change the solve");
+
+    let small = random_field(h - 1, w, 0.05, 8);
+    let e = solve(&problem.with_slope(&small)).unwrap_err().to_string();
+    assert!(e.contains("normals") && e.contains("slope field"), "{e}");
+}
+
+#[test]
 fn normal_solve_is_independent_of_thread_count() {
     let (h, w, k) = (37, 53, 48);
     let mut r = stream(41);
@@ -95,8 +125,10 @@ fn normal_solve_is_independent_of_thread_count() {
         DtamParams { iterations: 20, max_iterations: 30, steps_per_search: 3, ..DtamParams::default() };
     let run = |n: usize| {
         rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| {
-            let (res, rep) =
-                solve_normals(costs.view(), &bins, grey.view(), init.view(), &q, &params).unwrap();
+            let (res, rep) = solve(
+                &DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params).with_slope(&q),
+            )
+            .unwrap();
             (
                 res.inverse_depth.mapv(f32::to_bits),
                 res.auxiliary.mapv(f32::to_bits),
@@ -213,10 +245,14 @@ fn rgb_plane_case(degrees: f64, lambda: f64) -> [Vec<f64>; 4] {
         cam.width,
         bins.rho_max - bins.rho_min,
     );
-    let (tv, _) = solve(costs.view(), &bins, grey.view(), wta.inverse_depth.view(), &params).unwrap();
+    let (tv, _) =
+        solve(&DtamProblem::new(costs.view(), &bins, grey.view(), wta.inverse_depth.view(), &params))
+            .unwrap();
     let q = SlopeField::new(normals_from_depth(&frames[2].depth, &cam).view(), &cam).unwrap();
-    let (nm, _) =
-        solve_normals(costs.view(), &bins, grey.view(), wta.inverse_depth.view(), &q, &params).unwrap();
+    let (nm, _) = solve(
+        &DtamProblem::new(costs.view(), &bins, grey.view(), wta.inverse_depth.view(), &params).with_slope(&q),
+    )
+    .unwrap();
     let gt = frames[2].depth.mapv(|z| 1.0 / z);
     let pick = |m: &Array2<f32>| m.slice(s![10..110, 10..110]).iter().map(|&v| v as f64).collect::<Vec<_>>();
     [pick(&wta.inverse_depth), pick(&tv.inverse_depth), pick(&nm.inverse_depth), pick(&gt)]

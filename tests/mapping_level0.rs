@@ -8,7 +8,7 @@ use std::path::Path;
 use densefeat::costvolume::{
     confidence, cost_scale, filter_evidence, winner_take_all_costs, CostVolume, CostVolumeImpl, UNSEEN_COST,
 };
-use densefeat::dtam::{solve, DtamParams, MAPPING_DEFAULTS, REFERENCE_WIDTH};
+use densefeat::dtam::{solve, DtamParams, DtamProblem, MAPPING_DEFAULTS, REFERENCE_WIDTH};
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use densefeat::mapping::evaluate::{evaluate, EvalOptions, Method};
 use densefeat::mapping::features::{upsample_to, upsample_to_reference};
@@ -214,7 +214,9 @@ fn normalised_dtam_does_not_depend_on_the_feature_scale() {
             12,
             cv.bins().rho_max - cv.bins().rho_min,
         );
-        let (res, report) = solve(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &p).unwrap();
+        let (res, report) =
+            solve(&DtamProblem::new(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &p))
+                .unwrap();
         (s, res.inverse_depth, report.iterations)
     };
     let (s1, d1, n1) = run(1.0);
@@ -248,7 +250,8 @@ fn dtam_stops_on_convergence_after_the_schedule() {
     let grey = Array2::from_elem(w.inverse_depth.dim(), 50.0f32);
     let base = DtamParams { iterations: 20, max_iterations: 400, ..MAPPING_DEFAULTS };
     let p = base.normalised(cost_scale(costs.view()), 12, 1.8);
-    let (_, report) = solve(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &p).unwrap();
+    let (_, report) =
+        solve(&DtamProblem::new(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &p)).unwrap();
     assert!(report.converged);
     assert!(report.iterations >= 20 && report.iterations < 400, "{}", report.iterations);
     assert_eq!(report.gap.len(), report.iterations);
@@ -258,14 +261,20 @@ fn dtam_stops_on_convergence_after_the_schedule() {
     assert!((e[n - 1] - e[n - 2]).abs() <= 1e-3 * e[n - 1].abs().max(e[n - 2].abs()));
     // A cap below convergence: stops there, not converged.
     let capped = DtamParams { max_iterations: 20, ..base }.normalised(cost_scale(costs.view()), 12, 1.8);
-    let (_, r2) = solve(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &capped).unwrap();
+    let (_, r2) =
+        solve(&DtamProblem::new(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &capped))
+            .unwrap();
     assert_eq!(r2.iterations, 20);
     // More primal-dual steps per search also converge, and the result is thread-independent.
     let steps = DtamParams { steps_per_search: 3, ..p };
-    let a =
-        threads(1, || solve(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &steps).unwrap());
-    let b =
-        threads(3, || solve(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &steps).unwrap());
+    let a = threads(1, || {
+        solve(&DtamProblem::new(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &steps))
+            .unwrap()
+    });
+    let b = threads(3, || {
+        solve(&DtamProblem::new(costs.view(), cv.bins(), grey.view(), w.inverse_depth.view(), &steps))
+            .unwrap()
+    });
     assert_eq!(a.0.inverse_depth, b.0.inverse_depth);
     assert_eq!(a.1.energy, b.1.energy);
 }

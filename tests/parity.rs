@@ -15,6 +15,7 @@ use ndarray::{Array1, Array3, Array4};
 
 use densefeat::backend::{self, Backend, CpuBackend, LayerOp, Tensor};
 use densefeat::costvolume::{NO_TRUNCATION, UNSEEN_COST};
+use densefeat::dtam::DtamProblem;
 use densefeat::error::Error;
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use densefeat::mapping::keyframe::{reconstruct, KeyframeConfig, Regularizer};
@@ -543,12 +544,14 @@ fn dtam_one_iteration_matches_within_budget() {
         steps_per_search: 2,
         ..Default::default()
     };
-    let (want, wr) = reference().dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params).unwrap();
+    let (want, wr) = reference()
+        .dtam_solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params))
+        .unwrap();
     for b in backends() {
         let Some((got, report)) = supported(
             b.as_ref(),
             "dtam_solve",
-            b.dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params),
+            b.dtam_solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)),
         ) else {
             continue;
         };
@@ -597,19 +600,22 @@ fn dtam_solve_matches_within_budget_on_one_cost_array() {
         steps_per_search: densefeat::dtam::MAPPING_DEFAULTS.steps_per_search,
         ..Default::default()
     };
-    let (want, wr) = reference().dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params).unwrap();
+    let (want, wr) = reference()
+        .dtam_solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params))
+        .unwrap();
     let step = bins.step() as f32;
     for b in backends() {
         let Some((got, report)) = supported(
             b.as_ref(),
             "dtam_solve",
-            b.dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params),
+            b.dtam_solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)),
         ) else {
             continue;
         };
         let label = format!("{} DTAM solve", b.name());
         assert!(report.iterations >= 20, "{label}: {} iterations", report.iterations);
-        let (again, report2) = b.dtam_solve(costs.view(), &bins, grey.view(), init.view(), &params).unwrap();
+        let (again, report2) =
+            b.dtam_solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)).unwrap();
         assert_same_bits(&format!("{label}: two runs"), &again.inverse_depth, &got.inverse_depth);
         assert_eq!(report2.energy, report.energy, "{label}: two runs' energies");
         if b.name() == "cpu" {
@@ -652,7 +658,8 @@ fn device_mapping_ops_refuse_host_tensors_and_non_finite_costs() {
     for b in backends() {
         let host = Tensor::host(case.reference.clone());
         let wta = b.winner_take_all(costs.view(), &case.bins);
-        let dtam = b.dtam_solve(costs.view(), &case.bins, grey.view(), init.view(), &params);
+        let dtam =
+            b.dtam_solve(&DtamProblem::new(costs.view(), &case.bins, grey.view(), init.view(), &params));
         if b.name() == "cpu" {
             assert!(b.cost_volume(&host, case.camera, case.bins, NO_TRUNCATION).is_ok());
             assert!(wta.is_ok() && dtam.is_ok(), "cpu takes NaN costs");
@@ -677,6 +684,13 @@ fn device_mapping_ops_refuse_host_tensors_and_non_finite_costs() {
         }
         unsupported(wta.map(|_| ()), "NaN cost in WTA");
         unsupported(dtam.map(|_| ()), "NaN cost in DTAM");
+        // The surface-normal prior is not ported (SPEC.md §10.2): a problem with a slope field is
+        // refused, even with finite costs.
+        let finite = Array3::from_elem((5, 6, 4), 1.0f32);
+        let slope = densefeat::dtam::SlopeField::zeros(5, 6);
+        let problem =
+            DtamProblem::new(finite.view(), &case.bins, grey.view(), init.view(), &params).with_slope(&slope);
+        unsupported(b.dtam_solve(&problem).map(|_| ()), "the normal prior in DTAM");
     }
 }
 

@@ -1,13 +1,13 @@
 //! The CPU backend: today's kernels, rayon-parallel and deterministic (SPEC.md §7-§10). It is the
 //! reference every other backend is checked against (`tests/parity.rs`).
 
-use ndarray::{s, Array3, ArrayView2, ArrayView3};
+use ndarray::{s, Array3, ArrayView3};
 
 use std::sync::Arc;
 
 use super::{Backend, LayerOp, PreparedLayer, Tensor, VolumeBuilder};
 use crate::costvolume::{winner_take_all_costs, CostVolume, CostVolumeImpl, WtaDepth};
-use crate::dtam::{DtamParams, DtamReport, DtamResult};
+use crate::dtam::{DtamProblem, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use crate::ops::conv2d::{OutputLayout, WinogradKernel};
@@ -351,27 +351,8 @@ impl Backend for CpuBackend {
         Ok(winner_take_all_costs(costs, bins))
     }
 
-    fn dtam_solve(
-        &self,
-        costs: ArrayView3<f32>,
-        bins: &InverseDepthBins,
-        grey: ArrayView2<f32>,
-        init: ArrayView2<f32>,
-        params: &DtamParams,
-    ) -> Result<(DtamResult, DtamReport)> {
-        crate::dtam::solve_with(costs, bins, grey, init, params, self.level)
-    }
-
-    fn dtam_solve_normals(
-        &self,
-        costs: ArrayView3<f32>,
-        bins: &InverseDepthBins,
-        grey: ArrayView2<f32>,
-        init: ArrayView2<f32>,
-        slope: &crate::dtam::SlopeField,
-        params: &DtamParams,
-    ) -> Result<(DtamResult, DtamReport)> {
-        crate::dtam::solve_normals_with(costs, bins, grey, init, slope, params, self.level)
+    fn dtam_solve(&self, problem: &DtamProblem) -> Result<(DtamResult, DtamReport)> {
+        crate::dtam::solve_with(problem, self.level)
     }
 }
 

@@ -35,10 +35,10 @@ mod tensor;
 use std::fmt::Debug;
 use std::sync::Arc;
 
-use ndarray::{Array3, ArrayView2, ArrayView3};
+use ndarray::{Array3, ArrayView3};
 
 use crate::costvolume::{CostVolume, WtaDepth};
-use crate::dtam::{DtamParams, DtamReport, DtamResult};
+use crate::dtam::{DtamProblem, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use crate::ops::LayerParams;
@@ -312,39 +312,13 @@ pub trait Backend: Send + Sync + Debug {
     /// # Errors
     /// [`Error::Unsupported`].
     fn winner_take_all(&self, costs: ArrayView3<f32>, bins: &InverseDepthBins) -> Result<WtaDepth>;
-    /// DTAM's Huber-TV solve to convergence (SPEC.md §10): every iteration is a primal-dual step,
-    /// the exhaustive a-search and the energy.
+    /// DTAM's solve to convergence (SPEC.md §10): every iteration is a primal-dual step, the
+    /// exhaustive a-search and the energy; Huber-TV, or the surface-normal prior (SPEC.md §10.2)
+    /// where the problem has a slope field.
     ///
     /// # Errors
-    /// Bad parameters or shapes; [`Error::Unsupported`].
-    fn dtam_solve(
-        &self,
-        costs: ArrayView3<f32>,
-        bins: &InverseDepthBins,
-        grey: ArrayView2<f32>,
-        init: ArrayView2<f32>,
-        params: &DtamParams,
-    ) -> Result<(DtamResult, DtamReport)>;
-    /// DTAM with the surface-normal prior (SPEC.md §10.2) for the slope field `slope`.
-    ///
-    /// # Errors
-    /// Bad parameters or shapes; [`Error::Unsupported`] on every backend but the CPU (not ported).
-    fn dtam_solve_normals(
-        &self,
-        costs: ArrayView3<f32>,
-        bins: &InverseDepthBins,
-        grey: ArrayView2<f32>,
-        init: ArrayView2<f32>,
-        slope: &crate::dtam::SlopeField,
-        params: &DtamParams,
-    ) -> Result<(DtamResult, DtamReport)> {
-        let _ = (costs, bins, grey, init, slope, params);
-        Err(Error::Unsupported {
-            backend: self.name().into(),
-            what: "the surface-normal prior (--regularizer normals) runs on the CPU only; use --backend cpu"
-                .into(),
-        })
-    }
+    /// Bad parameters or shapes; [`Error::Unsupported`] (on `gpu`: the normal prior, not ported).
+    fn dtam_solve(&self, problem: &DtamProblem) -> Result<(DtamResult, DtamReport)>;
 }
 
 /// A cost volume being accumulated by a backend, one live frame at a time.

@@ -11,7 +11,7 @@ use clap::Args;
 use super::synth::parse_size;
 use densefeat::dtam::{
     exhaustive_search, exhaustive_search_reference, rms_gap, search_with_energy, solve, total_energy,
-    CostRange, DtamParams, HuberTv,
+    CostRange, DtamParams, DtamProblem, HuberTv,
 };
 use densefeat::error::{Error, Result};
 use densefeat::perf::{tv_inputs, TvInputs};
@@ -140,8 +140,13 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
         }
         for _ in 0..3 {
             let t = Instant::now();
-            let (_, report) =
-                std::hint::black_box(solve(costs.view(), &bins, grey.view(), init.view(), &params)?);
+            let (_, report) = std::hint::black_box(solve(&DtamProblem::new(
+                costs.view(),
+                &bins,
+                grey.view(),
+                init.view(),
+                &params,
+            ))?);
             solves.push(t.elapsed().as_secs_f64());
             solve_iterations = report.iterations;
         }

@@ -4,7 +4,7 @@
 
 use super::bench_tv::{median_ms, BenchTvArgs};
 use densefeat::backend::{Backend, GpuBackend};
-use densefeat::dtam::DtamParams;
+use densefeat::dtam::{DtamParams, DtamProblem};
 use densefeat::error::Result;
 use densefeat::perf::{tv_inputs, TvInputs};
 
@@ -23,17 +23,19 @@ pub(super) fn run(args: &BenchTvArgs, width: usize, height: usize) -> Result<()>
     // A fixed number of iterations: a schedule as long as the cap, so nothing stops early.
     let fixed = DtamParams { iterations: args.runs, max_iterations: args.runs, ..params };
     let warm = DtamParams { iterations: 2, max_iterations: 2, ..fixed };
-    gpu.dtam_solve_timed(costs.view(), &bins, grey.view(), init.view(), &warm)?;
+    gpu.dtam_solve_timed(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &warm))?;
     let (mut upload, mut iteration, mut download) = (vec![], vec![], vec![]);
     for _ in 0..REPEATS {
-        let (_, report, t) = gpu.dtam_solve_timed(costs.view(), &bins, grey.view(), init.view(), &fixed)?;
+        let (_, report, t) =
+            gpu.dtam_solve_timed(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &fixed))?;
         upload.push(t.upload_s);
         iteration.push(t.iterate_s / report.iterations.max(1) as f64);
         download.push(t.download_s);
     }
     let (mut solves, mut iterations) = (vec![], 0);
     for _ in 0..REPEATS {
-        let (_, report, t) = gpu.dtam_solve_timed(costs.view(), &bins, grey.view(), init.view(), &params)?;
+        let (_, report, t) =
+            gpu.dtam_solve_timed(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params))?;
         solves.push(t.upload_s + t.iterate_s + t.download_s);
         iterations = report.iterations;
     }

@@ -227,40 +227,102 @@ pub struct DtamResult {
     pub auxiliary: Array2<f32>,
 }
 
-/// Run DTAM on `costs` (`[H, W, K]`, cells `>= crate::costvolume::UNSEEN_COST` are unseen and
-/// skipped), starting from `init` inverse depth (typically winner-take-all), with edge weights from
-/// the reference image's grey levels `grey` (`[H, W]`, 0-255).
+/// One DTAM solve's inputs (SPEC.md §10), the value every solver and every backend takes: the
+/// finalised cost volume and its hypotheses, the keyframe's grey levels (for the edge weights), the
+/// initial inverse depth, the parameters, and the regulariser (Huber-TV, or the surface-normal prior
+/// of SPEC.md §10.2 with its slope field).
+#[derive(Clone, Copy, Debug)]
+pub struct DtamProblem<'a> {
+    /// `[H, W, K]` mean costs; cells `>= crate::costvolume::UNSEEN_COST` are unseen and skipped.
+    pub costs: ArrayView3<'a, f32>,
+    /// The `K` inverse-depth hypotheses of `costs`.
+    pub bins: &'a InverseDepthBins,
+    /// The reference image's grey levels, `[H, W]`, 0-255.
+    pub grey: ArrayView2<'a, f32>,
+    /// The initial inverse depth `d = a`, `[H, W]`, 1/m (typically winner-take-all).
+    pub init: ArrayView2<'a, f32>,
+    /// The solver's parameters.
+    pub params: &'a DtamParams,
+    /// `None`: Huber-TV (`g ‖∇d‖_ε`); `Some(q)`: the normal prior (`g ‖∇d − d q‖_ε`).
+    pub slope: Option<&'a SlopeField>,
+}
+
+impl<'a> DtamProblem<'a> {
+    /// A Huber-TV problem.
+    pub fn new(
+        costs: ArrayView3<'a, f32>,
+        bins: &'a InverseDepthBins,
+        grey: ArrayView2<'a, f32>,
+        init: ArrayView2<'a, f32>,
+        params: &'a DtamParams,
+    ) -> Self {
+        Self { costs, bins, grey, init, params, slope: None }
+    }
+
+    /// The same problem with the surface-normal prior for the slope field `slope` (SPEC.md §10.2).
+    pub fn with_slope(self, slope: &'a SlopeField) -> Self {
+        Self { slope: Some(slope), ..self }
+    }
+
+    /// The same problem with other parameters (a λ sweep).
+    pub fn with_params(self, params: &'a DtamParams) -> Self {
+        Self { params, ..self }
+    }
+
+    /// Valid parameters, and sizes that agree: costs `[H, W, K]` with `K` hypotheses, image,
+    /// initial depth and slope field `[H, W]`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming what is wrong.
+    pub fn check(&self) -> Result<()> {
+        self.params.validate()?;
+        let (h, w, k) = self.costs.dim();
+        if k != self.bins.count || self.grey.dim() != (h, w) || self.init.dim() != (h, w) {
+            return Err(Error::invalid_argument(
+                "DTAM inputs",
+                format!(
+                    "cost volume {:?} with {} bins, image {:?}, initial depth {:?}: sizes must agree",
+                    self.costs.dim(),
+                    self.bins.count,
+                    self.grey.dim(),
+                    self.init.dim()
+                ),
+            ));
+        }
+        if let Some(q) = self.slope {
+            if q.dim() != (h, w) {
+                return Err(Error::invalid_argument(
+                    "normals",
+                    format!("slope field {:?} does not match the image {:?}", q.dim(), (h, w)),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Run DTAM on `problem` to convergence: Huber-TV, or the normal prior where the problem has a
+/// slope field, with the process's CPU-feature level.
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] for bad parameters or mismatched shapes.
-pub fn solve(
-    costs: ArrayView3<f32>,
-    bins: &InverseDepthBins,
-    grey: ArrayView2<f32>,
-    init: ArrayView2<f32>,
-    params: &DtamParams,
-) -> Result<(DtamResult, DtamReport)> {
-    solve_with(costs, bins, grey, init, params, CpuFeatureLevel::get())
+pub fn solve(problem: &DtamProblem) -> Result<(DtamResult, DtamReport)> {
+    solve_with(problem, CpuFeatureLevel::get())
 }
 
-/// [`solve`] at an explicit CPU-feature level (the same bits at every level; a backend passes its own).
+/// [`solve`] with the row kernels of `level` (a backend passes its own; the same bits for every
+/// level).
 ///
 /// # Errors
 /// As [`solve`].
-pub fn solve_with(
-    costs: ArrayView3<f32>,
-    bins: &InverseDepthBins,
-    grey: ArrayView2<f32>,
-    init: ArrayView2<f32>,
-    params: &DtamParams,
-    level: CpuFeatureLevel,
-) -> Result<(DtamResult, DtamReport)> {
-    check_inputs(costs, bins, grey, init, params)?;
+pub fn solve_with(problem: &DtamProblem, level: CpuFeatureLevel) -> Result<(DtamResult, DtamReport)> {
+    problem.check()?;
+    let (bins, params) = (problem.bins, problem.params);
     let start = Instant::now();
-    let costs = costs.as_standard_layout();
+    let costs = problem.costs.as_standard_layout();
     let costs = costs.view();
     let range = CostRange::new(costs);
-    Ok(iterate(start, grey, init, params, bins, None, |n, tv, a| {
+    Ok(iterate(start, problem, |n, tv, a| {
         let theta = params.theta(n);
         tv.steps_with(a.view(), theta, params.steps_per_search, level);
         let m = search_with_energy(costs, &range, bins, tv, theta, params.lambda, a, level);
@@ -268,25 +330,18 @@ pub fn solve_with(
     }))
 }
 
-/// The unfused formulation of [`solve`], kept as its definition: per iteration
-/// [`HuberTv::step_reference`], [`exhaustive_search_reference`], [`total_energy`] and [`rms_gap`],
-/// each a separate pass. [`solve`] returns the same bits
-/// (`fused_solve_equals_the_reference_bit_for_bit` in tests/dtam.rs); this one is several times
-/// slower.
+/// The same solve in the unfused formulation of the module docs (one primal-dual step at a time
+/// with [`HuberTv::step_reference`], [`exhaustive_search_reference`], [`total_energy`],
+/// [`rms_gap`]): the definition [`solve`] is tested against.
 ///
 /// # Errors
 /// As [`solve`].
-pub fn solve_reference(
-    costs: ArrayView3<f32>,
-    bins: &InverseDepthBins,
-    grey: ArrayView2<f32>,
-    init: ArrayView2<f32>,
-    params: &DtamParams,
-) -> Result<(DtamResult, DtamReport)> {
-    check_inputs(costs, bins, grey, init, params)?;
+pub fn solve_reference(problem: &DtamProblem) -> Result<(DtamResult, DtamReport)> {
+    problem.check()?;
+    let (costs, bins, params) = (problem.costs, problem.bins, problem.params);
     let start = Instant::now();
     let range = CostRange::new(costs);
-    Ok(iterate(start, grey, init, params, bins, None, |n, tv, a| {
+    Ok(iterate(start, problem, |n, tv, a| {
         let theta = params.theta(n);
         for _ in 0..params.steps_per_search {
             tv.step_reference(a.view(), theta);
@@ -297,69 +352,15 @@ pub fn solve_reference(
     }))
 }
 
-/// DTAM with the surface-normal prior (SPEC.md §10.2): [`solve`] with the regulariser
-/// `Σ ‖g (∇d − d q)‖_ε` for the slope field `q` of the keyframe's normals
-/// ([`SlopeField::new`]), the same schedule, a-search, energy and stopping rule.
-///
-/// # Errors
-/// As [`solve`]; [`Error::InvalidArgument`] if the field's grid differs from the volume's.
-pub fn solve_normals(
-    costs: ArrayView3<f32>,
-    bins: &InverseDepthBins,
-    grey: ArrayView2<f32>,
-    init: ArrayView2<f32>,
-    slope: &SlopeField,
-    params: &DtamParams,
-) -> Result<(DtamResult, DtamReport)> {
-    solve_normals_with(costs, bins, grey, init, slope, params, CpuFeatureLevel::get())
-}
-
-/// [`solve_normals`] at an explicit CPU-feature level (the same bits at every level).
-///
-/// # Errors
-/// As [`solve_normals`].
-pub fn solve_normals_with(
-    costs: ArrayView3<f32>,
-    bins: &InverseDepthBins,
-    grey: ArrayView2<f32>,
-    init: ArrayView2<f32>,
-    slope: &SlopeField,
-    params: &DtamParams,
-    level: CpuFeatureLevel,
-) -> Result<(DtamResult, DtamReport)> {
-    check_inputs(costs, bins, grey, init, params)?;
-    if slope.dim() != grey.dim() {
-        return Err(Error::invalid_argument(
-            "normals",
-            format!("slope field {:?} does not match the image {:?}", slope.dim(), grey.dim()),
-        ));
-    }
-    let start = Instant::now();
-    let costs = costs.as_standard_layout();
-    let costs = costs.view();
-    let range = CostRange::new(costs);
-    Ok(iterate(start, grey, init, params, bins, Some(slope), |n, tv, a| {
-        let theta = params.theta(n);
-        tv.steps_with(a.view(), theta, params.steps_per_search, level);
-        let m = search_with_energy(costs, &range, bins, tv, theta, params.lambda, a, level);
-        (m.energy, m.gap)
-    }))
-}
-
-/// The solve loop [`solve_with`] and [`solve_reference`] share (timed from `start`): edge weights, `d = a = init`, then
-/// `iteration(n, tv, a)` (which updates `d`, `q` and `a` and returns the energy and the gap) until
-/// the stopping rule of SPEC.md §10 or `max_iterations`.
 fn iterate(
     start: Instant,
-    grey: ArrayView2<f32>,
-    init: ArrayView2<f32>,
-    params: &DtamParams,
-    bins: &InverseDepthBins,
-    slope: Option<&SlopeField>,
+    problem: &DtamProblem,
     mut iteration: impl FnMut(usize, &mut HuberTv, &mut Array2<f32>) -> (f64, f64),
 ) -> (DtamResult, DtamReport) {
-    let g = edge_weights(grey, params.alpha, params.beta);
-    let mut tv = match slope {
+    let params = problem.params;
+    let g = edge_weights(problem.grey, params.alpha, params.beta);
+    let init = problem.init;
+    let mut tv = match problem.slope {
         Some(q) => HuberTv::with_slope(init.to_owned(), g, params.epsilon, q),
         None => HuberTv::new(init.to_owned(), g, params.epsilon),
     };
@@ -367,7 +368,7 @@ fn iterate(
     let mut history = History::new(params);
     for n in 0..params.max_iterations {
         let (e, gap) = iteration(n, &mut tv, &mut a);
-        if history.push(n, e, gap, params, bins) {
+        if history.push(n, e, gap, params, problem.bins) {
             break;
         }
     }
@@ -375,32 +376,6 @@ fn iterate(
     (DtamResult { inverse_depth: tv.primal().to_owned(), auxiliary: a }, report)
 }
 
-pub(crate) fn check_inputs(
-    costs: ArrayView3<f32>,
-    bins: &InverseDepthBins,
-    grey: ArrayView2<f32>,
-    init: ArrayView2<f32>,
-    params: &DtamParams,
-) -> Result<()> {
-    params.validate()?;
-    let (h, w, k) = costs.dim();
-    if k != bins.count || grey.dim() != (h, w) || init.dim() != (h, w) {
-        return Err(Error::invalid_argument(
-            "DTAM inputs",
-            format!(
-                "cost volume {:?} with {} bins, image {:?}, initial depth {:?}: sizes must agree",
-                costs.dim(),
-                bins.count,
-                grey.dim(),
-                init.dim()
-            ),
-        ));
-    }
-    Ok(())
-}
-
-/// The energies and gaps so far, and the stopping rule (SPEC.md §10). Shared with the GPU backend's
-/// solve, so that both stop by the same rule.
 pub(crate) struct History {
     energy: Vec<f64>,
     gap: Vec<f64>,

@@ -16,7 +16,7 @@ use serde::Serialize;
 use crate::backend::Backend;
 use crate::costvolume::{check_truncation, confidence_and_scale, filter_evidence, NO_TRUNCATION};
 use crate::dtam::SlopeField;
-use crate::dtam::{DtamParams, DtamReport, DtamResult};
+use crate::dtam::{DtamParams, DtamProblem, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
 use crate::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
@@ -693,19 +693,11 @@ pub fn reconstruct_with(
                 camera.width,
                 bins.rho_max - bins.rho_min,
             );
-            let (res, report) = match slope {
-                None => {
-                    backend.dtam_solve(costs.view(), &bins, grey.view(), w.inverse_depth.view(), &params)?
-                }
-                Some(q) => backend.dtam_solve_normals(
-                    costs.view(),
-                    &bins,
-                    grey.view(),
-                    w.inverse_depth.view(),
-                    q,
-                    &params,
-                )?,
+            let problem = DtamProblem {
+                slope,
+                ..DtamProblem::new(costs.view(), &bins, grey.view(), w.inverse_depth.view(), &params)
             };
+            let (res, report) = backend.dtam_solve(&problem)?;
             Ok((tv_estimate(res, &w.valid), report))
         };
         if cfg.regularizer.tv() {

@@ -20,7 +20,7 @@ use ndarray::{Array2, ArrayView2, ArrayView3};
 use super::{check_finite, f32s, f64s, record, GpuBackend};
 use crate::costvolume::UNSEEN_COST;
 use crate::dtam::huber_tv::STEP;
-use crate::dtam::{edge_weights, DtamParams, DtamReport, DtamResult, History};
+use crate::dtam::{edge_weights, DtamParams, DtamProblem, DtamReport, DtamResult, History};
 use crate::error::Result;
 use crate::geometry::InverseDepthBins;
 
@@ -75,15 +75,8 @@ struct State<'a> {
 /// # Errors
 /// Bad parameters or shapes (as the CPU); no shader f64; non-finite costs or initial depth; buffers
 /// over the adapter's binding limit; device errors.
-pub(super) fn solve(
-    gpu: &GpuBackend,
-    costs: ArrayView3<f32>,
-    bins: &InverseDepthBins,
-    grey: ArrayView2<f32>,
-    init: ArrayView2<f32>,
-    params: &DtamParams,
-) -> Result<(DtamResult, DtamReport)> {
-    solve_timed(gpu, costs, bins, grey, init, params).map(|(r, report, _)| (r, report))
+pub(super) fn solve(gpu: &GpuBackend, problem: &DtamProblem) -> Result<(DtamResult, DtamReport)> {
+    solve_timed(gpu, problem).map(|(r, report, _)| (r, report))
 }
 
 /// [`solve`] with the time of its parts.
@@ -92,13 +85,15 @@ pub(super) fn solve(
 /// As [`solve`].
 pub(super) fn solve_timed(
     gpu: &GpuBackend,
-    costs: ArrayView3<f32>,
-    bins: &InverseDepthBins,
-    grey: ArrayView2<f32>,
-    init: ArrayView2<f32>,
-    params: &DtamParams,
+    problem: &DtamProblem,
 ) -> Result<(DtamResult, DtamReport, DtamTimings)> {
-    crate::dtam::check_inputs(costs, bins, grey, init, params)?;
+    problem.check()?;
+    if problem.slope.is_some() {
+        return Err(super::unsupported(
+            "the surface-normal prior (--regularizer normals) runs on the CPU only; use --backend cpu",
+        ));
+    }
+    let DtamProblem { costs, bins, grey, init, params, .. } = *problem;
     gpu.require_f64("dtam_solve", "the solver's per-pixel arithmetic is the CPU's f64")?;
     let start = Instant::now();
     let state = State::new(gpu, costs, bins, grey, init, params)?;

@@ -19,12 +19,12 @@ use std::any::Any;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock, Weak};
 
-use ndarray::{Array3, ArrayView2, ArrayView3};
+use ndarray::{Array3, ArrayView3};
 use wgpu::util::DeviceExt;
 
 use super::{Backend, DeviceBuffer, LayerOp, PreparedLayer, Tensor, VolumeBuilder};
 use crate::costvolume::WtaDepth;
-use crate::dtam::{DtamParams, DtamReport, DtamResult};
+use crate::dtam::{DtamProblem, DtamReport, DtamResult};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera};
 use crate::ops::geometry::DownsampleGeometry;
@@ -131,15 +131,8 @@ impl GpuBackend {
     ///
     /// # Errors
     /// As [`Backend::dtam_solve`].
-    pub fn dtam_solve_timed(
-        &self,
-        costs: ArrayView3<f32>,
-        bins: &InverseDepthBins,
-        grey: ArrayView2<f32>,
-        init: ArrayView2<f32>,
-        params: &DtamParams,
-    ) -> Result<(DtamResult, DtamReport, DtamTimings)> {
-        dtam::solve_timed(self, costs, bins, grey, init, params)
+    pub fn dtam_solve_timed(&self, problem: &DtamProblem) -> Result<(DtamResult, DtamReport, DtamTimings)> {
+        dtam::solve_timed(self, problem)
     }
 
     /// A shared handle to this backend.
@@ -555,15 +548,8 @@ impl Backend for GpuBackend {
         wta::winner_take_all(self, costs, bins)
     }
 
-    fn dtam_solve(
-        &self,
-        costs: ArrayView3<f32>,
-        bins: &InverseDepthBins,
-        grey: ArrayView2<f32>,
-        init: ArrayView2<f32>,
-        params: &DtamParams,
-    ) -> Result<(DtamResult, DtamReport)> {
-        dtam::solve(self, costs, bins, grey, init, params)
+    fn dtam_solve(&self, problem: &DtamProblem) -> Result<(DtamResult, DtamReport)> {
+        dtam::solve(self, problem)
     }
 }
 

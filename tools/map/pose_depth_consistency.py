@@ -104,7 +104,7 @@ def align(k, t, pts, ref, live, iters=15):
     return t
 
 
-def check(seq, step, dscale):
+def check(seq, step, dscale, offsets=(-20, -10, 10, 20)):
     v = [float(x) for x in open(os.path.join(seq, "K.txt")).read().split()]
     k0 = np.array(v[:9]).reshape(3, 3) if len(v) >= 9 else np.array(
         [[v[0], 0, v[2]], [0, v[1], v[3]], [0, 0, 1]])
@@ -123,7 +123,7 @@ def check(seq, step, dscale):
     for kf in range(0, n, step):
         depth = np.array(Image.open(os.path.join(seq, "depth", dnames[kf])), dtype=float) / dscale
         ref0 = blurred_grey(kf)
-        for off in (-20, -10, 10, 20):
+        for off in offsets:
             j = kf + off
             if not 0 <= j < n:
                 continue
@@ -162,7 +162,7 @@ def check(seq, step, dscale):
           f"(quartiles {np.percentile(r, 25):.3f} - {np.percentile(r, 75):.3f}); "
           f"within 2.5 % of 1: {np.mean(np.abs(r - 1) < 0.025):.2f}, within 10 %: "
           f"{np.mean(np.abs(r - 1) < 0.1):.2f}; rotation corrected {np.mean([x[3] for x in rows]):.2f} deg "
-          f"on average; grey error {np.mean([x[4] for x in rows]):.1f} -> {np.mean([x[5] for x in rows]):.1f}")
+          f"on average; grey error {np.nanmean([x[4] for x in rows]):.1f} -> {np.nanmean([x[5] for x in rows]):.1f}")
     return r
 
 
@@ -172,10 +172,12 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("seqs", nargs="+")
     ap.add_argument("--step", type=int, default=5)
+    ap.add_argument("--offsets", default="-20,-10,10,20",
+                    help="live frames relative to each keyframe (the trainer's pairs are 5-50 cm apart)")
     ap.add_argument("--depth-scale", type=float, default=1000.0)
     ap.add_argument("--plot")
     a = ap.parse_args()
-    ratios = {os.path.basename(os.path.normpath(s)): check(s, a.step, a.depth_scale) for s in a.seqs}
+    ratios = {os.path.basename(os.path.normpath(s)): check(s, a.step, a.depth_scale, [int(o) for o in a.offsets.split(",")]) for s in a.seqs}
     if a.plot:
         import matplotlib
 

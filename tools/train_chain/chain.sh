@@ -143,8 +143,23 @@ derive args_mf4sr args_mf4sc --init-weights docs/training/chain_mf4sc2/weights.s
 # every keyframe: not a default candidate unless the real room recovers.
 derive args_mf4sc4 args_mf4sc3 --init-weights docs/training/chain_mf4sc3/weights.safetensors --seed 9
 
+# mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
+# poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were
+# about 2 px off, docs/training/README.md): does cleaner real supervision help the real room, where
+# mf4sr lost? The refined copies live in runs/refined/ (made on `start` when missing; the data are
+# never committed).
+R=runs/refined
+args_mf4rp=("${args_mf4sr[@]/#$D\/hololens_000/$R/hololens_000}")
+args_mf4rp=("${args_mf4rp[@]/#$D\/tsdffusion_desk_box/$R/tsdffusion_desk_box}")
+prepare_mf4rp() {
+  for s in hololens_000 tsdffusion_desk_box; do
+    [ -f "$R/$s/poses.txt" ] || python3 tools/train_chain/refine_poses.py "$D/$s" "$R/$s"
+  done
+}
+
 case "${1:-}" in
   start)
+    if declare -F "prepare_$name" > /dev/null; then "prepare_$name"; fi
     var="args_${name}[@]"
     args=("${!var}")
     mkdir -p "$run"

@@ -16,18 +16,9 @@ use densefeat::ops::{
     conv2d, deconv2d_into, Activation, Conv2dGeometry, Conv2dImpl, Deconv2dGeometry, Deconv2dImpl,
 };
 use densefeat::testing::within_budget;
+use densefeat_benches::CONV_SHAPES;
 use ndarray::{Array1, Array3, Array4};
 use std::hint::black_box;
-
-/// The shapes we run: (h, w, c_in, c_out, stride). B1's first layer is 3 -> 32; the 35-channel
-/// inputs are a coarser block's 32 features concatenated with the downsampled RGB image.
-const SHAPES: [(usize, usize, usize, usize, usize); 5] = [
-    (240, 320, 32, 32, 1),
-    (120, 160, 35, 32, 2),
-    (240, 320, 35, 32, 2),
-    (240, 320, 3, 32, 1),
-    (480, 640, 32, 32, 1),
-];
 
 fn pattern(n: usize, seed: u64) -> impl FnMut() -> f32 {
     let mut s = seed.wrapping_add(n as u64);
@@ -57,7 +48,7 @@ fn check_direct_against_im2col(g: &Conv2dGeometry, x: &Array3<f32>, w: &Array4<f
 fn bench_conv(c: &mut Criterion) {
     let mut group = c.benchmark_group("conv2d");
     group.sample_size(20);
-    for (h, w, c_in, c_out, stride) in SHAPES {
+    for (h, w, c_in, c_out, stride) in CONV_SHAPES {
         let g = Conv2dGeometry::new(h, w, c_in, c_out, stride).expect("valid shape");
         let mut next = pattern(h * w, 1);
         let x = Array3::from_shape_simple_fn(g.input_shape(), &mut next);

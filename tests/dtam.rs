@@ -91,9 +91,10 @@ proptest! {
             lambda, theta_start, theta_end: theta_start * 1e-4, iterations: 12, max_iterations: 20,
             steps_per_search: steps, ..DtamParams::default()
         };
-        let reference = fingerprint(solve_reference(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)).unwrap());
+        let problem = DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params);
+        let reference = fingerprint(solve_reference(&problem).unwrap());
         for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
-            let got = solve_with(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params), dispatch).unwrap();
+            let got = solve_with(&problem, dispatch).unwrap();
             prop_assert_eq!(&fingerprint(got), &reference, "{:?}", dispatch);
         }
     }
@@ -180,9 +181,10 @@ proptest! {
             lambda, theta_start, theta_end: theta_start * 1e-4, iterations: 8, max_iterations: 10,
             ..DtamParams::default()
         };
-        let reference = fingerprint(solve_reference(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)).unwrap());
+        let problem = DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params);
+        let reference = fingerprint(solve_reference(&problem).unwrap());
         for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
-            let got = solve_with(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params), dispatch).unwrap();
+            let got = solve_with(&problem, dispatch).unwrap();
             prop_assert_eq!(&fingerprint(got), &reference, "{:?}", dispatch);
         }
     }
@@ -236,21 +238,19 @@ fn fused_solve_equals_the_reference_on_every_thread_count() {
         (&odd, &bench.bins, &grey, &init, mapping),
     ];
     for (i, (costs, bins, grey, init, params)) in cases.into_iter().enumerate() {
-        let reference = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| {
-            fingerprint(
-                solve_reference(&DtamProblem::new(costs.view(), bins, grey.view(), init.view(), &params))
-                    .unwrap(),
-            )
-        });
+        let problem = DtamProblem::new(costs.view(), bins, grey.view(), init.view(), &params);
+        let reference = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| fingerprint(solve_reference(&problem).unwrap()));
         for n in [1, 2, 3, 8] {
             for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
-                let got = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| {
-                    solve_with(
-                        &DtamProblem::new(costs.view(), bins, grey.view(), init.view(), &params),
-                        dispatch,
-                    )
+                let got = rayon::ThreadPoolBuilder::new()
+                    .num_threads(n)
+                    .build()
                     .unwrap()
-                });
+                    .install(|| solve_with(&problem, dispatch).unwrap());
                 assert!(fingerprint(got) == reference, "case {i}, {n} threads, {dispatch:?}");
             }
         }

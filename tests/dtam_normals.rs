@@ -82,18 +82,28 @@ proptest! {
     }
 }
 
+/// Random DTAM inputs `[h, w, k]` from `seed`: costs in [0, 50), bins over [0.1, 2] 1/m, grey levels
+/// in [0, 255), initial inverse depth in [0.1, 2].
+fn random_solve_inputs(
+    (h, w, k): (usize, usize, usize),
+    seed: u64,
+) -> (Array3<f32>, InverseDepthBins, Array2<f32>, Array2<f32>) {
+    let mut r = stream(seed);
+    let costs = Array3::from_shape_fn((h, w, k), |_| (r() * 50.0) as f32);
+    let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
+    let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
+    let init = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
+    (costs, bins, grey, init)
+}
+
 #[test]
 fn a_normal_problem_solves_the_same_on_every_path_and_a_wrong_slope_is_refused() {
     // One `DtamProblem` (issue 33 item 2): `dtam::solve`, the unfused `solve_reference` and the CPU
     // backend give the same bits; a slope field of another size is refused before any work.
     use densefeat::backend::{Backend, CpuBackend};
     use densefeat::dtam::solve_reference;
-    let (h, w, k) = (23, 31, 40);
-    let mut r = stream(7);
-    let costs = Array3::from_shape_fn((h, w, k), |_| (r() * 50.0) as f32);
-    let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
-    let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
-    let init = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
+    let (h, w) = (23, 31);
+    let (costs, bins, grey, init) = random_solve_inputs((h, w, 40), 7);
     let q = random_field(h, w, 0.05, 8);
     let params =
         DtamParams { iterations: 12, max_iterations: 16, steps_per_search: 2, ..DtamParams::default() };
@@ -114,12 +124,8 @@ fn a_normal_problem_solves_the_same_on_every_path_and_a_wrong_slope_is_refused()
 
 #[test]
 fn normal_solve_is_independent_of_thread_count() {
-    let (h, w, k) = (37, 53, 48);
-    let mut r = stream(41);
-    let costs = Array3::from_shape_fn((h, w, k), |_| (r() * 50.0) as f32);
-    let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
-    let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
-    let init = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
+    let (h, w) = (37, 53);
+    let (costs, bins, grey, init) = random_solve_inputs((h, w, 48), 41);
     let q = random_field(h, w, 0.05, 42);
     let params =
         DtamParams { iterations: 20, max_iterations: 30, steps_per_search: 3, ..DtamParams::default() };

@@ -544,15 +544,10 @@ fn dtam_one_iteration_matches_within_budget() {
         steps_per_search: 2,
         ..Default::default()
     };
-    let (want, wr) = reference()
-        .dtam_solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params))
-        .unwrap();
+    let problem = DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params);
+    let (want, wr) = reference().dtam_solve(&problem).unwrap();
     for b in backends() {
-        let Some((got, report)) = supported(
-            b.as_ref(),
-            "dtam_solve",
-            b.dtam_solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)),
-        ) else {
+        let Some((got, report)) = supported(b.as_ref(), "dtam_solve", b.dtam_solve(&problem)) else {
             continue;
         };
         let label = format!("{} DTAM one iteration", b.name());
@@ -600,22 +595,16 @@ fn dtam_solve_matches_within_budget_on_one_cost_array() {
         steps_per_search: densefeat::dtam::MAPPING_DEFAULTS.steps_per_search,
         ..Default::default()
     };
-    let (want, wr) = reference()
-        .dtam_solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params))
-        .unwrap();
+    let problem = DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params);
+    let (want, wr) = reference().dtam_solve(&problem).unwrap();
     let step = bins.step() as f32;
     for b in backends() {
-        let Some((got, report)) = supported(
-            b.as_ref(),
-            "dtam_solve",
-            b.dtam_solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)),
-        ) else {
+        let Some((got, report)) = supported(b.as_ref(), "dtam_solve", b.dtam_solve(&problem)) else {
             continue;
         };
         let label = format!("{} DTAM solve", b.name());
         assert!(report.iterations >= 20, "{label}: {} iterations", report.iterations);
-        let (again, report2) =
-            b.dtam_solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)).unwrap();
+        let (again, report2) = b.dtam_solve(&problem).unwrap();
         assert_same_bits(&format!("{label}: two runs"), &again.inverse_depth, &got.inverse_depth);
         assert_eq!(report2.energy, report.energy, "{label}: two runs' energies");
         if b.name() == "cpu" {

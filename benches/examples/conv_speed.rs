@@ -18,17 +18,9 @@ use densefeat::ops::conv2d::{
     DirectKernel, PackedConv2d, PackedWinograd, WinogradKernel, WinogradTile,
 };
 use densefeat::ops::{Activation, Conv2dGeometry};
+use densefeat_benches::CONV_SHAPES;
 use ndarray::{Array1, Array3, Array4};
 use std::time::Instant;
-
-/// (h, w, c_in, c_out, stride), as in benches/conv.rs.
-const SHAPES: [(usize, usize, usize, usize, usize); 5] = [
-    (240, 320, 32, 32, 1),
-    (120, 160, 35, 32, 2),
-    (240, 320, 35, 32, 2),
-    (240, 320, 3, 32, 1),
-    (480, 640, 32, 32, 1),
-];
 
 /// Nanoseconds the calling thread has run on a CPU (Linux), or 0 where unknown.
 fn thread_cpu_ns() -> u64 {
@@ -103,7 +95,7 @@ fn main() {
     let shapes = match custom.as_deref() {
         Some(&[h, w, c_in, c_out, s]) => vec![(h, w, c_in, c_out, s)],
         Some(_) => panic!("CONV_SHAPE: h,w,c_in,c_out,stride"),
-        None => SHAPES.to_vec(),
+        None => CONV_SHAPES.to_vec(),
     };
     for (h, w, c_in, c_out, stride) in shapes {
         let g = Conv2dGeometry::new(h, w, c_in, c_out, stride).expect("shape");

@@ -264,11 +264,6 @@ impl<'a> DtamProblem<'a> {
         Self { slope: Some(slope), ..self }
     }
 
-    /// The same problem with other parameters (a λ sweep).
-    pub fn with_params(self, params: &'a DtamParams) -> Self {
-        Self { params, ..self }
-    }
-
     /// Valid parameters, and sizes that agree: costs `[H, W, K]` with `K` hypotheses, image,
     /// initial depth and slope field `[H, W]`.
     ///

@@ -104,13 +104,44 @@ def align(k, t, pts, ref, live, iters=15):
     return t
 
 
-def check(seq, step, dscale, offsets=(-20, -10, 10, 20)):
+def load_sequence(seq):
+    """K (3x3), the camera-to-world poses, and the sorted image and depth file names of SEQ."""
     v = [float(x) for x in open(os.path.join(seq, "K.txt")).read().split()]
     k0 = np.array(v[:9]).reshape(3, 3) if len(v) >= 9 else np.array(
         [[v[0], 0, v[2]], [0, v[1], v[3]], [0, 0, 1]])
     poses = np.loadtxt(os.path.join(seq, "poses.txt")).reshape(-1, 4, 4)
     names = sorted(os.listdir(os.path.join(seq, "images")))
     dnames = sorted(os.listdir(os.path.join(seq, "depth")))
+    return k0, poses, names, dnames
+
+
+def refine_pair(k0, depth, ref0, live0, t0, min_points=0):
+    """The keyframe -> live pose `t0` refined by direct alignment against the keyframe's depth,
+    coarse to fine (level 1 at half resolution, then level 0), and the grey error at full resolution
+    with the given and with the refined pose: (t, e0, e1). None when a level has fewer than
+    `min_points` usable pixels."""
+    t = t0.copy()
+    for lvl in (1, 0):
+        ref, live, dep, kk = ref0, live0, depth, k0.copy()
+        if lvl == 1:
+            ref, live = half(ref0), half(live0)
+            dep = depth[: depth.shape[0] // 2 * 2: 2, : depth.shape[1] // 2 * 2: 2]
+            kk[:2] /= 2
+            kk[0, 2] = (k0[0, 2] + 0.5) / 2 - 0.5
+            kk[1, 2] = (k0[1, 2] + 0.5) / 2 - 0.5
+        gx, gy = grads(ref)
+        yy, xx = np.mgrid[0: ref.shape[0], 0: ref.shape[1]]
+        m = (dep > 0) & (np.hypot(gx, gy) > 2.0)
+        m[:2], m[-2:], m[:, :2], m[:, -2:] = False, False, False, False
+        if m.sum() < min_points:
+            return None
+        pts = np.linalg.inv(kk) @ np.stack([xx[m], yy[m], np.ones(m.sum())]) * dep[m]
+        t = align(kk, t, pts, ref[m], live)
+    return t, grey_error(kk, t0, pts, ref[m], live), grey_error(kk, t, pts, ref[m], live)
+
+
+def check(seq, step, dscale, offsets=(-20, -10, 10, 20)):
+    k0, poses, names, dnames = load_sequence(seq)
     n = len(poses)
 
     @functools.lru_cache(maxsize=None)
@@ -130,26 +161,7 @@ def check(seq, step, dscale, offsets=(-20, -10, 10, 20)):
             t0 = np.linalg.inv(poses[j]) @ poses[kf]
             if np.linalg.norm(t0[:3, 3]) < 0.02:
                 continue
-            live0 = blurred_grey(j)
-            t = t0.copy()
-            # Coarse to fine: level 1 (half resolution), then level 0.
-            for lvl in (1, 0):
-                ref, live, dep, kk = ref0, live0, depth, k0.copy()
-                if lvl == 1:
-                    ref, live = half(ref0), half(live0)
-                    dep = depth[: depth.shape[0] // 2 * 2: 2, : depth.shape[1] // 2 * 2: 2]
-                    kk[:2] /= 2
-                    kk[0, 2] = (k0[0, 2] + 0.5) / 2 - 0.5
-                    kk[1, 2] = (k0[1, 2] + 0.5) / 2 - 0.5
-                gx, gy = grads(ref)
-                yy, xx = np.mgrid[0: ref.shape[0], 0: ref.shape[1]]
-                m = (dep > 0) & (np.hypot(gx, gy) > 2.0)
-                m[:2], m[-2:], m[:, :2], m[:, -2:] = False, False, False, False
-                pts = np.linalg.inv(kk) @ np.stack([xx[m], yy[m], np.ones(m.sum())]) * dep[m]
-                t = align(kk, t, pts, ref[m], live)
-            # The grey error at full resolution, with the given and with the refined pose.
-            e0 = grey_error(kk, t0, pts, ref[m], live)
-            e1 = grey_error(kk, t, pts, ref[m], live)
+            t, e0, e1 = refine_pair(k0, depth, ref0, blurred_grey(j), t0)
             dt = t @ np.linalg.inv(t0)
             ang = np.degrees(np.arccos(np.clip((np.trace(dt[:3, :3]) - 1) / 2, -1, 1)))
             ratio = np.linalg.norm(t[:3, 3]) / np.linalg.norm(t0[:3, 3])

@@ -25,7 +25,7 @@ import numpy as np
 from PIL import Image
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "map"))
-from pose_depth_consistency import align, blur, grads, grey_error, half, so3_exp  # noqa: E402
+from pose_depth_consistency import blur, load_sequence, refine_pair, so3_exp  # noqa: E402
 
 
 def so3_log(r):
@@ -48,13 +48,10 @@ def log6(t):
     return np.concatenate([so3_log(t[:3, :3]), t[:3, 3]])
 
 
-def measure(seq, poses, edges, dscale):
-    """Relative poses camera i -> camera j refined against frame i's depth, for j = i + d."""
-    v = [float(x) for x in open(os.path.join(seq, "K.txt")).read().split()]
-    k0 = np.array(v[:9]).reshape(3, 3) if len(v) >= 9 else np.array(
-        [[v[0], 0, v[2]], [0, v[1], v[3]], [0, 0, 1]])
-    names = sorted(os.listdir(os.path.join(seq, "images")))
-    dnames = sorted(os.listdir(os.path.join(seq, "depth")))
+def measure(seq, loaded, edges, dscale):
+    """Relative poses camera i -> camera j refined against frame i's depth, for j = i + d
+    (`loaded`: what `load_sequence` read of SEQ)."""
+    k0, poses, names, dnames = loaded
     n = len(poses)
     grey = {}
 
@@ -71,31 +68,11 @@ def measure(seq, poses, edges, dscale):
             j = i + d
             if j >= n:
                 continue
-            t0 = np.linalg.inv(poses[j]) @ poses[i]
-            t = t0.copy()
-            for lvl in (1, 0):
-                ref, live, dep, kk = g(i), g(j), depth, k0.copy()
-                if lvl == 1:
-                    ref, live = half(ref), half(live)
-                    dep = depth[: depth.shape[0] // 2 * 2: 2, : depth.shape[1] // 2 * 2: 2]
-                    kk[:2] /= 2
-                    kk[0, 2] = (k0[0, 2] + 0.5) / 2 - 0.5
-                    kk[1, 2] = (k0[1, 2] + 0.5) / 2 - 0.5
-                gx, gy = grads(ref)
-                yy, xx = np.mgrid[0: ref.shape[0], 0: ref.shape[1]]
-                m = (dep > 0) & (np.hypot(gx, gy) > 2.0)
-                m[:2], m[-2:], m[:, :2], m[:, -2:] = False, False, False, False
-                if m.sum() < 200:
-                    break
-                pts = np.linalg.inv(kk) @ np.stack([xx[m], yy[m], np.ones(m.sum())]) * dep[m]
-                t = align(kk, t, pts, ref[m], live)
-            else:
-                e0 = grey_error(kk, t0, pts, ref[m], live)
-                e1 = grey_error(kk, t, pts, ref[m], live)
-                # An alignment that did not lower the error (occlusion, blur, too little overlap)
-                # is no measurement.
-                if np.isfinite(e0) and np.isfinite(e1) and e1 < e0:
-                    out.append((i, j, t))
+            r = refine_pair(k0, depth, g(i), g(j), np.linalg.inv(poses[j]) @ poses[i], min_points=200)
+            # An alignment that did not lower the error (occlusion, blur, too little overlap) is
+            # no measurement.
+            if r is not None and np.isfinite(r[1]) and np.isfinite(r[2]) and r[2] < r[1]:
+                out.append((i, j, r[0]))
         grey.pop(i - max(edges), None)
     return out
 
@@ -141,8 +118,9 @@ def main():
     ap.add_argument("--trans-weight", type=float, default=0.5)
     a = ap.parse_args()
     edges = [int(e) for e in a.edges.split(",")]
-    poses = np.loadtxt(os.path.join(a.seq, "poses.txt")).reshape(-1, 4, 4)
-    meas = measure(a.seq, poses, edges, a.depth_scale)
+    loaded = load_sequence(a.seq)
+    poses = loaded[1]
+    meas = measure(a.seq, loaded, edges, a.depth_scale)
     before = np.array([np.linalg.norm(residual(poses[i], poses[j], z, a.trans_weight)) for i, j, z in meas])
     refined = refine(poses, meas, a.trans_weight)
     after = np.array([np.linalg.norm(residual(refined[i], refined[j], z, a.trans_weight)) for i, j, z in meas])

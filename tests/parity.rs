@@ -633,6 +633,123 @@ fn dtam_solve_matches_within_budget_on_one_cost_array() {
     }
 }
 
+/// The resident volume (SPEC.md §15.6) against the host path on the same backend's volume: the
+/// volume built twice (its runs repeat bit for bit), one copy downloaded and filtered, scored,
+/// WTA'd, tapered and solved on the host arrays with the backend's WTA and DTAM, the other kept
+/// where the backend built it. Confidence, cost scale, WTA, the tapered costs and DTAM's result
+/// and energies are bit-identical (budget: exact), for evidence fractions that filter nothing,
+/// some and most cells, tapers off and wider than the map, one hypothesis per pixel pair (K = 2)
+/// and truncated costs.
+#[test]
+fn resident_volume_matches_the_host_path_bit_for_bit() {
+    use densefeat::costvolume::{confidence_and_scale, filter_evidence, taper_border};
+    // (seed, (H, W), C, K, τ, evidence fraction, taper radius)
+    let cases = [
+        (41, (11, 14), 3, 9, NO_TRUNCATION, 0.0, 0.0),
+        (42, (11, 14), 5, 9, NO_TRUNCATION, 0.25, 3.5),
+        (43, (9, 12), 4, 2, NO_TRUNCATION, 0.7, 40.0),
+        (44, (13, 17), 3, 16, 2.0, 1.0, 2.0),
+    ];
+    let params = densefeat::dtam::DtamParams {
+        iterations: 8,
+        max_iterations: 16,
+        steps_per_search: densefeat::dtam::MAPPING_DEFAULTS.steps_per_search,
+        ..Default::default()
+    };
+    for b in backends() {
+        for &(seed, hw, c, k, tau, fraction, radius) in &cases {
+            let case = VolumeCase { truncation: tau, ..volume_case_sized(seed, hw, c, k) };
+            let label = format!(
+                "{} resident volume {}x{}, K = {k}, evidence {fraction}, taper {radius}",
+                b.name(),
+                hw.0,
+                hw.1
+            );
+            let Some(host_volume) = supported(b.as_ref(), "cost_volume", try_build(b.as_ref(), &case, false))
+            else {
+                continue;
+            };
+            let frames = host_volume.frames();
+            let (mut costs, counts) = host_volume.into_costs();
+            filter_evidence(&mut costs, counts.view(), fraction);
+            let (conf, scale) = confidence_and_scale(costs.view(), counts.view(), frames);
+            let Some(wta) =
+                supported(b.as_ref(), "winner_take_all", b.winner_take_all(costs.view(), &case.bins))
+            else {
+                continue;
+            };
+            taper_border(&mut costs, radius);
+            let (h, w, _) = costs.dim();
+            let grey = ndarray::Array2::from_shape_fn((h, w), |(y, x)| ((y * 13 + x * 7) % 255) as f32);
+            let problem =
+                DtamProblem::new(costs.view(), &case.bins, grey.view(), wta.inverse_depth.view(), &params);
+            let Some((want, wr)) = supported(b.as_ref(), "dtam_solve", b.dtam_solve(&problem)) else {
+                continue;
+            };
+
+            let r = b.upload_owned(case.reference.clone()).unwrap();
+            let mut builder = b.cost_volume(&r, case.camera, case.bins, case.truncation).unwrap();
+            for (x, pose) in &case.live {
+                builder
+                    .add_frame_seen_by(&b.upload_owned(x.clone()).unwrap(), &live_camera(&case, x), pose)
+                    .unwrap();
+            }
+            let mut volume = builder.finish_resident().unwrap();
+            assert_eq!((volume.dim(), volume.frames()), (costs.dim(), frames), "{label}: shape, frames");
+            volume.filter_evidence(fraction).unwrap();
+            let (got_conf, got_scale) = volume.confidence_and_scale().unwrap();
+            assert_same_bits(&format!("{label}: confidence"), &got_conf, &conf);
+            assert_eq!(got_scale.to_bits(), scale.to_bits(), "{label}: cost scale {got_scale} vs {scale}");
+            let got_wta = volume.winner_take_all(&case.bins).unwrap();
+            assert_eq!(got_wta.valid, wta.valid, "{label}: WTA validity");
+            assert_same_bits(
+                &format!("{label}: WTA inverse depth"),
+                &got_wta.inverse_depth,
+                &wta.inverse_depth,
+            );
+            assert_same_bits(&format!("{label}: WTA bin"), &got_wta.bin, &wta.bin);
+            volume.taper_border(radius).unwrap();
+            assert_same_bits(&format!("{label}: tapered costs"), &volume.costs().unwrap(), &costs);
+            let resident = DtamProblem::resident(&case.bins, grey.view(), wta.inverse_depth.view(), &params);
+            let (got, report) = volume.dtam_solve(&resident).unwrap();
+            assert_same_bits(&format!("{label}: DTAM d"), &got.inverse_depth, &want.inverse_depth);
+            assert_same_bits(&format!("{label}: DTAM a"), &got.auxiliary, &want.auxiliary);
+            assert_eq!(report.energy, wr.energy, "{label}: DTAM energies");
+            eprintln!("{label}: bit-identical (scale {scale}, {} DTAM iterations)", report.iterations);
+        }
+    }
+}
+
+/// The resident volume checks its inputs before touching the device: an evidence fraction outside
+/// `[0, 1]`, a non-finite taper, hypotheses of another count and a DTAM problem of another size are
+/// errors naming what is wrong.
+#[test]
+fn resident_volume_refuses_bad_inputs() {
+    let case = volume_case_sized(45, (6, 7), 3, 5);
+    for b in backends() {
+        let r = b.upload_owned(case.reference.clone()).unwrap();
+        let Some(mut builder) =
+            supported(b.as_ref(), "cost_volume", b.cost_volume(&r, case.camera, case.bins, NO_TRUNCATION))
+        else {
+            continue;
+        };
+        let (x, pose) = &case.live[0];
+        builder.add_frame_seen_by(&b.upload_owned(x.clone()).unwrap(), &live_camera(&case, x), pose).unwrap();
+        let mut v = builder.finish_resident().unwrap();
+        let name = b.name();
+        let err = |e: Error| e.to_string();
+        assert!(err(v.filter_evidence(1.5).unwrap_err()).contains("min-evidence"), "{name}");
+        assert!(err(v.taper_border(f64::NAN).unwrap_err()).contains("border-taper"), "{name}");
+        let other = InverseDepthBins::new(0.1, 2.0, 4).unwrap();
+        assert!(err(v.winner_take_all(&other).unwrap_err()).contains("hypotheses"), "{name}");
+        let grey = ndarray::Array2::<f32>::zeros((6, 8));
+        let init = ndarray::Array2::<f32>::zeros((6, 8));
+        let params = densefeat::dtam::DtamParams::default();
+        let p = DtamProblem::resident(&case.bins, grey.view(), init.view(), &params);
+        assert!(err(v.dtam_solve(&p).unwrap_err()).contains("sizes must agree"), "{name}");
+    }
+}
+
 /// A device backend refuses host tensors in its volume (no silent copy, no CPU fallback), and
 /// non-finite costs in WTA and DTAM (WGSL does not define comparisons with NaN or infinity), with
 /// [`Error::Unsupported`]; the CPU backend takes them.
@@ -836,9 +953,26 @@ fn end_to_end_on_the_fixture() {
     let step = want.bins.step() as f32;
     for b in backends() {
         cfg.backend = b.clone();
+        let before = b.traffic();
         let Some(got) = supported(b.as_ref(), "reconstruct", reconstruct(&seq, &cfg, |_, _, _| {})) else {
             continue;
         };
+        // The volume stays where it was built (SPEC.md §15.6): a device backend downloads per-pixel
+        // maps only, less than one f32 volume of the keyframe.
+        let after = b.traffic();
+        let (h, w) = got.valid.dim();
+        let volume_bytes = (h * w * cfg.bins * 4) as u64;
+        let down = after.downloaded - before.downloaded;
+        eprintln!(
+            "{}: keyframe traffic {} B up, {down} B down (one volume: {volume_bytes} B)",
+            b.name(),
+            after.uploaded - before.uploaded
+        );
+        assert!(
+            down < volume_bytes,
+            "{}: downloaded {down} B, at least one volume ({volume_bytes} B)",
+            b.name()
+        );
         assert_eq!(got.valid, want.valid, "{} validity", b.name());
         let (g, w) = (&got.tv.as_ref().unwrap().inverse_depth, &want.tv.as_ref().unwrap().inverse_depth);
         let far = g.iter().zip(w).filter(|(a, b)| (*a - *b).abs() > step).count();

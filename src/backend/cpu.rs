@@ -5,7 +5,7 @@ use ndarray::{s, Array3, ArrayView3};
 
 use std::sync::Arc;
 
-use super::{Backend, LayerOp, PreparedLayer, Tensor, VolumeBuilder};
+use super::{Backend, HostVolume, LayerOp, PreparedLayer, ResidentVolume, Tensor, VolumeBuilder};
 use crate::costvolume::{winner_take_all_costs, CostVolume, CostVolumeImpl, WtaDepth};
 use crate::dtam::{DtamProblem, DtamReport, DtamResult};
 use crate::error::{Error, Result};
@@ -344,6 +344,7 @@ impl Backend for CpuBackend {
             CostVolume::with_impl(r, camera, bins, self.volume)?
                 .with_level(self.level)
                 .with_truncation(truncation)?,
+            self.level,
         )))
     }
 
@@ -356,8 +357,9 @@ impl Backend for CpuBackend {
     }
 }
 
-/// [`CostVolume`] as a [`VolumeBuilder`].
-struct CpuVolume(CostVolume);
+/// [`CostVolume`] as a [`VolumeBuilder`], with the backend's SIMD level for the resident volume's
+/// DTAM solve.
+struct CpuVolume(CostVolume, CpuFeatureLevel);
 
 impl VolumeBuilder for CpuVolume {
     fn add_frame_seen_by(&mut self, live: &Tensor, camera: &PinholeCamera, t_nr: &Pose) -> Result<()> {
@@ -378,6 +380,10 @@ impl VolumeBuilder for CpuVolume {
 
     fn finish(self: Box<Self>) -> Result<CostVolume> {
         Ok(self.0)
+    }
+
+    fn finish_resident(self: Box<Self>) -> Result<Box<dyn ResidentVolume>> {
+        Ok(Box::new(HostVolume::new(self.0, self.1)))
     }
 }
 

@@ -16,6 +16,7 @@
 //! | [`Backend::cost_volume`]: `add_frame` (bilinear epipolar sampling, L1, counts), finalisation | [`crate::costvolume::CostVolume`] | §9 |
 //! | [`Backend::winner_take_all`] with sub-bin refinement | [`crate::costvolume::winner_take_all_costs`] | §9.5 |
 //! | [`Backend::dtam_solve`]: primal-dual steps, a-search, energy, to convergence | [`crate::dtam::solve`] | §10 |
+//! | [`VolumeBuilder::finish_resident`] -> [`ResidentVolume`]: evidence filter, confidence and cost scale, winner-take-all, border taper, DTAM on the volume where it is | [`HostVolume`] | §15.6 |
 //!
 //! Tensors ([`Tensor`]) are `[H, W, C]` f32 maps that live where their backend put them: the CPU
 //! backend keeps host arrays, a device backend keeps its own buffers, and crossing is explicit
@@ -30,6 +31,7 @@ mod cpu;
 #[cfg(feature = "gpu")]
 mod gpu;
 mod patch;
+mod resident;
 mod tensor;
 
 use std::fmt::Debug;
@@ -47,7 +49,17 @@ use crate::ops::{Activation, NetworkConfig};
 pub use cpu::CpuBackend;
 #[cfg(feature = "gpu")]
 pub use gpu::{DtamTimings, GpuBackend, GpuBuffer};
+pub use resident::{HostVolume, ResidentVolume};
 pub use tensor::{DeviceBuffer, Tensor};
+
+/// A backend's bus traffic so far ([`Backend::traffic`]), in bytes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Traffic {
+    /// Host to device (uploads, constants, weights).
+    pub uploaded: u64,
+    /// Device to host (downloads, read-backs).
+    pub downloaded: u64,
+}
 
 /// The ops a layer is prepared for ([`Backend::prepare_layer`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -160,6 +172,11 @@ pub trait Backend: Send + Sync + Debug {
     /// Device failures.
     fn synchronize(&self) -> Result<()> {
         Ok(())
+    }
+    /// Bytes copied to and from the device so far by this backend (its bus traffic, SPEC.md §15.6);
+    /// a host backend moves none.
+    fn traffic(&self) -> Traffic {
+        Traffic::default()
     }
 
     /// A layer made ready for this backend's `op` (SPEC.md §15.1): the CPU packs its weights for
@@ -351,6 +368,15 @@ pub trait VolumeBuilder: Send {
     /// # Errors
     /// Device read-back failures.
     fn finish(self: Box<Self>) -> Result<CostVolume>;
+    /// The finished volume where this backend computes, for the steps up to DTAM (SPEC.md §15.6):
+    /// a device backend keeps it on the device. The default is [`VolumeBuilder::finish`]'s host
+    /// volume in a [`HostVolume`].
+    ///
+    /// # Errors
+    /// Device failures; a non-finite mean cost on a device that takes finite values only.
+    fn finish_resident(self: Box<Self>) -> Result<Box<dyn ResidentVolume>> {
+        Ok(Box::new(HostVolume::new(self.finish()?, crate::runtime::CpuFeatureLevel::get())))
+    }
 }
 
 /// The names `--backend` accepts, in the order `densefeat --help` lists them.

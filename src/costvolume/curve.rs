@@ -100,7 +100,7 @@ pub fn cost_scale(costs: ArrayView3<f32>) -> f64 {
                 .collect::<Vec<_>>()
         })
         .collect();
-    scale_of(spreads)
+    scale_of_spreads(spreads)
 }
 
 /// [`confidence`] and [`cost_scale`] of the same costs from one pass: each pixel's minimum and
@@ -132,7 +132,7 @@ pub fn confidence_and_scale(
             spreads
         })
         .collect();
-    (out, scale_of(rows.into_iter().flatten().collect()))
+    (out, scale_of_spreads(rows.into_iter().flatten().collect()))
 }
 
 /// One pixel's confidence from its minimum and median (see [`confidence`]).
@@ -150,8 +150,10 @@ fn pixel_confidence(
     (sharp.clamp(0.0, 1.0) * evidence.min(1.0)) as f32
 }
 
-/// [`cost_scale`] from the per-pixel spreads.
-fn scale_of(mut spreads: Vec<f32>) -> f64 {
+/// [`cost_scale`] from the per-pixel spreads (of the pixels with at least two seen cells, in any
+/// order: they are sorted first). A device backend computes the spreads per pixel and this median
+/// on the host (SPEC.md §15.6).
+pub fn scale_of_spreads(mut spreads: Vec<f32>) -> f64 {
     if spreads.is_empty() {
         return 1.0;
     }
@@ -185,4 +187,40 @@ pub fn confidence(costs: ArrayView3<f32>, counts: ArrayView3<u16>, frames: usize
         }
     });
     out
+}
+
+/// Smallest weight of [`border_weight`] (a pixel on the border keeps 5 % of its data term).
+pub const BORDER_WEIGHT_FLOOR: f32 = 0.05;
+
+/// The border taper's weight of pixel `(y, x)` of an `h x w` grid for a taper of `r` pixels of that
+/// grid (SPEC.md §10.1c; applied after winner-take-all, to the regulariser's data term only): `clamp((d + 0.5) / r, 0.05, 1)`, `d` the pixel's distance in pixels to the
+/// nearest image edge (0 on the outermost row or column); 1 for `r <= 0`.
+pub fn border_weight(y: usize, x: usize, h: usize, w: usize, r: f64) -> f32 {
+    if r <= 0.0 {
+        return 1.0;
+    }
+    let d = x.min(y).min(w - 1 - x).min(h - 1 - y) as f64 + 0.5;
+    ((d / r) as f32).clamp(BORDER_WEIGHT_FLOOR, 1.0)
+}
+
+/// Applies the border taper of `r` pixels of the volume's grid to `costs` (`[H, W, K]`): every
+/// finite cost of pixel `(y, x)` is multiplied by [`border_weight`]. Per pixel, so the same bits
+/// for any thread count.
+pub fn taper_border(costs: &mut Array3<f32>, r: f64) {
+    if r <= 0.0 {
+        return;
+    }
+    let (h, w, _) = costs.dim();
+    for y in 0..h {
+        for x in 0..w {
+            let wt = border_weight(y, x, h, w, r);
+            if wt < 1.0 {
+                costs
+                    .slice_mut(ndarray::s![y, x, ..])
+                    .iter_mut()
+                    .filter(|c| c.is_finite())
+                    .for_each(|c| *c *= wt);
+            }
+        }
+    }
 }

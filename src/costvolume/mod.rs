@@ -61,7 +61,10 @@ use crate::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
 use crate::runtime::CpuFeatureLevel;
 use crate::util::alloc::zeroed_aligned;
 
-pub use curve::{confidence, confidence_and_scale, cost_scale, filter_evidence, winner_take_all_costs};
+pub use curve::{
+    border_weight, confidence, confidence_and_scale, cost_scale, evidence_threshold, filter_evidence,
+    scale_of_spreads, taper_border, winner_take_all_costs, BORDER_WEIGHT_FLOOR,
+};
 pub use fast::fast_kernel_name;
 pub(crate) use wta::MAX_OFFSET as MAX_PARABOLA_OFFSET;
 pub use wta::{parabola_offset, WtaDepth};

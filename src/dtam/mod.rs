@@ -231,10 +231,13 @@ pub struct DtamResult {
 /// finalised cost volume and its hypotheses, the keyframe's grey levels (for the edge weights), the
 /// initial inverse depth, the parameters, and the regulariser (Huber-TV, or the surface-normal prior
 /// of SPEC.md §10.2 with its slope field).
+///
+/// `C` is where the costs are: a host view (the default), or [`Resident`] for a problem on the
+/// costs a backend keeps on its device (`backend::ResidentVolume::dtam_solve`, SPEC.md §15.6).
 #[derive(Clone, Copy, Debug)]
-pub struct DtamProblem<'a> {
+pub struct DtamProblem<'a, C = ArrayView3<'a, f32>> {
     /// `[H, W, K]` mean costs; cells `>= crate::costvolume::UNSEEN_COST` are unseen and skipped.
-    pub costs: ArrayView3<'a, f32>,
+    pub costs: C,
     /// The `K` inverse-depth hypotheses of `costs`.
     pub bins: &'a InverseDepthBins,
     /// The reference image's grey levels, `[H, W]`, 0-255.
@@ -246,6 +249,11 @@ pub struct DtamProblem<'a> {
     /// `None`: Huber-TV (`g ‖∇d‖_ε`); `Some(q)`: the normal prior (`g ‖∇d − d q‖_ε`).
     pub slope: Option<&'a SlopeField>,
 }
+
+/// The costs of a [`DtamProblem`] that a backend keeps where it computes (a resident volume,
+/// SPEC.md §15.6): the problem names no array; the volume that solves it supplies its own.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Resident;
 
 impl<'a> DtamProblem<'a> {
     /// A Huber-TV problem.
@@ -259,25 +267,55 @@ impl<'a> DtamProblem<'a> {
         Self { costs, bins, grey, init, params, slope: None }
     }
 
-    /// The same problem with the surface-normal prior for the slope field `slope` (SPEC.md §10.2).
-    pub fn with_slope(self, slope: &'a SlopeField) -> Self {
-        Self { slope: Some(slope), ..self }
-    }
-
     /// Valid parameters, and sizes that agree: costs `[H, W, K]` with `K` hypotheses, image,
     /// initial depth and slope field `[H, W]`.
     ///
     /// # Errors
     /// [`Error::InvalidArgument`] naming what is wrong.
     pub fn check(&self) -> Result<()> {
+        self.check_costs(self.costs.dim())
+    }
+}
+
+impl<'a> DtamProblem<'a, Resident> {
+    /// A Huber-TV problem on a resident volume's costs.
+    pub fn resident(
+        bins: &'a InverseDepthBins,
+        grey: ArrayView2<'a, f32>,
+        init: ArrayView2<'a, f32>,
+        params: &'a DtamParams,
+    ) -> Self {
+        Self { costs: Resident, bins, grey, init, params, slope: None }
+    }
+}
+
+impl<'a, C> DtamProblem<'a, C> {
+    /// The same problem with the surface-normal prior for the slope field `slope` (SPEC.md §10.2).
+    pub fn with_slope(self, slope: &'a SlopeField) -> Self {
+        Self { slope: Some(slope), ..self }
+    }
+
+    /// The same problem on other costs (a resident volume hands its host copy to the CPU solver so).
+    pub fn with_costs<'b, D>(self, costs: D) -> DtamProblem<'b, D>
+    where
+        'a: 'b,
+    {
+        let Self { bins, grey, init, params, slope, .. } = self;
+        DtamProblem { costs, bins, grey, init, params, slope }
+    }
+
+    /// [`DtamProblem::check`] for costs of shape `(h, w, k)`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming what is wrong.
+    pub fn check_costs(&self, (h, w, k): (usize, usize, usize)) -> Result<()> {
         self.params.validate()?;
-        let (h, w, k) = self.costs.dim();
         if k != self.bins.count || self.grey.dim() != (h, w) || self.init.dim() != (h, w) {
             return Err(Error::invalid_argument(
                 "DTAM inputs",
                 format!(
                     "cost volume {:?} with {} bins, image {:?}, initial depth {:?}: sizes must agree",
-                    self.costs.dim(),
+                    (h, w, k),
                     self.bins.count,
                     self.grey.dim(),
                     self.init.dim()

@@ -9,12 +9,13 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use ndarray::{Array2, Array3};
+use ndarray::Array2;
 use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::backend::Backend;
-use crate::costvolume::{check_truncation, confidence_and_scale, filter_evidence, NO_TRUNCATION};
+pub use crate::costvolume::{border_weight, taper_border, BORDER_WEIGHT_FLOOR};
+use crate::costvolume::{check_truncation, NO_TRUNCATION};
 use crate::dtam::SlopeField;
 use crate::dtam::{DtamParams, DtamProblem, DtamReport, DtamResult};
 use crate::error::{Error, Result};
@@ -190,42 +191,6 @@ pub struct KeyframeConfig {
     /// keyframe's border from the interior. 0: off; `None` (the default): the feature kind's
     /// [`FeatureKind::default_border_taper`].
     pub border_taper: Option<f64>,
-}
-
-/// Smallest weight of [`border_weight`] (a pixel on the border keeps 5 % of its data term).
-pub const BORDER_WEIGHT_FLOOR: f32 = 0.05;
-
-/// The border taper's weight of pixel `(y, x)` of an `h x w` grid for a taper of `r` pixels of that
-/// grid (SPEC.md §10.1c): `clamp((d + 0.5) / r, 0.05, 1)`, `d` the pixel's distance in pixels to the
-/// nearest image edge (0 on the outermost row or column); 1 for `r <= 0`.
-pub fn border_weight(y: usize, x: usize, h: usize, w: usize, r: f64) -> f32 {
-    if r <= 0.0 {
-        return 1.0;
-    }
-    let d = x.min(y).min(w - 1 - x).min(h - 1 - y) as f64 + 0.5;
-    ((d / r) as f32).clamp(BORDER_WEIGHT_FLOOR, 1.0)
-}
-
-/// Applies the border taper of `r` pixels of the volume's grid to `costs` (`[H, W, K]`): every
-/// finite cost of pixel `(y, x)` is multiplied by [`border_weight`]. Per pixel, so the same bits
-/// for any thread count.
-pub fn taper_border(costs: &mut Array3<f32>, r: f64) {
-    if r <= 0.0 {
-        return;
-    }
-    let (h, w, _) = costs.dim();
-    for y in 0..h {
-        for x in 0..w {
-            let wt = border_weight(y, x, h, w, r);
-            if wt < 1.0 {
-                costs
-                    .slice_mut(ndarray::s![y, x, ..])
-                    .iter_mut()
-                    .filter(|c| c.is_finite())
-                    .for_each(|c| *c *= wt);
-            }
-        }
-    }
 }
 
 /// Default of [`KeyframeConfig::bins`].
@@ -663,16 +628,14 @@ pub fn reconstruct_with(
 
     progress(Stage::Wta, 0, 1);
     let t = Instant::now();
-    let volume = cv.finish()?;
-    let frames = volume.frames();
-    let (mut costs, counts) = volume.into_costs();
-    filter_evidence(&mut costs, counts.view(), cfg.min_evidence);
-    let (conf, scale) = confidence_and_scale(costs.view(), counts.view(), frames);
-    drop(counts);
-    let w = backend.winner_take_all(costs.view(), &bins)?;
+    // The volume stays where the backend built it (SPEC.md §15.6): only per-pixel maps come back.
+    let mut volume = cv.finish_resident()?;
+    volume.filter_evidence(cfg.min_evidence)?;
+    let (conf, scale) = volume.confidence_and_scale()?;
+    let w = volume.winner_take_all(&bins)?;
     // The border taper (SPEC.md §10.1c) after WTA: it weights the regulariser's data term only.
     if cfg.regularizer != Regularizer::None {
-        taper_border(&mut costs, cfg.border_taper_px() / f64::from(1u32 << level));
+        volume.taper_border(cfg.border_taper_px() / f64::from(1u32 << level))?;
     }
     timings.wta = t.elapsed().as_secs_f64();
     progress(Stage::Wta, 1, 1);
@@ -695,9 +658,9 @@ pub fn reconstruct_with(
             );
             let problem = DtamProblem {
                 slope,
-                ..DtamProblem::new(costs.view(), &bins, grey.view(), w.inverse_depth.view(), &params)
+                ..DtamProblem::resident(&bins, grey.view(), w.inverse_depth.view(), &params)
             };
-            let (res, report) = backend.dtam_solve(&problem)?;
+            let (res, report) = volume.dtam_solve(&problem)?;
             Ok((tv_estimate(res, &w.valid), report))
         };
         if cfg.regularizer.tv() {

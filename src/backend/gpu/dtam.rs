@@ -15,7 +15,7 @@
 
 use std::time::Instant;
 
-use ndarray::{Array2, ArrayView2, ArrayView3};
+use ndarray::{Array2, ArrayView2};
 
 use super::{check_finite, f32s, f64s, record, GpuBackend};
 use crate::costvolume::UNSEEN_COST;
@@ -44,6 +44,13 @@ pub struct DtamTimings {
     pub iterate_s: f64,
     /// Downloading `d` and `a`.
     pub download_s: f64,
+}
+
+impl DtamTimings {
+    /// The three parts' sum.
+    pub fn total_s(&self) -> f64 {
+        self.upload_s + self.iterate_s + self.download_s
+    }
 }
 
 /// The device state of one solve.
@@ -88,15 +95,40 @@ pub(super) fn solve_timed(
     problem: &DtamProblem,
 ) -> Result<(DtamResult, DtamReport, DtamTimings)> {
     problem.check()?;
+    let start = Instant::now();
+    let costs = problem.costs.as_standard_layout();
+    let flat = costs.as_slice().expect("standard layout is contiguous");
+    check_finite("dtam_solve", "cost", flat.iter().copied())?;
+    gpu.check_size(flat.len())?;
+    let cb = gpu.storage_init(flat);
+    let (result, mut report, mut timings) = solve_on(gpu, problem, &cb, problem.costs.dim())?;
+    // The host path's upload counts in its time.
+    report.seconds = start.elapsed().as_secs_f64();
+    timings.upload_s += report.seconds - timings.total_s();
+    Ok((result, report, timings))
+}
+
+/// The solve on a device cost array `[H, W, K]` (`dim`; every cost finite; `problem.costs` is not
+/// read): the resident volume's path (SPEC.md §15.6), and [`solve_timed`]'s after its upload.
+///
+/// # Errors
+/// As [`solve`].
+pub(super) fn solve_on<C>(
+    gpu: &GpuBackend,
+    problem: &DtamProblem<'_, C>,
+    cb: &wgpu::Buffer,
+    dim: (usize, usize, usize),
+) -> Result<(DtamResult, DtamReport, DtamTimings)> {
+    problem.check_costs(dim)?;
     if problem.slope.is_some() {
         return Err(super::unsupported(
             "the surface-normal prior (--regularizer normals) runs on the CPU only; use --backend cpu",
         ));
     }
-    let DtamProblem { costs, bins, grey, init, params, .. } = *problem;
+    let DtamProblem { bins, grey, init, params, .. } = *problem;
     gpu.require_f64("dtam_solve", "the solver's per-pixel arithmetic is the CPU's f64")?;
     let start = Instant::now();
-    let state = State::new(gpu, costs, bins, grey, init, params)?;
+    let state = State::new(gpu, (cb, dim), bins, grey, init, params)?;
     gpu.wait()?;
     let uploaded = Instant::now();
     let mut history = History::new(params);
@@ -136,19 +168,14 @@ pub(super) fn solve_timed(
 impl<'a> State<'a> {
     fn new(
         gpu: &'a GpuBackend,
-        costs: ArrayView3<f32>,
+        (cb, (h, w, k)): (&wgpu::Buffer, (usize, usize, usize)),
         bins: &InverseDepthBins,
         grey: ArrayView2<f32>,
         init: ArrayView2<f32>,
         params: &DtamParams,
     ) -> Result<Self> {
-        let (h, w, k) = costs.dim();
         let pixels = h * w;
-        let costs = costs.as_standard_layout();
-        let flat = costs.as_slice().expect("standard layout is contiguous");
-        check_finite("dtam_solve", "cost", flat.iter().copied())?;
         check_finite("dtam_solve", "initial inverse depth", init.iter().copied())?;
-        gpu.check_size(flat.len())?;
         let pair_bytes = gpu.check_size(2 * pixels)?;
         let terms_bytes = gpu.check_size(8 * pixels)?; // 4 f64 per pixel
         let ring_bytes = gpu.check_size(TAIL_BATCH * pixels.max(1))?;
@@ -168,7 +195,6 @@ impl<'a> State<'a> {
         let g = g.as_slice().expect("owned arrays are contiguous");
         let bytes = |v: &[f64]| gpu.storage_bytes(bytemuck::cast_slice(v));
         let (pb, consts, table) = (gpu.storage_bytes(bytemuck::cast_slice(&p)), bytes(&c), bytes(&table));
-        let cb = gpu.storage_init(flat);
         let range = gpu.storage_zeroed(pair_bytes)?;
         let (d, d_bar, a) = (gpu.storage_init(init), gpu.storage_init(init), gpu.storage_init(init));
         let gb = gpu.storage_init(g);
@@ -183,7 +209,7 @@ impl<'a> State<'a> {
             let group = gpu.bind(&pipeline, bindings);
             Ok((pipeline, group))
         };
-        let range_kernel = kernel("cost_range", &[(0, &pb), (2, &cb), (3, &range)])?;
+        let range_kernel = kernel("cost_range", &[(0, &pb), (2, cb), (3, &range)])?;
         let state = Self {
             dual: kernel("dual", &[(0, &pb), (1, &consts), (5, &d_bar), (6, &gb), (7, &q)])?,
             primal: kernel(
@@ -192,7 +218,7 @@ impl<'a> State<'a> {
             )?,
             search: kernel(
                 "search",
-                &[(0, &pb), (1, &consts), (2, &cb), (3, &range), (4, &d), (6, &gb), (8, &a), (9, &terms)],
+                &[(0, &pb), (1, &consts), (2, cb), (3, &range), (4, &d), (6, &gb), (8, &a), (9, &terms)],
             )?,
             rows: kernel("row_sums", &[(0, &pb), (9, &terms), (10, &rows)])?,
             total: kernel("total", &[(0, &pb), (10, &rows), (11, &measure)])?,

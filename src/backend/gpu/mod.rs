@@ -4,12 +4,14 @@
 //! `download` are the only crossings, and an op given a host tensor returns
 //! [`Error::Unsupported`] ("upload it first"). The mapping ops run here too: the cost volume keeps
 //! its sums and counts on the device between frames ([`volume`]), winner-take-all ([`wta`]) and the
-//! DTAM solve ([`dtam`]) keep their state on the device and only scalars cross per iteration. They
+//! DTAM solve ([`dtam`]) keep their state on the device and only scalars cross per iteration; a
+//! finished volume can stay there for every step up to DTAM ([`resident`], SPEC.md §15.6). They
 //! need shader f64 (the CPU's f64 geometry and solver arithmetic) and return
 //! [`Error::Unsupported`] on an adapter without it.
 
 mod dtam;
 mod kernels;
+mod resident;
 mod volume;
 mod wta;
 
@@ -17,12 +19,13 @@ pub use dtam::DtamTimings;
 
 use std::any::Any;
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock, Weak};
 
 use ndarray::{Array3, ArrayView3};
 use wgpu::util::DeviceExt;
 
-use super::{Backend, DeviceBuffer, LayerOp, PreparedLayer, Tensor, VolumeBuilder};
+use super::{Backend, DeviceBuffer, LayerOp, PreparedLayer, Tensor, Traffic, VolumeBuilder};
 use crate::costvolume::WtaDepth;
 use crate::dtam::{DtamProblem, DtamReport, DtamResult};
 use crate::error::{Error, Result};
@@ -68,6 +71,9 @@ pub struct GpuBackend {
     f64: bool,
     max_binding: u64,
     pipelines: Mutex<HashMap<(&'static str, &'static str), wgpu::ComputePipeline>>,
+    /// Bytes written into new device buffers and read back so far ([`Backend::traffic`]).
+    uploaded: AtomicU64,
+    downloaded: AtomicU64,
 }
 
 impl std::fmt::Debug for GpuBackend {
@@ -123,6 +129,8 @@ impl GpuBackend {
             f64,
             max_binding,
             pipelines: Mutex::new(HashMap::new()),
+            uploaded: AtomicU64::new(0),
+            downloaded: AtomicU64::new(0),
         }))
     }
 
@@ -201,6 +209,7 @@ impl GpuBackend {
         } else {
             contents
         };
+        self.uploaded.fetch_add(contents.len() as u64, Ordering::Relaxed);
         self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: None,
             contents,
@@ -294,6 +303,7 @@ impl GpuBackend {
         if size == 0 {
             return Ok(Vec::new());
         }
+        self.downloaded.fetch_add(size, Ordering::Relaxed);
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("download"),
             size,
@@ -422,6 +432,13 @@ impl Backend for GpuBackend {
 
     fn synchronize(&self) -> Result<()> {
         self.wait()
+    }
+
+    fn traffic(&self) -> Traffic {
+        Traffic {
+            uploaded: self.uploaded.load(Ordering::Relaxed),
+            downloaded: self.downloaded.load(Ordering::Relaxed),
+        }
     }
 
     fn prepare_layer(&self, layer: Arc<LayerParams>, op: LayerOp) -> Result<PreparedLayer> {

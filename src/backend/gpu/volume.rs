@@ -10,8 +10,9 @@
 
 use std::sync::Arc;
 
+use super::resident::GpuResident;
 use super::{f32s, record, u32s, unsupported, GpuBackend, NAME};
-use crate::backend::{Tensor, VolumeBuilder};
+use crate::backend::{ResidentVolume, Tensor, VolumeBuilder};
 use crate::costvolume::{CostVolume, MAX_FRAMES};
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
@@ -157,6 +158,13 @@ impl VolumeBuilder for GpuVolume {
 
     fn finish(self: Box<Self>) -> Result<CostVolume> {
         self.download()
+    }
+
+    fn finish_resident(self: Box<Self>) -> Result<Box<dyn ResidentVolume>> {
+        let (h, w, _) = self.reference.dim();
+        let dim = (h, w, self.bins.count);
+        let Self { gpu, sums, counts, frames, .. } = *self;
+        Ok(Box::new(GpuResident::from_sums(gpu, (sums, counts), dim, frames)?))
     }
 }
 

@@ -582,14 +582,20 @@ fn border_taper_weights_the_data_term_towards_the_edge_and_leaves_wta_alone() {
     assert_eq!(border_weight(5, 6, 10, 12, 4.0), 1.0);
     assert_eq!(border_weight(0, 0, 10, 12, 100.0), BORDER_WEIGHT_FLOOR);
     assert_eq!(border_weight(0, 0, 10, 12, 0.0), 1.0, "0 is off");
+    // Unseen cells are UNSEEN_COST (f32::MAX, finite): they must stay unseen in the strip, also where
+    // a whole pixel is unseen (until 2026-12-05 they became seen cells of cost w · f32::MAX).
+    let unseen = densefeat::costvolume::UNSEEN_COST;
     let mut costs = ndarray::Array3::<f32>::from_elem((4, 5, 2), 2.0);
-    costs[[0, 0, 1]] = f32::INFINITY;
+    costs[[0, 0, 1]] = unseen;
+    costs[[0, 1, 0]] = unseen;
+    costs[[0, 1, 1]] = unseen;
     let before = costs.clone();
     taper_border(&mut costs, 0.0);
     assert_eq!(costs, before);
     taper_border(&mut costs, 2.0);
     assert_eq!(costs[[0, 0, 0]], 0.5, "2 x 0.25");
-    assert_eq!(costs[[0, 0, 1]], f32::INFINITY, "an unseen cell stays unseen");
+    assert_eq!(costs[[0, 0, 1]], unseen, "an unseen cell stays unseen");
+    assert_eq!((costs[[0, 1, 0]], costs[[0, 1, 1]]), (unseen, unseen), "an unseen pixel stays unseen");
     assert_eq!(costs[[1, 2, 0]], 2.0 * 0.75);
     assert_eq!(costs[[2, 2, 1]], 2.0 * 0.75, "row 2 of 4 is 1 from the bottom edge");
 

@@ -204,8 +204,8 @@ pub fn border_weight(y: usize, x: usize, h: usize, w: usize, r: f64) -> f32 {
 }
 
 /// Applies the border taper of `r` pixels of the volume's grid to `costs` (`[H, W, K]`): every
-/// finite cost of pixel `(y, x)` is multiplied by [`border_weight`]. Per pixel, so the same bits
-/// for any thread count.
+/// seen cost (`< UNSEEN_COST`) of pixel `(y, x)` is multiplied by [`border_weight`]; unseen cells
+/// stay unseen. Per pixel, so the same bits for any thread count.
 pub fn taper_border(costs: &mut Array3<f32>, r: f64) {
     if r <= 0.0 {
         return;
@@ -218,7 +218,7 @@ pub fn taper_border(costs: &mut Array3<f32>, r: f64) {
                 costs
                     .slice_mut(ndarray::s![y, x, ..])
                     .iter_mut()
-                    .filter(|c| c.is_finite())
+                    .filter(|c| **c < UNSEEN_COST)
                     .for_each(|c| *c *= wt);
             }
         }

@@ -117,14 +117,15 @@ fn confidence(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     out[2u * i + 1u] = med - lo;
 }
 
-// Per cell: `costvolume::taper_border`: every cost (all are finite here) of a pixel with weight
-// below 1 is multiplied by it.
+// Per cell: `costvolume::taper_border`: every seen cost of a pixel with weight below 1 is
+// multiplied by it; unseen cells stay unseen.
 @compute @workgroup_size(64)
 fn taper(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = index(gid, nwg);
     if (i >= p[0]) { return; }
     let w = weights[i / p[1]];
-    if (w < 1.0) {
-        costs[i] = costs[i] * w;
+    let c = costs[i];
+    if (w < 1.0 && c < bitcast<f32>(p[2])) {
+        costs[i] = c * w;
     }
 }

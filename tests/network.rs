@@ -2,9 +2,11 @@
 //! reference network within the propagated budget of §8.7, and bit-identical features for any
 //! thread count.
 
-use densefeat::backend::{Backend, CpuBackend, LayerOp, PreparedLayer};
-use densefeat::nn::budget::{depth, max_products, relative_budget, LayerCheckExecutor};
-use densefeat::nn::network::{run_network, Executor};
+use densefeat::backend::{
+    Backend, CpuBackend, LayerOp, NetworkOp, Observed, Observer, PreparedLayer, Tensor,
+};
+use densefeat::nn::budget::{depth, max_products, relative_budget, LayerCheck};
+use densefeat::nn::network::{run_network, Arena};
 use densefeat::nn::{FeatureNet, NetworkWeights, PreparedNetwork};
 use densefeat::ops::pad_edge;
 use densefeat::ops::{Activation, NetworkConfig, NetworkImpl};
@@ -129,42 +131,31 @@ fn input_mean_is_subtracted_without_scaling() {
     assert_eq!(bits(out0.features()), bits(out1.features()));
 }
 
-/// Records every op with its shapes.
+/// Records every network op with its shapes.
 struct Recorder(Vec<String>);
 
-impl Executor for Recorder {
-    type Map = Array3<f32>;
-    fn image(&mut self, image: &Array3<f32>) -> densefeat::Result<Array3<f32>> {
-        self.0.push(format!("image {:?}", image.shape()));
-        Ok(image.clone())
-    }
-    fn conv(
-        &mut self,
-        x: &Self::Map,
-        l: &PreparedLayer,
-        stride: usize,
-        act: Activation,
-    ) -> densefeat::Result<Self::Map> {
-        let (h, w, _) = x.dim();
-        let c = l.params().weight.shape()[0];
-        self.0.push(format!("conv {:?} -> c{c} s{stride} {act:?}", x.shape()));
-        Ok(Array3::zeros(((h - 1) / stride + 1, (w - 1) / stride + 1, c)))
-    }
-    fn deconv(&mut self, x: &Self::Map, l: &PreparedLayer) -> densefeat::Result<Self::Map> {
-        let (h, w, _) = x.dim();
-        self.0.push(format!("deconv {:?}", x.shape()));
-        Ok(Array3::zeros((2 * h, 2 * w, l.params().weight.shape()[1])))
-    }
-    fn concat(&mut self, a: &Self::Map, b: &Self::Map) -> densefeat::Result<Self::Map> {
-        self.0.push(format!("concat {:?} {:?}", a.shape(), b.shape()));
-        Ok(ndarray::concatenate(ndarray::Axis(2), &[a.view(), b.view()]).unwrap())
-    }
-    fn add(&mut self, a: &Self::Map, b: &Self::Map) -> densefeat::Result<Self::Map> {
-        self.0.push(format!("add {:?} {:?}", a.shape(), b.shape()));
-        Ok(a + b)
-    }
-    fn crop(&mut self, x: Self::Map, h: usize, w: usize) -> Self::Map {
-        x.slice(ndarray::s![..h, ..w, ..]).to_owned()
+impl Observer for Recorder {
+    fn observe(&mut self, op: NetworkOp<'_>, _seconds: f64) {
+        let c_out = |l: &PreparedLayer| l.params().weight.shape()[0];
+        match op {
+            NetworkOp::Pyramid(levels) => {
+                self.0.extend(levels.iter().map(|l| format!("image {:?}", l.dim())));
+            }
+            NetworkOp::Conv { input, layer, stride, act, .. } => {
+                self.0.push(format!("conv {:?} -> c{} s{stride} {act:?}", input.dim(), c_out(layer)));
+            }
+            NetworkOp::ConcatConv { a, b, layer, stride, act, .. } => self.0.push(format!(
+                "concat + conv {:?} {:?} -> c{} s{stride} {act:?}",
+                a.dim(),
+                b.dim(),
+                c_out(layer)
+            )),
+            NetworkOp::DeconvAdd { input, skip, .. } => {
+                self.0.push(format!("deconv {:?} + {:?}", input.dim(), skip.dim()));
+            }
+            NetworkOp::Crop { .. } => {}
+            other => self.0.push(format!("unexpected {other:?}")),
+        }
     }
 }
 
@@ -172,30 +163,27 @@ impl Executor for Recorder {
 fn network_structure_matches_spec() {
     // B1 stride 1, 3 blocks, 8 channels, 10x6 image padded to 12x8 (total stride 4).
     let config = NetworkConfig { blocks: 3, channels: 8, b1_stride: 1, input_mean: [0.0; 3] };
-    let mut rec = Recorder(Vec::new());
-    let net = PreparedNetwork::new(&weights(&config, 6), &CpuBackend::default()).unwrap();
-    run_network(&mut rec, &net, image(6, 10, 6).view()).unwrap();
+    let cpu = CpuBackend::default();
+    let net = PreparedNetwork::new(&weights(&config, 6), &cpu).unwrap();
+    let observed = Observed::new(&cpu, Recorder(Vec::new()));
+    run_network(&observed, &mut Arena::new(), &net, image(6, 10, 6).view()).unwrap();
     // The input pyramid first (levels 0 and 1), then the blocks.
     let want = [
-        "image [8, 12, 3]",
-        "image [4, 6, 3]",
-        "conv [8, 12, 3] -> c8 s1 Relu",
-        "conv [8, 12, 8] -> c8 s1 Relu",
-        "conv [8, 12, 8] -> c8 s1 None",
-        "concat [8, 12, 8] [8, 12, 3]",
-        "conv [8, 12, 11] -> c8 s2 Relu",
-        "conv [4, 6, 8] -> c8 s1 Relu",
-        "conv [4, 6, 8] -> c8 s1 None",
-        "concat [4, 6, 8] [4, 6, 3]",
-        "conv [4, 6, 11] -> c8 s2 Relu",
-        "conv [2, 3, 8] -> c8 s1 Relu",
-        "conv [2, 3, 8] -> c8 s1 None",
-        "deconv [2, 3, 8]",
-        "add [4, 6, 8] [4, 6, 8]",
-        "deconv [4, 6, 8]",
-        "add [8, 12, 8] [8, 12, 8]",
+        "image (8, 12, 3)",
+        "image (4, 6, 3)",
+        "conv (8, 12, 3) -> c8 s1 Relu",
+        "conv (8, 12, 8) -> c8 s1 Relu",
+        "conv (8, 12, 8) -> c8 s1 None",
+        "concat + conv (8, 12, 8) (8, 12, 3) -> c8 s2 Relu",
+        "conv (4, 6, 8) -> c8 s1 Relu",
+        "conv (4, 6, 8) -> c8 s1 None",
+        "concat + conv (4, 6, 8) (4, 6, 3) -> c8 s2 Relu",
+        "conv (2, 3, 8) -> c8 s1 Relu",
+        "conv (2, 3, 8) -> c8 s1 None",
+        "deconv (2, 3, 8) + (4, 6, 8)",
+        "deconv (4, 6, 8) + (8, 12, 8)",
     ];
-    assert_eq!(rec.0, want);
+    assert_eq!(observed.into_observer().0, want);
 }
 
 fn max_abs(a: &Array3<f32>) -> f64 {
@@ -215,9 +203,12 @@ fn every_fast_layer_meets_its_budget_inside_the_network() {
     let mut worst = 0.0f64;
     for (i, (config, h, w)) in cases().enumerate() {
         let wts = weights(&config, 10 + i as u64);
-        let mut check = LayerCheckExecutor::new(NetworkImpl::FAST);
-        let net = PreparedNetwork::new(&wts, &CpuBackend::default()).unwrap();
-        run_network(&mut check, &net, image(h, w, 20 + i as u64).view()).unwrap();
+        let check = LayerCheck::new(NetworkImpl::FAST);
+        let cpu = check.backend();
+        let net = PreparedNetwork::new(&wts, &cpu).unwrap();
+        let observed = Observed::new(&cpu, check);
+        run_network(&observed, &mut Arena::new(), &net, image(h, w, 20 + i as u64).view()).unwrap();
+        let check = observed.into_observer();
         assert_eq!(check.layers, depth(&config), "{config:?}");
         assert!(check.failures.is_empty(), "{config:?} {h}x{w}:\n{}", check.failures.join("\n"));
         assert!(check.worst_fraction <= 1.0);
@@ -362,22 +353,97 @@ fn profile_counts_every_operation_of_the_paper_network() {
     assert!(rows.iter().filter(|(k, _)| k.contains("conv")).all(|(_, t)| t.flops > 0.0));
 }
 
+/// The CPU backend with only the trait's required ops of its own: the default `*_reusing` ops drop
+/// their spare and the fused ones run unfused (concatenate, then convolve; deconvolve, then add).
+#[derive(Debug)]
+struct Unfused<'a>(&'a CpuBackend);
+
+impl Backend for Unfused<'_> {
+    fn name(&self) -> &'static str {
+        self.0.name()
+    }
+    fn device(&self) -> String {
+        self.0.device()
+    }
+    fn upload(&self, x: ndarray::ArrayView3<f32>) -> densefeat::Result<Tensor> {
+        self.0.upload(x)
+    }
+    fn download(&self, x: &Tensor) -> densefeat::Result<Array3<f32>> {
+        self.0.download(x)
+    }
+    fn prepare_layer(
+        &self,
+        l: std::sync::Arc<densefeat::ops::LayerParams>,
+        op: LayerOp,
+    ) -> densefeat::Result<PreparedLayer> {
+        self.0.prepare_layer(l, op)
+    }
+    fn conv3x3(
+        &self,
+        x: &Tensor,
+        l: &PreparedLayer,
+        stride: usize,
+        act: Activation,
+    ) -> densefeat::Result<Tensor> {
+        self.0.conv3x3(x, l, stride, act)
+    }
+    fn deconv5x5s2(&self, x: &Tensor, l: &PreparedLayer) -> densefeat::Result<Tensor> {
+        self.0.deconv5x5s2(x, l)
+    }
+    fn downsample2x(&self, x: &Tensor) -> densefeat::Result<Tensor> {
+        self.0.downsample2x(x)
+    }
+    fn concat(&self, a: &Tensor, b: &Tensor) -> densefeat::Result<Tensor> {
+        self.0.concat(a, b)
+    }
+    fn add(&self, a: &Tensor, b: &Tensor) -> densefeat::Result<Tensor> {
+        self.0.add(a, b)
+    }
+    fn crop(&self, x: Tensor, h: usize, w: usize) -> densefeat::Result<Tensor> {
+        self.0.crop(x, h, w)
+    }
+    fn cost_volume(
+        &self,
+        r: &Tensor,
+        camera: densefeat::geometry::PinholeCamera,
+        bins: densefeat::geometry::InverseDepthBins,
+        truncation: f32,
+    ) -> densefeat::Result<Box<dyn densefeat::backend::VolumeBuilder>> {
+        self.0.cost_volume(r, camera, bins, truncation)
+    }
+    fn winner_take_all(
+        &self,
+        costs: ndarray::ArrayView3<f32>,
+        bins: &densefeat::geometry::InverseDepthBins,
+    ) -> densefeat::Result<densefeat::costvolume::WtaDepth> {
+        self.0.winner_take_all(costs, bins)
+    }
+    fn dtam_solve(
+        &self,
+        p: &densefeat::dtam::DtamProblem,
+    ) -> densefeat::Result<(densefeat::dtam::DtamResult, densefeat::dtam::DtamReport)> {
+        self.0.dtam_solve(p)
+    }
+}
+
 #[test]
 fn pooled_forward_is_bit_identical_to_unpooled() {
     // SPEC §8.9: the arena changes where maps are stored, never their values. Odd sizes so that
-    // recycled buffers are truncated and regrown; every configuration, 1 and 2 threads. The pooled
-    // executor also fuses each concatenation into the next convolution (SPEC §7.10), which the
-    // 32-channel configurations run with the direct kernel.
-    use densefeat::nn::network::{BackendExecutor, PooledExecutor};
+    // recycled buffers are truncated and regrown; every configuration, 1 and 2 threads. The CPU
+    // backend also fuses each concatenation into the next convolution (SPEC §7.10), which the
+    // 32-channel configurations run with the direct kernel, and each deconvolution with its sum;
+    // `Unfused` runs neither fusion nor reuse.
     let cpu = CpuBackend::default();
     for config in every_config(6).chain(every_config(32).filter(|c| c.blocks >= 4)) {
         let w = PreparedNetwork::new(&weights(&config, 21), &cpu).unwrap();
         let img = image(37, 29, 21);
         for n in [1, 2] {
             let (plain, pooled) = thread_pool(n).install(|| {
-                let plain = run_network(&mut BackendExecutor(&cpu), &w, img.view()).unwrap();
-                let mut exec = PooledExecutor::new(&cpu);
-                let pooled = run_network(&mut exec, &w, img.view()).unwrap();
+                let plain = run_network(&Unfused(&cpu), &mut Arena::new(), &w, img.view()).unwrap();
+                let mut arena = Arena::new();
+                // Twice on one arena: the second pass starts with the first one's leftovers.
+                run_network(&cpu, &mut arena, &w, img.view()).unwrap();
+                let pooled = run_network(&cpu, &mut arena, &w, img.view()).unwrap();
                 (plain, pooled)
             });
             for (a, b) in plain
@@ -399,14 +465,13 @@ fn prepared_layers_pack_once_and_new_weights_need_a_new_preparation() {
     // process-wide cache); a second pass on it, a fresh preparation and the per-call packing of
     // the plain ops give the same bits; changed weights (as training makes) take effect through a
     // new preparation, which training makes every step.
-    use densefeat::nn::network::BackendExecutor;
     use densefeat::ops::{conv2d, conv_geometry};
     let config = NetworkConfig { channels: 32, blocks: 2, ..NetworkConfig::default() };
     let mut w = weights(&config, 5);
     let img = image(20, 24, 5);
     let cpu = CpuBackend::default();
     let run = |net: &PreparedNetwork| {
-        let out = run_network(&mut BackendExecutor(&cpu), net, img.view()).unwrap();
+        let out = run_network(&cpu, &mut Arena::new(), net, img.view()).unwrap();
         out.aggregated[0].as_host().unwrap().clone()
     };
     let prepared = PreparedNetwork::new(&w, &cpu).unwrap();

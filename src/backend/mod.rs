@@ -30,6 +30,7 @@
 mod cpu;
 #[cfg(feature = "gpu")]
 mod gpu;
+mod observed;
 mod patch;
 mod resident;
 mod tensor;
@@ -49,6 +50,7 @@ use crate::ops::{Activation, NetworkConfig};
 pub use cpu::CpuBackend;
 #[cfg(feature = "gpu")]
 pub use gpu::{DtamTimings, GpuBackend, GpuBuffer};
+pub use observed::{NetworkOp, Observed, Observer};
 pub use resident::{HostVolume, ResidentVolume};
 pub use tensor::{DeviceBuffer, Tensor};
 

@@ -1,6 +1,6 @@
 //! The network-level error budget (SPEC.md §8.7).
 //!
-//! 1. **Per layer, in place** ([`LayerCheckExecutor`]): while a network runs with the chosen
+//! 1. **Per layer, in place** ([`LayerCheck`]): while a network runs with the chosen
 //!    kernels, every convolution and transposed convolution is also run by its f64 reference on the
 //!    *same* input, and the fast output must be within the budget of the kernel that ran: §7.5's
 //!    `2 K ε M`, or §7.11's `2 (n + 2) ε M_W` for a Winograd layer. So the fast network is
@@ -14,20 +14,14 @@
 
 use ndarray::{Array1, Array3, Array4};
 
-use crate::backend::{Backend, CpuBackend, PreparedLayer, Tensor};
+use crate::backend::{Backend, CpuBackend, NetworkOp, Observer, PreparedLayer, Tensor};
 use crate::error::Result;
-use crate::nn::network::Executor;
 use crate::ops::config::NetworkConfig;
 use crate::ops::conv2d::{conv2d_reference, winograd_budget, winograd_magnitude_reference};
 use crate::ops::deconv2d::{deconv2d_reference, deconv2d_winograd_magnitude_reference};
-use crate::ops::NetworkImpl;
-
-/// One CPU-backend op on host arrays, with the kernels `imp`.
-fn host_op(imp: NetworkImpl, op: impl FnOnce(&CpuBackend) -> Result<Tensor>) -> Result<Array3<f32>> {
-    Ok(op(&CpuBackend::with_network(imp))?.into_host().expect("the CPU backend returns host tensors"))
-}
 use crate::ops::Activation;
 use crate::ops::LayerParams;
+use crate::ops::NetworkImpl;
 use crate::testing::within_budget;
 
 /// Relative budget of one layer with `k` products per output (SPEC.md §7.5).
@@ -35,24 +29,38 @@ fn layer_budget(k: usize) -> f32 {
     2.0 * k as f32 * f32::EPSILON
 }
 
-/// Runs the network with the chosen kernels and checks every layer against its reference on the
-/// same input. Failures are collected, not raised, so a test can report them all.
+/// Checks every layer of a forward pass against its reference on the same input: an
+/// [`Observer`] of the pass run on [`LayerCheck::backend`] (wrapped in
+/// [`crate::backend::Observed`]). Failures are collected, not raised, so a test can report them all.
 #[derive(Clone, Debug)]
-pub struct LayerCheckExecutor {
-    /// The kernels under test.
+pub struct LayerCheck {
+    /// The fast kernels under test.
     pub imp: NetworkImpl,
-    /// One message per layer outside its budget.
+    /// One line per layer over its budget.
     pub failures: Vec<String>,
-    /// Largest `|fast - ref| / budget` seen (at most 1 when there are no failures).
+    /// Largest `|fast - ref| / budget` seen (<= 1 when every layer passes).
     pub worst_fraction: f64,
-    /// Layers checked so far.
+    /// Layers checked.
     pub layers: usize,
 }
 
-impl LayerCheckExecutor {
-    /// A checker of `imp`.
+/// A host tensor's array (the CPU backend's tensors are host maps).
+fn host(t: &Tensor) -> Result<&Array3<f32>> {
+    t.as_host().ok_or_else(|| crate::error::Error::Unsupported {
+        backend: t.location().into(),
+        what: "the layer check runs on the CPU backend's host maps".into(),
+    })
+}
+
+impl LayerCheck {
+    /// A check of the kernels `imp`.
     pub fn new(imp: NetworkImpl) -> Self {
-        LayerCheckExecutor { imp, failures: Vec::new(), worst_fraction: 0.0, layers: 0 }
+        LayerCheck { imp, failures: Vec::new(), worst_fraction: 0.0, layers: 0 }
+    }
+
+    /// The backend to run the checked pass on: the CPU backend with the kernels `imp`.
+    pub fn backend(&self) -> CpuBackend {
+        CpuBackend::with_network(self.imp)
     }
 
     fn check(
@@ -77,6 +85,77 @@ impl LayerCheckExecutor {
             self.failures.push(format!("layer {} ({what}, relative budget {rel:e}): {e}", self.layers));
         }
     }
+
+    fn conv(
+        &mut self,
+        x: &Array3<f32>,
+        l: &PreparedLayer,
+        stride: usize,
+        act: Activation,
+        got: &Array3<f32>,
+    ) -> Result<()> {
+        let g = crate::ops::conv_geometry(x.dim(), l.params(), stride)?;
+        let (xf, xa) = f64_and_abs(x);
+        let (aw, ab) = abs_params(l.params());
+        let (wf, bf) = (l.params().weight.mapv(f64::from), l.params().bias.mapv(f64::from));
+        let want = conv2d_reference(&g, xf.view(), wf.view(), bf.view(), act)?;
+        let imp = self.backend().conv_impl_for(&g);
+        let (magnitude, rel) = if let Some(tile) = imp.winograd_tile() {
+            let m = winograd_magnitude_reference(tile, &g, xa.view(), aw.view(), ab.view())?;
+            (m, winograd_budget(tile, g.c_in()))
+        } else {
+            (conv2d_reference(&g, xa.view(), aw.view(), ab.view(), Activation::None)?, layer_budget(g.k()))
+        };
+        self.check(&format!("conv {:?} stride {stride}, {imp:?}", x.shape()), got, &want, &magnitude, rel);
+        Ok(())
+    }
+
+    fn deconv(&mut self, x: &Array3<f32>, l: &PreparedLayer, got: &Array3<f32>) -> Result<()> {
+        let g = crate::ops::deconv_geometry(x.dim(), l.params())?;
+        let (xf, xa) = f64_and_abs(x);
+        let (aw, ab) = abs_params(l.params());
+        let (wf, bf) = (l.params().weight.mapv(f64::from), l.params().bias.mapv(f64::from));
+        let want = deconv2d_reference(&g, xf.view(), wf.view(), bf.view())?;
+        let imp = self.backend().deconv_impl_for(&g);
+        let (magnitude, rel) = if let Some(tile) = imp.winograd_tile() {
+            let m = deconv2d_winograd_magnitude_reference(tile, &g, xa.view(), aw.view(), ab.view())?;
+            (m, winograd_budget(tile, g.c_in()))
+        } else {
+            (deconv2d_reference(&g, xa.view(), aw.view(), ab.view())?, layer_budget(g.k()))
+        };
+        self.check(&format!("deconv {:?}, {imp:?}", x.shape()), got, &want, &magnitude, rel);
+        Ok(())
+    }
+
+    /// The checks of one op (the fused ops: the concatenation's convolution against the reference
+    /// on the concatenation; `skip + deconv` bit for bit against the backend's own deconvolution
+    /// plus `skip`, and that deconvolution against its reference).
+    fn op(&mut self, op: NetworkOp<'_>) -> Result<()> {
+        match op {
+            NetworkOp::Conv { input, layer, stride, act, output } => {
+                self.conv(host(input)?, layer, stride, act, host(output)?)
+            }
+            NetworkOp::ConcatConv { a, b, layer, stride, act, output } => {
+                let x = ndarray::concatenate(ndarray::Axis(2), &[host(a)?.view(), host(b)?.view()])
+                    .map_err(|e| crate::error::Error::invalid_argument("concat", e.to_string()))?;
+                self.conv(&x, layer, stride, act, host(output)?)
+            }
+            NetworkOp::Deconv { input, layer, output } => self.deconv(host(input)?, layer, host(output)?),
+            NetworkOp::DeconvAdd { input, layer, skip, output } => {
+                let d = self.backend().deconv5x5s2(input, layer)?;
+                let d = host(&d)?;
+                let sum = host(skip)? + d;
+                if sum.iter().zip(host(output)?).any(|(s, o)| s.to_bits() != o.to_bits()) {
+                    self.failures.push(format!(
+                        "deconv + add {:?}: the fused kernel differs from deconv then add (budget: exact)",
+                        input.dim()
+                    ));
+                }
+                self.deconv(host(input)?, layer, d)
+            }
+            _ => Ok(()),
+        }
+    }
 }
 
 /// `|W|`, `|b|` in f64.
@@ -84,64 +163,16 @@ fn abs_params(l: &LayerParams) -> (Array4<f64>, Array1<f64>) {
     (l.weight.mapv(|v| f64::from(v.abs())), l.bias.mapv(|v| f64::from(v.abs())))
 }
 
-/// `(x, |x|)` in f64.
+/// `x` and `|x|` in f64.
 fn f64_and_abs(x: &Array3<f32>) -> (Array3<f64>, Array3<f64>) {
     (x.mapv(f64::from), x.mapv(|v| f64::from(v.abs())))
 }
 
-impl Executor for LayerCheckExecutor {
-    type Map = Array3<f32>;
-    fn image(&mut self, image: &Array3<f32>) -> Result<Array3<f32>> {
-        Ok(image.clone())
-    }
-    fn conv(
-        &mut self,
-        x: &Array3<f32>,
-        l: &PreparedLayer,
-        stride: usize,
-        act: Activation,
-    ) -> Result<Array3<f32>> {
-        let got = host_op(self.imp, |b| b.conv3x3(&Tensor::host(x.clone()), l, stride, act))?;
-        let g = crate::ops::conv_geometry(x.dim(), l.params(), stride)?;
-        let (xf, xa) = f64_and_abs(x);
-        let (aw, ab) = abs_params(l.params());
-        let (wf, bf) = (l.params().weight.mapv(f64::from), l.params().bias.mapv(f64::from));
-        let want = conv2d_reference(&g, xf.view(), wf.view(), bf.view(), act)?;
-        let imp = CpuBackend::with_network(self.imp).conv_impl_for(&g);
-        let (magnitude, rel) = if let Some(tile) = imp.winograd_tile() {
-            let m = winograd_magnitude_reference(tile, &g, xa.view(), aw.view(), ab.view())?;
-            (m, winograd_budget(tile, g.c_in()))
-        } else {
-            (conv2d_reference(&g, xa.view(), aw.view(), ab.view(), Activation::None)?, layer_budget(g.k()))
-        };
-        self.check(&format!("conv {:?} stride {stride}, {imp:?}", x.shape()), &got, &want, &magnitude, rel);
-        Ok(got)
-    }
-    fn deconv(&mut self, x: &Array3<f32>, l: &PreparedLayer) -> Result<Array3<f32>> {
-        let got = host_op(self.imp, |b| b.deconv5x5s2(&Tensor::host(x.clone()), l))?;
-        let g = crate::ops::deconv_geometry(x.dim(), l.params())?;
-        let (xf, xa) = f64_and_abs(x);
-        let (aw, ab) = abs_params(l.params());
-        let (wf, bf) = (l.params().weight.mapv(f64::from), l.params().bias.mapv(f64::from));
-        let want = deconv2d_reference(&g, xf.view(), wf.view(), bf.view())?;
-        let imp = CpuBackend::with_network(self.imp).deconv_impl_for(&g);
-        let (magnitude, rel) = if let Some(tile) = imp.winograd_tile() {
-            let m = deconv2d_winograd_magnitude_reference(tile, &g, xa.view(), aw.view(), ab.view())?;
-            (m, winograd_budget(tile, g.c_in()))
-        } else {
-            (deconv2d_reference(&g, xa.view(), aw.view(), ab.view())?, layer_budget(g.k()))
-        };
-        self.check(&format!("deconv {:?}, {imp:?}", x.shape()), &got, &want, &magnitude, rel);
-        Ok(got)
-    }
-    fn concat(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
-        host_op(self.imp, |cpu| cpu.concat(&Tensor::host(a.clone()), &Tensor::host(b.clone())))
-    }
-    fn add(&mut self, a: &Array3<f32>, b: &Array3<f32>) -> Result<Array3<f32>> {
-        host_op(self.imp, |cpu| cpu.add(&Tensor::host(a.clone()), &Tensor::host(b.clone())))
-    }
-    fn crop(&mut self, x: Array3<f32>, h: usize, w: usize) -> Array3<f32> {
-        host_op(self.imp, |b| b.crop(Tensor::host(x), h, w)).expect("network crops fit their maps")
+impl Observer for LayerCheck {
+    fn observe(&mut self, op: NetworkOp<'_>, _seconds: f64) {
+        if let Err(e) = self.op(op) {
+            self.failures.push(format!("layer {}: the check failed: {e}", self.layers + 1));
+        }
     }
 }
 

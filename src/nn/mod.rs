@@ -1,5 +1,5 @@
 //! The feature network (SPEC.md §8), above the backend seam: [`weights`] (PyTorch names, Xavier
-//! init, safetensors), [`network`] (the forward pass over an [`network::Executor`]), [`budget`] (the
+//! init, safetensors), [`network`] (the forward pass on a [`crate::backend::Backend`]), [`budget`] (the
 //! network-level error bound), [`profile`] (per-op timing) and [`viz`] (a PCA colouring of
 //! features). Its kernels live in [`crate::ops`], below the seam.
 

@@ -11,10 +11,10 @@
 //!                                     B_n ─► out_n ────────────► a_n = out_n
 //! ```
 //!
-//! Every op runs through an [`Executor`], so this one function is the network on any
-//! [`Backend`] ([`BackendExecutor`]), the training forward pass that records the tape
-//! (`crate::train::backprop`), the per-op profiler and the error-bound propagation of
-//! [`crate::nn::budget`].
+//! Every op runs on a [`Backend`] value, so this one function is the network on any backend, and,
+//! on [`crate::backend::Observed`] around the CPU backend, the training forward pass that records
+//! the tape (`crate::train::backprop`), the per-op profiler ([`crate::nn::profile`]) and the
+//! per-layer error check of [`crate::nn::budget`].
 
 use std::sync::Mutex;
 
@@ -26,7 +26,7 @@ use crate::nn::prepared::PreparedNetwork;
 use crate::nn::weights::NetworkWeights;
 use crate::ops::config::NetworkConfig;
 use crate::ops::geometry::DECONV_KERNEL;
-use crate::ops::{concat_conv_geometry, conv_geometry, image_pyramid, Activation};
+use crate::ops::{concat_conv_geometry, conv_geometry, Activation};
 
 /// Everything a forward pass computes, cropped to the input's size (SPEC.md §8.2).
 #[derive(Clone, Debug)]
@@ -48,128 +48,35 @@ impl<M> ForwardOutput<M> {
     }
 }
 
-/// The operations a forward pass is made of, on some map type (an f32 activation, or an activation
-/// with an error bound). Used by [`run_network`].
-pub trait Executor {
-    /// An activation map `[h, w, c]`.
-    type Map: Clone;
-    /// Wraps a (padded, mean-subtracted, possibly downsampled) image.
-    fn image(&mut self, image: &Array3<f32>) -> Result<Self::Map>;
-    /// The input pyramid (SPEC.md §8.2), levels `0..=max_level`. The default computes it on the
-    /// host ([`image_pyramid`]) and wraps each level with [`Executor::image`].
-    fn pyramid(
-        &mut self,
-        config: &NetworkConfig,
-        image: ArrayView3<f32>,
-        max_level: usize,
-    ) -> Result<Vec<Self::Map>> {
-        image_pyramid(config, image, max_level)?.iter().map(|l| self.image(l)).collect()
-    }
-    /// 3x3 convolution, padding 1, with the given stride and activation.
-    fn conv(
-        &mut self,
-        x: &Self::Map,
-        layer: &PreparedLayer,
-        stride: usize,
-        act: Activation,
-    ) -> Result<Self::Map>;
-    /// The 3x3 convolution of `concat(a, b)`, the first op of every block after the first. The
-    /// default runs [`Executor::concat`], [`Executor::conv`] and releases the concatenation (the
-    /// training tape records them so); executors may fuse it.
-    fn concat_conv(
-        &mut self,
-        a: &Self::Map,
-        b: &Self::Map,
-        layer: &PreparedLayer,
-        stride: usize,
-        act: Activation,
-    ) -> Result<Self::Map> {
-        let x = self.concat(a, b)?;
-        let y = self.conv(&x, layer, stride, act)?;
-        self.release(x);
-        Ok(y)
-    }
-    /// 5x5 stride-2 transposed convolution.
-    fn deconv(&mut self, x: &Self::Map, layer: &PreparedLayer) -> Result<Self::Map>;
-    /// Channel concatenation, `a` first.
-    fn concat(&mut self, a: &Self::Map, b: &Self::Map) -> Result<Self::Map>;
-    /// Elementwise sum.
-    fn add(&mut self, a: &Self::Map, b: &Self::Map) -> Result<Self::Map>;
-    /// The decoder step `skip + deconv(x)`; the default runs [`Executor::deconv`] then
-    /// [`Executor::add`] (the training tape records them so), executors may fuse it.
-    fn deconv_add(&mut self, x: &Self::Map, layer: &PreparedLayer, skip: &Self::Map) -> Result<Self::Map> {
-        let up = self.deconv(x, layer)?;
-        self.add(skip, &up)
-    }
-    /// The top-left `h x w` window (takes the map, so nothing is copied when it already fits).
-    fn crop(&mut self, x: Self::Map, h: usize, w: usize) -> Self::Map;
-    /// Hands back a map the pass no longer needs, so that the executor may reuse its storage for a
-    /// later op's output ([`PooledExecutor`]). The default drops it.
-    fn release(&mut self, map: Self::Map) {
-        drop(map);
-    }
-}
-
-/// Runs the forward pass's ops on a [`Backend`]: the one way the product runs the network.
-#[derive(Clone, Copy, Debug)]
-pub struct BackendExecutor<'a>(pub &'a dyn Backend);
-
-impl Executor for BackendExecutor<'_> {
-    type Map = Tensor;
-    fn image(&mut self, image: &Array3<f32>) -> Result<Tensor> {
-        self.0.upload(image.view())
-    }
-    fn pyramid(
-        &mut self,
-        config: &NetworkConfig,
-        image: ArrayView3<f32>,
-        max_level: usize,
-    ) -> Result<Vec<Tensor>> {
-        self.0.image_pyramid(config, image, max_level)
-    }
-    fn conv(&mut self, x: &Tensor, l: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor> {
-        self.0.conv3x3(x, l, stride, act)
-    }
-    fn deconv(&mut self, x: &Tensor, l: &PreparedLayer) -> Result<Tensor> {
-        self.0.deconv5x5s2(x, l)
-    }
-    fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
-        self.0.concat(a, b)
-    }
-    fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
-        self.0.add(a, b)
-    }
-    fn deconv_add(&mut self, x: &Tensor, l: &PreparedLayer, skip: &Tensor) -> Result<Tensor> {
-        self.0.deconv5x5s2_add(x, l, skip)
-    }
-    fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
-        // The network only crops to the sizes of SPEC.md §8.2, inside every map.
-        self.0.crop(x, h, w).expect("network crops fit their maps")
-    }
-}
-
-/// [`BackendExecutor`] with an arena: the maps [`run_network`] releases (a block's concatenated
-/// input and its first two convolutions' outputs) are kept and handed to later convolutions and
-/// concatenations as output storage ([`Backend::conv3x3_reusing`]), so a forward pass allocates
-/// (and the OS zero-fills) far fewer fresh maps (SPEC.md §8.9). The arena lives as long as the
-/// executor: one forward pass in [`FeatureNet::forward`], which seeds it with the previous pass's
-/// leftovers ([`PooledExecutor::with_spares`], [`PooledExecutor::into_spares`]).
-#[derive(Debug)]
-pub struct PooledExecutor<'a> {
-    backend: &'a dyn Backend,
+/// Maps a forward pass no longer needs (a block's first two convolutions' outputs, the decoder's
+/// used inputs), handed to later convolutions, concatenations and decoder steps as output storage
+/// ([`Backend::conv3x3_reusing`]), so a pass allocates (and the OS zero-fills) far fewer fresh maps
+/// (SPEC.md §8.9). [`FeatureNet`] keeps one between its passes ([`Arena::into_spares`]).
+#[derive(Debug, Default)]
+pub struct Arena {
     spare: Vec<Tensor>,
 }
 
-impl<'a> PooledExecutor<'a> {
-    /// An executor on `backend` with an empty arena.
-    pub fn new(backend: &'a dyn Backend) -> Self {
-        Self { backend, spare: Vec::new() }
+impl Arena {
+    /// An empty arena.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// An arena that starts with `spares` (from [`Arena::into_spares`]).
+    pub fn with_spares(spares: Vec<Tensor>) -> Self {
+        Self { spare: spares }
+    }
+
+    /// The maps left in the arena (host maps only), to seed another pass's arena.
+    pub fn into_spares(self) -> Vec<Tensor> {
+        self.spare.into_iter().filter(|t| t.as_host().is_some()).collect()
     }
 
     /// A spare map for an output of `len` values, taken out of the arena: the smallest holding at
     /// least `len` values, else the largest (a map whose storage was truncated by an earlier reuse
     /// may still have the room; the backend checks and allocates if not).
-    fn take_spare(&mut self, len: usize) -> Option<Tensor> {
+    fn take(&mut self, len: usize) -> Option<Tensor> {
         let size = |t: &Tensor| {
             let (h, w, c) = t.dim();
             h * w * c
@@ -181,35 +88,25 @@ impl<'a> PooledExecutor<'a> {
         Some(self.spare.swap_remove(best))
     }
 
-    /// The maps left in the arena (host maps only), to seed another pass's arena.
-    pub fn into_spares(self) -> Vec<Tensor> {
-        self.spare.into_iter().filter(|t| t.as_host().is_some()).collect()
-    }
-
-    /// An executor on `backend` whose arena starts with `spares` (from [`PooledExecutor::into_spares`]).
-    pub fn with_spares(backend: &'a dyn Backend, spares: Vec<Tensor>) -> Self {
-        Self { backend, spare: spares }
+    /// Hands back a map the pass no longer needs.
+    fn give(&mut self, map: Tensor) {
+        self.spare.push(map);
     }
 }
 
-impl Executor for PooledExecutor<'_> {
-    type Map = Tensor;
-    fn image(&mut self, image: &Array3<f32>) -> Result<Tensor> {
-        BackendExecutor(self.backend).image(image)
-    }
-    fn pyramid(
-        &mut self,
-        config: &NetworkConfig,
-        image: ArrayView3<f32>,
-        max_level: usize,
-    ) -> Result<Vec<Tensor>> {
-        self.backend.image_pyramid(config, image, max_level)
-    }
+/// One pass's backend and arena: the network's ops with their output storage from the arena.
+struct Pass<'a> {
+    backend: &'a dyn Backend,
+    arena: &'a mut Arena,
+}
+
+impl Pass<'_> {
     fn conv(&mut self, x: &Tensor, l: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor> {
         let [h, w, c] = conv_geometry(x.dim(), l.params(), stride)?.output_shape();
-        let spare = self.take_spare(h * w * c);
+        let spare = self.arena.take(h * w * c);
         self.backend.conv3x3_reusing(x, l, stride, act, spare)
     }
+
     fn concat_conv(
         &mut self,
         a: &Tensor,
@@ -218,93 +115,77 @@ impl Executor for PooledExecutor<'_> {
         stride: usize,
         act: Activation,
     ) -> Result<Tensor> {
-        let [ho, wo, co] = concat_conv_geometry(a.dim(), b.dim(), l.params(), stride)?.output_shape();
-        let spare = self.take_spare(ho * wo * co);
+        let [h, w, c] = concat_conv_geometry(a.dim(), b.dim(), l.params(), stride)?.output_shape();
+        let spare = self.arena.take(h * w * c);
         self.backend.conv3x3_concat(a, b, l, stride, act, spare)
     }
-    fn deconv(&mut self, x: &Tensor, l: &PreparedLayer) -> Result<Tensor> {
-        self.backend.deconv5x5s2(x, l)
-    }
-    fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
-        let ((h, w, ca), (_, _, cb)) = (a.dim(), b.dim());
-        let spare = self.take_spare(h * w * (ca + cb));
-        self.backend.concat_reusing(a, b, spare)
-    }
-    fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
-        self.backend.add(a, b)
-    }
+
     fn deconv_add(&mut self, x: &Tensor, l: &PreparedLayer, skip: &Tensor) -> Result<Tensor> {
         let (h, w, c) = skip.dim();
-        let spare = self.take_spare(h * w * c);
+        let spare = self.arena.take(h * w * c);
         self.backend.deconv5x5s2_add_reusing(x, l, skip, spare)
-    }
-    fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
-        BackendExecutor(self.backend).crop(x, h, w)
-    }
-    fn release(&mut self, map: Tensor) {
-        self.spare.push(map);
     }
 }
 
 /// The encoder of the forward pass (SPEC.md §8.1-8.2): every block's output, uncropped (on the
 /// padded input's grid).
-fn run_blocks<E: Executor>(
-    exec: &mut E,
-    net: &PreparedNetwork,
-    image: ArrayView3<f32>,
-) -> Result<Vec<E::Map>> {
-    run_first_blocks(exec, net, image, net.config().blocks)
+fn run_blocks(pass: &mut Pass<'_>, net: &PreparedNetwork, image: ArrayView3<f32>) -> Result<Vec<Tensor>> {
+    run_first_blocks(pass, net, image, net.config().blocks)
 }
 
 /// The first `count` blocks of the encoder (`1..=blocks`), uncropped. The input is padded to the
 /// whole network's multiple (SPEC.md §8.2) whatever `count` is, so block `k`'s output has the bits
 /// of the full pass's; the image pyramid stops at the last level these blocks read.
-fn run_first_blocks<E: Executor>(
-    exec: &mut E,
+fn run_first_blocks(
+    pass: &mut Pass<'_>,
     net: &PreparedNetwork,
     image: ArrayView3<f32>,
     count: usize,
-) -> Result<Vec<E::Map>> {
+) -> Result<Vec<Tensor>> {
     let config = net.config();
     let count = count.clamp(1, config.blocks);
     // Block k > 0 needs the image at block k-1's level; the deepest is the next-to-last block's.
     let max_level = if count > 1 { config.block_level(count - 2) } else { 0 };
-    let pyramid = exec.pyramid(config, image, max_level)?;
-    let mut outs: Vec<E::Map> = Vec::with_capacity(count);
+    let pyramid = pass.backend.image_pyramid(config, image, max_level)?;
+    let mut outs: Vec<Tensor> = Vec::with_capacity(count);
     for (k, [conv1, conv2, conv3]) in net.blocks.iter().take(count).enumerate() {
         let (stride, act) = (config.block_stride(k), Activation::Relu);
         let x1 = match outs.last() {
-            None => exec.conv(&pyramid[0], conv1, stride, act)?,
-            Some(prev) => exec.concat_conv(prev, &pyramid[config.block_level(k - 1)], conv1, stride, act)?,
+            None => pass.conv(&pyramid[0], conv1, stride, act)?,
+            Some(prev) => pass.concat_conv(prev, &pyramid[config.block_level(k - 1)], conv1, stride, act)?,
         };
-        let x2 = exec.conv(&x1, conv2, 1, Activation::Relu)?;
-        exec.release(x1);
-        let out = exec.conv(&x2, conv3, 1, Activation::None)?;
-        exec.release(x2);
+        let x2 = pass.conv(&x1, conv2, 1, Activation::Relu)?;
+        pass.arena.give(x1);
+        let out = pass.conv(&x2, conv3, 1, Activation::None)?;
+        pass.arena.give(x2);
         outs.push(out);
     }
     Ok(outs)
 }
 
-/// The forward pass (SPEC.md §8.1-8.2) through any [`Executor`]: every block's output and every
-/// aggregated map, cropped (what training's deep supervision needs).
+/// The forward pass (SPEC.md §8.1-8.2) on `backend`, output storage from `arena`: every block's
+/// output and every aggregated map, cropped (what training's deep supervision needs). The one
+/// forward pass: inference runs it on a backend, training on [`crate::backend::Observed`] with the
+/// tape as observer, the profiler and the per-layer error check likewise.
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] for a malformed image; the backend's errors (a layer
 /// prepared by another backend).
-pub fn run_network<E: Executor>(
-    exec: &mut E,
+pub fn run_network(
+    backend: &dyn Backend,
+    arena: &mut Arena,
     net: &PreparedNetwork,
     image: ArrayView3<f32>,
-) -> Result<ForwardOutput<E::Map>> {
-    let outs = run_blocks(exec, net, image)?;
+) -> Result<ForwardOutput<Tensor>> {
+    let pass = &mut Pass { backend, arena };
+    let outs = run_blocks(pass, net, image)?;
     let config = net.config();
     // Decoder, coarse to fine: a_k = out_k + deconv_k(a_{k+1}).
-    let mut aggregated: Vec<E::Map> = Vec::with_capacity(config.blocks);
+    let mut aggregated: Vec<Tensor> = Vec::with_capacity(config.blocks);
     for k in (0..config.blocks).rev() {
         let a = match aggregated.last() {
             None => outs[k].clone(),
-            Some(coarser) => exec.deconv_add(coarser, &net.deconvs[k], &outs[k])?,
+            Some(coarser) => pass.deconv_add(coarser, &net.deconvs[k], &outs[k])?,
         };
         aggregated.push(a);
     }
@@ -312,11 +193,11 @@ pub fn run_network<E: Executor>(
     let (h, w, _) = image.dim();
     let shapes = config.output_shapes(h, w);
     // Maps are moved through the crop: at sizes that need no cropping nothing is copied.
-    let crop_all = |exec: &mut E, maps: Vec<E::Map>| -> Vec<E::Map> {
-        maps.into_iter().zip(&shapes).map(|(m, &[hl, wl, _])| exec.crop(m, hl, wl)).collect()
+    let crop_all = |maps: Vec<Tensor>| -> Result<Vec<Tensor>> {
+        maps.into_iter().zip(&shapes).map(|(m, &[hl, wl, _])| backend.crop(m, hl, wl)).collect()
     };
-    let blocks = crop_all(exec, outs);
-    let aggregated = crop_all(exec, aggregated);
+    let blocks = crop_all(outs)?;
+    let aggregated = crop_all(aggregated)?;
     Ok(ForwardOutput { blocks, aggregated })
 }
 
@@ -326,23 +207,25 @@ pub fn run_network<E: Executor>(
 ///
 /// # Errors
 /// As [`run_network`].
-pub fn run_features<E: Executor>(
-    exec: &mut E,
+pub fn run_features(
+    backend: &dyn Backend,
+    arena: &mut Arena,
     net: &PreparedNetwork,
     image: ArrayView3<f32>,
-) -> Result<E::Map> {
-    let mut outs = run_blocks(exec, net, image)?;
+) -> Result<Tensor> {
+    let pass = &mut Pass { backend, arena };
+    let mut outs = run_blocks(pass, net, image)?;
     let Some(mut a) = outs.pop() else { unreachable!("validated weights have at least one block") };
     // `outs.pop()` is block k's output, k = blocks - 2 down to 0.
     while let Some(skip) = outs.pop() {
-        let next = exec.deconv_add(&a, &net.deconvs[outs.len()], &skip)?;
-        exec.release(a);
-        exec.release(skip);
+        let next = pass.deconv_add(&a, &net.deconvs[outs.len()], &skip)?;
+        pass.arena.give(a);
+        pass.arena.give(skip);
         a = next;
     }
     let (h, w, _) = image.dim();
     let [h0, w0, _] = net.config().output_shapes(h, w)[0];
-    Ok(exec.crop(a, h0, w0))
+    backend.crop(a, h0, w0)
 }
 
 /// Block 1's output alone, `run_network(..).blocks[0]` (the same bits): the paper's "B1 only"
@@ -352,16 +235,17 @@ pub fn run_features<E: Executor>(
 ///
 /// # Errors
 /// As [`run_network`].
-pub fn run_block1<E: Executor>(
-    exec: &mut E,
+pub fn run_block1(
+    backend: &dyn Backend,
+    arena: &mut Arena,
     net: &PreparedNetwork,
     image: ArrayView3<f32>,
-) -> Result<E::Map> {
-    let mut outs = run_first_blocks(exec, net, image, 1)?;
+) -> Result<Tensor> {
+    let mut outs = run_first_blocks(&mut Pass { backend, arena }, net, image, 1)?;
     let Some(out) = outs.pop() else { unreachable!("one block was run") };
     let (h, w, _) = image.dim();
     let [h0, w0, _] = net.config().output_shapes(h, w)[0];
-    Ok(exec.crop(out, h0, w0))
+    backend.crop(out, h0, w0)
 }
 
 /// `t`'s host array: moved out when it is on the host, else downloaded from `backend`.
@@ -453,7 +337,7 @@ impl FeatureNet {
         backend: &dyn Backend,
     ) -> Result<ForwardOutput<Tensor>> {
         let net = self.prepared(backend)?;
-        self.with_arena(backend, |exec| run_network(exec, &net, image))
+        self.with_arena(|arena| run_network(backend, arena, &net, image))
     }
 
     /// The features alone (`forward(..).aggregated[0]`, the same bits) as a host map: what
@@ -471,7 +355,7 @@ impl FeatureNet {
     /// As [`FeatureNet::forward`].
     pub fn features_tensor(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<Tensor> {
         let net = self.prepared(backend)?;
-        self.with_arena(backend, |exec| run_features(exec, &net, image))
+        self.with_arena(|arena| run_features(backend, arena, &net, image))
     }
 
     /// Block 1's output alone (`forward(..).blocks[0]`, the same bits) as a host map, without
@@ -482,22 +366,17 @@ impl FeatureNet {
     /// As [`FeatureNet::forward`].
     pub fn block1(&self, image: ArrayView3<f32>, backend: &dyn Backend) -> Result<Array3<f32>> {
         let net = self.prepared(backend)?;
-        let t = self.with_arena(backend, |exec| run_block1(exec, &net, image))?;
+        let t = self.with_arena(|arena| run_block1(backend, arena, &net, image))?;
         to_host(t, backend)
     }
 
-    /// Runs `pass` on a [`PooledExecutor`] whose arena starts with the last pass's leftovers (a
-    /// concurrent pass on the same network simply starts with an empty one) and hands its own
-    /// leftovers back.
-    fn with_arena<T>(
-        &self,
-        backend: &dyn Backend,
-        pass: impl FnOnce(&mut PooledExecutor<'_>) -> Result<T>,
-    ) -> Result<T> {
+    /// Runs `pass` with an [`Arena`] that starts with the last pass's leftovers (a concurrent pass
+    /// on the same network simply starts with an empty one) and hands its own leftovers back.
+    fn with_arena<T>(&self, pass: impl FnOnce(&mut Arena) -> Result<T>) -> Result<T> {
         let spares = std::mem::take(&mut *self.spares.lock().unwrap_or_else(|e| e.into_inner()));
-        let mut exec = PooledExecutor::with_spares(backend, spares);
-        let out = pass(&mut exec)?;
-        *self.spares.lock().unwrap_or_else(|e| e.into_inner()) = exec.into_spares();
+        let mut arena = Arena::with_spares(spares);
+        let out = pass(&mut arena)?;
+        *self.spares.lock().unwrap_or_else(|e| e.into_inner()) = arena.into_spares();
         Ok(out)
     }
 

@@ -1,16 +1,15 @@
-//! Where a forward pass spends its time: an [`Executor`] that runs the fast kernels and times each
+//! Where a forward pass spends its time: an [`Observer`] of the product's forward pass that times each
 //! operation, grouped by kind (`densefeat bench forward --profile`).
 
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use ndarray::{Array3, ArrayView3};
+use ndarray::ArrayView3;
 
-use super::network::{run_features, Executor, PooledExecutor};
+use super::network::{run_features, Arena};
 use super::FeatureNet;
-use crate::backend::{Backend, PreparedLayer, Tensor};
+use crate::backend::{Backend, NetworkOp, Observed, Observer, PreparedLayer, Tensor};
 use crate::error::Result;
-use crate::ops::Activation;
 use crate::ops::{concat_conv_geometry, conv_geometry, deconv_geometry};
 
 /// Accumulated time and FLOPs of one kind of operation.
@@ -24,84 +23,57 @@ pub struct OpTotals {
     pub flops: f64,
 }
 
-/// Times every operation of the fast kernels.
-#[derive(Debug)]
-pub struct ProfileExecutor<'a> {
-    inner: PooledExecutor<'a>,
-    /// Totals per operation kind (e.g. `conv s1 32->32`).
-    pub totals: BTreeMap<String, OpTotals>,
+/// The profiler: an [`Observer`] that sums each op kind's calls, time and work.
+#[derive(Debug, Default)]
+struct Profile {
+    totals: BTreeMap<String, OpTotals>,
 }
 
-impl<'a> ProfileExecutor<'a> {
-    /// A profiler around `backend`'s ops.
-    pub fn new(backend: &'a dyn Backend) -> Self {
-        Self { inner: PooledExecutor::new(backend), totals: BTreeMap::new() }
-    }
-
-    fn record<T>(&mut self, kind: String, flops: f64, f: impl FnOnce(&mut PooledExecutor<'a>) -> T) -> T {
-        let start = Instant::now();
-        let out = f(&mut self.inner);
+impl Profile {
+    fn add(&mut self, kind: String, flops: f64, seconds: f64) {
         let e = self.totals.entry(kind).or_default();
         e.calls += 1;
-        e.ms += start.elapsed().as_secs_f64() * 1e3;
+        e.ms += seconds * 1e3;
         e.flops += flops;
-        out
     }
 }
 
-impl Executor for ProfileExecutor<'_> {
-    type Map = Tensor;
-    fn image(&mut self, image: &Array3<f32>) -> Result<Tensor> {
-        self.record("image upload".into(), 0.0, |e| e.image(image))
-    }
-    fn pyramid(
-        &mut self,
-        config: &crate::nn::NetworkConfig,
-        image: ArrayView3<f32>,
-        max_level: usize,
-    ) -> Result<Vec<Tensor>> {
-        self.record("image pyramid".into(), 0.0, |e| e.pyramid(config, image, max_level))
-    }
-    fn conv(&mut self, x: &Tensor, l: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor> {
-        let g = conv_geometry(x.dim(), l.params(), stride)?;
-        let kind = format!("conv s{stride} {}->{}", g.c_in(), g.c_out());
-        self.record(kind, g.flops(), |e| e.conv(x, l, stride, act))
-    }
-    fn concat_conv(
-        &mut self,
-        a: &Tensor,
-        b: &Tensor,
-        l: &PreparedLayer,
-        stride: usize,
-        act: Activation,
-    ) -> Result<Tensor> {
-        let g = concat_conv_geometry(a.dim(), b.dim(), l.params(), stride)?;
-        let kind = format!("concat + conv s{stride} {}->{}", g.c_in(), g.c_out());
-        self.record(kind, g.flops(), |e| e.concat_conv(a, b, l, stride, act))
-    }
-    fn deconv(&mut self, x: &Tensor, l: &PreparedLayer) -> Result<Tensor> {
-        // Each input pixel's 4 outputs sum 9, 6, 6 and 4 taps: 25 products per input pixel and pair
-        // of channels.
-        let g = deconv_geometry(x.dim(), l.params())?;
-        let flops = 2.0 * 25.0 * (g.c_in() * g.c_out() * g.h() * g.w()) as f64;
-        self.record("deconv 5x5 s2".into(), flops, |e| e.deconv(x, l))
-    }
-    fn deconv_add(&mut self, x: &Tensor, l: &PreparedLayer, skip: &Tensor) -> Result<Tensor> {
-        let g = deconv_geometry(x.dim(), l.params())?;
-        let flops = 2.0 * 25.0 * (g.c_in() * g.c_out() * g.h() * g.w()) as f64;
-        self.record("deconv 5x5 s2 + add".into(), flops, |e| e.deconv_add(x, l, skip))
-    }
-    fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
-        self.record("concat".into(), 0.0, |e| e.concat(a, b))
-    }
-    fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
-        self.record("add".into(), 0.0, |e| e.add(a, b))
-    }
-    fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
-        self.record("crop".into(), 0.0, |e| e.crop(x, h, w))
-    }
-    fn release(&mut self, map: Tensor) {
-        self.inner.release(map);
+/// Work of a 5x5 stride-2 transposed convolution of `input`: each input pixel's 4 outputs sum 9, 6,
+/// 6 and 4 taps, 25 products per input pixel and pair of channels.
+fn deconv_flops(input: &Tensor, layer: &PreparedLayer) -> f64 {
+    deconv_geometry(input.dim(), layer.params())
+        .map(|g| 2.0 * 25.0 * (g.c_in() * g.c_out() * g.h() * g.w()) as f64)
+        .unwrap_or(0.0)
+}
+
+impl Observer for Profile {
+    fn observe(&mut self, op: NetworkOp<'_>, seconds: f64) {
+        let (kind, flops) = match op {
+            NetworkOp::Pyramid(_) => ("image pyramid".to_string(), 0.0),
+            NetworkOp::Conv { input, layer, stride, .. } => {
+                match conv_geometry(input.dim(), layer.params(), stride) {
+                    Ok(g) => (format!("conv s{stride} {}->{}", g.c_in(), g.c_out()), g.flops()),
+                    Err(_) => (format!("conv s{stride}"), 0.0),
+                }
+            }
+            NetworkOp::ConcatConv { a, b, layer, stride, .. } => {
+                match concat_conv_geometry(a.dim(), b.dim(), layer.params(), stride) {
+                    Ok(g) => (format!("concat + conv s{stride} {}->{}", g.c_in(), g.c_out()), g.flops()),
+                    Err(_) => (format!("concat + conv s{stride}"), 0.0),
+                }
+            }
+            NetworkOp::Deconv { input, layer, .. } => {
+                ("deconv 5x5 s2".to_string(), deconv_flops(input, layer))
+            }
+            NetworkOp::DeconvAdd { input, layer, .. } => {
+                ("deconv 5x5 s2 + add".to_string(), deconv_flops(input, layer))
+            }
+            NetworkOp::Downsample { .. } => ("downsample".to_string(), 0.0),
+            NetworkOp::Concat { .. } => ("concat".to_string(), 0.0),
+            NetworkOp::Add { .. } => ("add".to_string(), 0.0),
+            NetworkOp::Crop { .. } => ("crop".to_string(), 0.0),
+        };
+        self.add(kind, flops, seconds);
     }
 }
 
@@ -118,16 +90,18 @@ pub fn profile_forward(
     runs: usize,
 ) -> Result<(Vec<(String, OpTotals)>, f64)> {
     let prepared = net.prepared(backend)?;
-    let mut exec = ProfileExecutor::new(backend);
+    let observed = Observed::new(backend, Profile::default());
+    let mut arena = Arena::new();
     let runs = runs.max(1);
     let start = Instant::now();
     for _ in 0..runs {
-        std::hint::black_box(run_features(&mut exec, &prepared, image)?);
         // The arena carries over from pass to pass, as in `FeatureNet::features`.
+        std::hint::black_box(run_features(&observed, &mut arena, &prepared, image)?);
     }
     let total = start.elapsed().as_secs_f64() * 1e3 / runs as f64;
     let n = runs as f64;
-    let rows = exec
+    let rows = observed
+        .into_observer()
         .totals
         .into_iter()
         .map(|(k, t)| (k, OpTotals { calls: t.calls / runs, ms: t.ms / n, flops: t.flops / n }))

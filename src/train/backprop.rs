@@ -13,14 +13,13 @@
 
 use ndarray::{s, Array3, ArrayView3};
 
-use crate::backend::{CpuBackend, LayerOp, PreparedLayer, Tensor};
+use crate::backend::{CpuBackend, LayerOp, NetworkOp, Observed, Observer, Tensor};
 use crate::error::{Error, Result};
-use crate::nn::network::{run_network, BackendExecutor, Executor};
+use crate::nn::network::{run_network, Arena};
 use crate::nn::{ForwardOutput, NetworkWeights, PreparedNetwork};
 use crate::ops::conv2d::backward_fast::conv2d_backward_input_prepared;
 use crate::ops::conv2d::{conv2d_backward_weight, relu_backward, Conv2dImpl};
 use crate::ops::deconv2d::{deconv2d_backward_input, deconv2d_backward_weight};
-use crate::ops::Activation;
 use crate::ops::LayerParams;
 use crate::ops::PreparedConv;
 use crate::ops::{conv_geometry, deconv_geometry};
@@ -44,43 +43,50 @@ pub struct Tape {
     aggregated: Vec<Array3<f32>>,
 }
 
-/// The executor that records the tape: it runs every op on the CPU backend and keeps (shared
-/// handles to, no copies of) the input of every convolution and every map before its crop.
-struct TapeExecutor<'a> {
-    inner: BackendExecutor<'a>,
-    conv_inputs: Vec<Tensor>,
+/// The observer that records the tape while the forward pass runs on the CPU backend: (shared
+/// handles to, no copies of) the input of every convolution (for a block's first convolution, the
+/// two maps it concatenates) and every map before its crop.
+#[derive(Default)]
+struct TapeRecorder {
+    conv_inputs: Vec<ConvInput>,
     uncropped: Vec<Tensor>,
 }
 
-impl Executor for TapeExecutor<'_> {
-    type Map = Tensor;
-    fn image(&mut self, image: &Array3<f32>) -> Result<Tensor> {
-        self.inner.image(image)
+/// A convolution's input as the forward pass saw it.
+enum ConvInput {
+    Map(Tensor),
+    /// `concat(a, b)`, `a`'s channels first, which the backend convolves without forming.
+    Concat(Tensor, Tensor),
+}
+
+impl Observer for TapeRecorder {
+    fn observe(&mut self, op: NetworkOp<'_>, _seconds: f64) {
+        match op {
+            NetworkOp::Conv { input, .. } => self.conv_inputs.push(ConvInput::Map(input.clone())),
+            NetworkOp::ConcatConv { a, b, .. } => {
+                self.conv_inputs.push(ConvInput::Concat(a.clone(), b.clone()))
+            }
+            NetworkOp::Crop { input, .. } => self.uncropped.push(input.clone()),
+            _ => {}
+        }
     }
-    fn pyramid(
-        &mut self,
-        config: &crate::nn::NetworkConfig,
-        image: ArrayView3<f32>,
-        max_level: usize,
-    ) -> Result<Vec<Tensor>> {
-        self.inner.pyramid(config, image, max_level)
-    }
-    fn conv(&mut self, x: &Tensor, l: &PreparedLayer, stride: usize, act: Activation) -> Result<Tensor> {
-        self.conv_inputs.push(x.clone());
-        self.inner.conv(x, l, stride, act)
-    }
-    fn deconv(&mut self, x: &Tensor, l: &PreparedLayer) -> Result<Tensor> {
-        self.inner.deconv(x, l)
-    }
-    fn concat(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
-        self.inner.concat(a, b)
-    }
-    fn add(&mut self, a: &Tensor, b: &Tensor) -> Result<Tensor> {
-        self.inner.add(a, b)
-    }
-    fn crop(&mut self, x: Tensor, h: usize, w: usize) -> Tensor {
-        self.uncropped.push(x.clone());
-        self.inner.crop(x, h, w)
+}
+
+impl ConvInput {
+    /// The input as a host map (the concatenation formed now, exactly as `concat_channels` does).
+    fn into_host(self) -> Array3<f32> {
+        match self {
+            ConvInput::Map(t) => host(t),
+            ConvInput::Concat(a, b) => {
+                let (a, b) = (host(a), host(b));
+                // Standard layout, a's channels first, as `concat_channels` writes it.
+                let ((h, w, ca), cb) = (a.dim(), b.dim().2);
+                let mut x = Array3::zeros((h, w, ca + cb));
+                x.slice_mut(s![.., .., ..ca]).assign(&a);
+                x.slice_mut(s![.., .., ca..]).assign(&b);
+                x
+            }
+        }
     }
 }
 
@@ -112,22 +118,22 @@ pub fn forward_with_tape_prepared(
     image: ArrayView3<f32>,
     cpu: &CpuBackend,
 ) -> Result<(ForwardOutput, Tape)> {
-    let mut exec =
-        TapeExecutor { inner: BackendExecutor(cpu), conv_inputs: Vec::new(), uncropped: Vec::new() };
-    let out = run_network(&mut exec, net, image)?;
+    let observed = Observed::new(cpu, TapeRecorder::default());
+    let out = run_network(&observed, &mut Arena::new(), net, image)?;
+    let mut tape = observed.into_observer();
     let n = net.config().blocks;
     // run_network runs conv1, conv2, conv3 of each block in order, then crops the n block outputs
     // and the n aggregated maps.
-    assert_eq!((exec.conv_inputs.len(), exec.uncropped.len()), (3 * n, 2 * n), "tape of {n} blocks");
-    let aggregated = exec.uncropped.split_off(n).into_iter().map(host).collect();
-    let mut inputs = exec.conv_inputs.into_iter();
+    assert_eq!((tape.conv_inputs.len(), tape.uncropped.len()), (3 * n, 2 * n), "tape of {n} blocks");
+    let aggregated = tape.uncropped.split_off(n).into_iter().map(host).collect();
+    let mut inputs = tape.conv_inputs.into_iter();
     let blocks = (0..n)
         .map(|_| {
-            let mut next = || host(inputs.next().expect("three convolutions per block"));
+            let mut next = || inputs.next().expect("three convolutions per block").into_host();
             BlockTape { input: next(), x1: next(), x2: next() }
         })
         .collect();
-    drop(exec.uncropped);
+    drop(tape.uncropped);
     let out = ForwardOutput {
         blocks: out.blocks.into_iter().map(host).collect(),
         aggregated: out.aggregated.into_iter().map(host).collect(),

@@ -470,6 +470,23 @@ fn map_writes_mesh_metrics_and_resumes() {
     assert!(text.contains("0 computed") && text.contains(&format!("{} reused", keys.len())), "{text}");
     assert_eq!(std::fs::metadata(&kf).unwrap().modified().unwrap(), stamp);
     assert_eq!(read_mesh_ply(&out.join("mesh.ply")).unwrap(), mesh);
+    // The estimate's truncation defaults to 8 voxels; the ground truth keeps 4 whatever
+    // `--truncation` says (SPEC.md §16.5, §16.9). With a truncation of at most 4 voxels the grid is
+    // the same, so the ground-truth mesh is the same bit for bit while the estimate's changes.
+    let voxel = doc["fusion"]["voxel_m"].as_f64().unwrap();
+    assert_eq!(doc["fusion"]["truncation_m"].as_f64(), Some(8.0 * voxel), "{doc}");
+    assert_eq!(doc["fusion"]["gt_truncation_m"].as_f64(), Some(4.0 * voxel), "{doc}");
+    let narrow = [format!("{}", 4.0 * voxel), format!("{}", 2.0 * voxel)];
+    let mut gts = Vec::new();
+    let mut ests = Vec::new();
+    for t in &narrow {
+        let run = map_cmd(&out, &["--truncation", t]);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        gts.push(read_mesh_ply(&out.join("mesh_gt.ply")).unwrap());
+        ests.push(read_mesh_ply(&out.join("mesh.ply")).unwrap());
+    }
+    assert_eq!(gts[0], gts[1], "the ground truth does not move with --truncation");
+    assert_ne!(ests[0], ests[1], "the estimate does");
 
     // A changed mapping setting recomputes the keyframes.
     let third = map_cmd(&out, &["--min-evidence", "0.3"]);

@@ -9,7 +9,7 @@ use densefeat::fusion::consistency::ConsistencyRule;
 use densefeat::fusion::FusionWeight;
 use densefeat::mapping::keyframe::Regularizer;
 use densefeat::mapping::keyframe_select::KeyframeRule;
-use densefeat::mapping::sequence_map::{map_sequence, MapConfig};
+use densefeat::mapping::sequence_map::{map_sequence, MapConfig, MAP_TRUNCATION_VOXELS};
 use densefeat::mapping::FeatureKind;
 
 use super::mapping_args::{progress_bar, DepthRange, MappingArgs};
@@ -48,7 +48,7 @@ pub struct MapArgs {
     /// TSDF voxel size, metres.
     #[arg(long, default_value_t = 0.04)]
     pub voxel_size: f64,
-    /// TSDF truncation, metres (default: 4 voxels).
+    /// TSDF truncation of the estimated depth, metres (default: 8 voxels; the ground truth keeps 4).
     #[arg(long)]
     pub truncation: Option<f64>,
     /// Depths beyond this (metres) are not fused.
@@ -123,7 +123,7 @@ pub fn run(mut args: MapArgs) -> Result<()> {
             window_overlap: args.window_overlap,
         },
         voxel: args.voxel_size,
-        truncation: args.truncation.unwrap_or(4.0 * args.voxel_size),
+        truncation: args.truncation.unwrap_or(MAP_TRUNCATION_VOXELS * args.voxel_size),
         max_fusion_depth: args.max_fusion_depth,
         min_confidence: args.mapping.min_confidence,
         fscore_threshold: args.fscore_threshold,

@@ -52,6 +52,18 @@ pub const MAP_LAMBDA_LEARNED: f64 = 10.0;
 /// what one keyframe's border misses.
 pub const MAP_BORDER_TAPER: f64 = 0.0;
 
+/// `densefeat map`'s default truncation of the estimated depth's TSDF, in voxels (SPEC.md §16.9): 8
+/// (0.32 m at the default 4 cm voxel), about one depth bin at 4 m, the error the keyframe depth
+/// still has there. Chosen on the validation scenes against a fixed ground truth (2026-12-05:
+/// mean F-score at 5 cm 0.361 / 0.367 / 0.372 / 0.379 / **0.381** / 0.381 / 0.381 for 2 / 3 / 4 / 6
+/// / 8 / 10 / 12 voxels; `docs/map/results.md`).
+pub const MAP_TRUNCATION_VOXELS: f64 = 8.0;
+
+/// The truncation of the ground-truth TSDF, in voxels (SPEC.md §16.5): the ground-truth depth is
+/// exact, so it keeps the 4 voxels the fusion had before, whatever `--truncation` is: the reference a
+/// run is scored against does not move with the estimate's fusion settings.
+pub const GT_TRUNCATION_VOXELS: f64 = 4.0;
+
 /// Everything [`map_sequence`] needs besides the sequence.
 #[derive(Clone, Debug)]
 pub struct MapConfig {
@@ -228,7 +240,7 @@ impl MapConfig {
             frusta.add(b.min);
             frusta.add(b.max);
         }
-        let frusta = frusta.padded(self.truncation);
+        let frusta = frusta.padded(self.truncation.max(GT_TRUNCATION_VOXELS * self.voxel));
         let volumes = if seq.frames[keys[0]].depth.is_some() { 2 } else { 1 };
         let fusion_bytes_bound =
             voxel_count(&frusta, self.voxel).saturating_mul(BYTES_PER_VOXEL).saturating_mul(volumes);
@@ -394,11 +406,12 @@ pub fn map_sequence(
             add_points(&mut bounds, gt, m, cfg.max_fusion_depth);
         }
     }
-    let bounds = bounds.padded(cfg.truncation).intersect(&plan.frusta);
+    let gt_truncation = GT_TRUNCATION_VOXELS * cfg.voxel;
+    let bounds = bounds.padded(cfg.truncation.max(gt_truncation)).intersect(&plan.frusta);
     let grid = VoxelGrid::covering(&bounds, cfg.voxel)?;
     let has_gt = maps.iter().all(|m| m.gt.is_some());
     let mut est = Tsdf::new(grid, cfg.truncation)?;
-    let mut gt_volume = if has_gt { Some(Tsdf::new(grid, cfg.truncation)?) } else { None };
+    let mut gt_volume = if has_gt { Some(Tsdf::new(grid, gt_truncation)?) } else { None };
     for m in &maps {
         let capped = cap(&m.depth, cfg.max_fusion_depth);
         let weights = fusion_weights(capped.view(), Some(m.confidence.view()), &m.camera, cfg.fusion_weight);
@@ -571,6 +584,7 @@ fn map_json(
         "fusion": {
             "voxel_m": cfg.voxel,
             "truncation_m": cfg.truncation,
+            "gt_truncation_m": GT_TRUNCATION_VOXELS * cfg.voxel,
             "max_fusion_depth_m": cfg.max_fusion_depth,
             "consistency": {
                 "min_views": cfg.consistency.min_views,

@@ -32,8 +32,10 @@ import json, sys
 d = json.load(open(sys.argv[1]))
 st = {round(s["threshold"], 3): s for s in d["metrics"]["standard"]}
 f5 = st[0.05]
+# None when every keyframe was reused (a fusion-only re-run into a copy of an earlier run's folders).
+spk = d["seconds_per_keyframe"] if d["seconds_per_keyframe"] is not None else float("nan")
 print(f"{sys.argv[2]},{st[0.02]['fscore']:.4f},{f5['fscore']:.4f},{f5['precision']:.4f},{f5['recall']:.4f},"
-      f"{st[0.1]['fscore']:.4f},{d['seconds_per_keyframe']:.2f}")
+      f"{st[0.1]['fscore']:.4f},{spk:.2f}")
 PY
 done
 python3 - "$csv" <<'PY'

@@ -574,7 +574,7 @@ fn the_learned_features_default_to_their_border_taper_and_the_others_to_none() {
 
 #[test]
 fn border_taper_weights_the_data_term_towards_the_edge_and_leaves_wta_alone() {
-    use densefeat::mapping::keyframe::{border_weight, taper_border, BORDER_WEIGHT_FLOOR};
+    use densefeat::costvolume::{border_weight, taper_border, BORDER_WEIGHT_FLOOR};
     // SPEC.md §10.1c: clamp((d + 0.5) / r, 0.05, 1), d the distance to the nearest edge.
     assert_eq!(border_weight(0, 0, 10, 12, 4.0), 0.125);
     assert_eq!(border_weight(1, 6, 10, 12, 4.0), 0.375);

@@ -333,11 +333,12 @@ fn volume_case_sized(seed: u64, (h, w): (usize, usize), c: usize, k: usize) -> V
     VolumeCase { reference: random_map(&mut rng, (h, w, c)), live, camera, bins, truncation: NO_TRUNCATION }
 }
 
-fn try_build(
+/// The case's volume on `b`, every live frame added, not yet finished.
+fn try_builder(
     b: &dyn Backend,
     case: &VolumeCase,
     abs: bool,
-) -> densefeat::error::Result<densefeat::costvolume::CostVolume> {
+) -> densefeat::error::Result<Box<dyn densefeat::backend::VolumeBuilder>> {
     let f = |x: &Array3<f32>, sign: f32| if abs { x.mapv(|v| sign * v.abs()) } else { x.clone() };
     let r = b.upload_owned(f(&case.reference, 1.0))?;
     // The magnitude run (§9.6's M̄) bounds the untruncated terms; `min(·, τ)` is 1-Lipschitz, so the
@@ -348,7 +349,15 @@ fn try_build(
         v.add_frame_seen_by(&b.upload_owned(f(x, -1.0))?, &live_camera(case, x), pose)?;
     }
     assert_eq!(v.frames(), case.live.len());
-    v.finish()
+    Ok(v)
+}
+
+fn try_build(
+    b: &dyn Backend,
+    case: &VolumeCase,
+    abs: bool,
+) -> densefeat::error::Result<densefeat::costvolume::CostVolume> {
+    try_builder(b, case, abs)?.finish()
 }
 
 fn build(b: &dyn Backend, case: &VolumeCase, abs: bool) -> densefeat::costvolume::CostVolume {
@@ -687,14 +696,7 @@ fn resident_volume_matches_the_host_path_bit_for_bit() {
                 continue;
             };
 
-            let r = b.upload_owned(case.reference.clone()).unwrap();
-            let mut builder = b.cost_volume(&r, case.camera, case.bins, case.truncation).unwrap();
-            for (x, pose) in &case.live {
-                builder
-                    .add_frame_seen_by(&b.upload_owned(x.clone()).unwrap(), &live_camera(&case, x), pose)
-                    .unwrap();
-            }
-            let mut volume = builder.finish_resident().unwrap();
+            let mut volume = try_builder(b.as_ref(), &case, false).unwrap().finish_resident().unwrap();
             assert_eq!((volume.dim(), volume.frames()), (costs.dim(), frames), "{label}: shape, frames");
             volume.filter_evidence(fraction).unwrap();
             let (got_conf, got_scale) = volume.confidence_and_scale().unwrap();

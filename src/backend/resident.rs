@@ -11,7 +11,8 @@
 use ndarray::{Array2, Array3};
 
 use crate::costvolume::{
-    confidence_and_scale, filter_evidence, taper_border, winner_take_all_costs, CostVolume, WtaDepth,
+    check_evidence_fraction, confidence_and_scale, filter_evidence, taper_border, winner_take_all_costs,
+    CostVolume, WtaDepth,
 };
 use crate::dtam::{DtamProblem, DtamReport, DtamResult, Resident};
 use crate::error::Result;
@@ -91,7 +92,7 @@ impl ResidentVolume for HostVolume {
     }
 
     fn filter_evidence(&mut self, fraction: f64) -> Result<()> {
-        check_fraction(fraction)?;
+        check_evidence_fraction(fraction)?;
         filter_evidence(&mut self.costs, self.counts.view(), fraction);
         Ok(())
     }
@@ -117,18 +118,6 @@ impl ResidentVolume for HostVolume {
 
     fn costs(&self) -> Result<Array3<f32>> {
         Ok(self.costs.clone())
-    }
-}
-
-/// The evidence fraction's rule (SPEC.md §9.10): in `[0, 1]`.
-pub(crate) fn check_fraction(fraction: f64) -> Result<()> {
-    if (0.0..=1.0).contains(&fraction) {
-        Ok(())
-    } else {
-        Err(crate::error::Error::invalid_argument(
-            "min-evidence",
-            format!("{fraction}: must be a fraction in [0, 1]"),
-        ))
     }
 }
 

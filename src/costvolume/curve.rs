@@ -18,6 +18,21 @@ pub fn evidence_threshold(max_count: u16, fraction: f64) -> u16 {
     ((fraction * f64::from(max_count)).ceil() as u16).max(1)
 }
 
+/// The evidence fraction's rule (SPEC.md §9.10): a fraction in `[0, 1]`.
+///
+/// # Errors
+/// [`crate::error::Error::InvalidArgument`] (`min-evidence`) otherwise.
+pub fn check_evidence_fraction(fraction: f64) -> crate::error::Result<()> {
+    if (0.0..=1.0).contains(&fraction) {
+        Ok(())
+    } else {
+        Err(crate::error::Error::invalid_argument(
+            "min-evidence",
+            format!("{fraction}: must be a fraction in [0, 1]"),
+        ))
+    }
+}
+
 /// Mean costs `[H, W, K]` from `costs` and `counts` with every cell below the evidence threshold
 /// (see [`evidence_threshold`]) replaced by [`UNSEEN_COST`]. `fraction = 0` keeps every seen cell.
 ///

@@ -62,8 +62,8 @@ use crate::runtime::CpuFeatureLevel;
 use crate::util::alloc::zeroed_aligned;
 
 pub use curve::{
-    border_weight, confidence, confidence_and_scale, cost_scale, evidence_threshold, filter_evidence,
-    scale_of_spreads, taper_border, winner_take_all_costs, BORDER_WEIGHT_FLOOR,
+    border_weight, check_evidence_fraction, confidence, confidence_and_scale, cost_scale, evidence_threshold,
+    filter_evidence, scale_of_spreads, taper_border, winner_take_all_costs, BORDER_WEIGHT_FLOOR,
 };
 pub use fast::fast_kernel_name;
 pub(crate) use wta::MAX_OFFSET as MAX_PARABOLA_OFFSET;

@@ -14,8 +14,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::backend::Backend;
-pub use crate::costvolume::{border_weight, taper_border, BORDER_WEIGHT_FLOOR};
-use crate::costvolume::{check_truncation, NO_TRUNCATION};
+use crate::costvolume::{check_evidence_fraction, check_truncation, NO_TRUNCATION};
 use crate::dtam::SlopeField;
 use crate::dtam::{DtamParams, DtamProblem, DtamReport, DtamResult};
 use crate::error::{Error, Result};
@@ -187,7 +186,7 @@ pub struct KeyframeConfig {
     /// Per-frame cost truncation per feature kind (SPEC.md §9.13).
     pub truncation: Truncation,
     /// The border taper of the data term (SPEC.md §10.1c), in level-0 pixels: after winner-take-all
-    /// each pixel's costs are scaled by [`border_weight`], so the regulariser fills a strip along the
+    /// each pixel's costs are scaled by [`crate::costvolume::border_weight`], so the regulariser fills a strip along the
     /// keyframe's border from the interior. 0: off; `None` (the default): the feature kind's
     /// [`FeatureKind::default_border_taper`].
     pub border_taper: Option<f64>,
@@ -279,12 +278,7 @@ impl KeyframeConfig {
                  gt (from the keyframe's ground-truth depth) or --normals DIR (NNNNN.npy normal maps)",
             ));
         }
-        if !(0.0..=1.0).contains(&self.min_evidence) {
-            return Err(Error::invalid_argument(
-                "min-evidence",
-                format!("{}: must be a fraction in [0, 1]", self.min_evidence),
-            ));
-        }
+        check_evidence_fraction(self.min_evidence)?;
         if self.level > 8 {
             return Err(Error::invalid_argument("level", format!("{}: at most 8", self.level)));
         }

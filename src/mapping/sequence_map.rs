@@ -159,6 +159,16 @@ pub struct MapTimings {
 }
 
 impl MapConfig {
+    /// The ground truth's truncation, metres ([`GT_TRUNCATION_VOXELS`] voxels).
+    pub fn gt_truncation(&self) -> f64 {
+        GT_TRUNCATION_VOXELS * self.voxel
+    }
+
+    /// How far the fusion volume reaches past the fused points: the wider of the two truncations.
+    fn fusion_padding(&self) -> f64 {
+        self.truncation.max(self.gt_truncation())
+    }
+
     /// Check the fusion parameters.
     ///
     /// # Errors
@@ -240,7 +250,7 @@ impl MapConfig {
             frusta.add(b.min);
             frusta.add(b.max);
         }
-        let frusta = frusta.padded(self.truncation.max(GT_TRUNCATION_VOXELS * self.voxel));
+        let frusta = frusta.padded(self.fusion_padding());
         let volumes = if seq.frames[keys[0]].depth.is_some() { 2 } else { 1 };
         let fusion_bytes_bound =
             voxel_count(&frusta, self.voxel).saturating_mul(BYTES_PER_VOXEL).saturating_mul(volumes);
@@ -406,12 +416,11 @@ pub fn map_sequence(
             add_points(&mut bounds, gt, m, cfg.max_fusion_depth);
         }
     }
-    let gt_truncation = GT_TRUNCATION_VOXELS * cfg.voxel;
-    let bounds = bounds.padded(cfg.truncation.max(gt_truncation)).intersect(&plan.frusta);
+    let bounds = bounds.padded(cfg.fusion_padding()).intersect(&plan.frusta);
     let grid = VoxelGrid::covering(&bounds, cfg.voxel)?;
     let has_gt = maps.iter().all(|m| m.gt.is_some());
     let mut est = Tsdf::new(grid, cfg.truncation)?;
-    let mut gt_volume = if has_gt { Some(Tsdf::new(grid, gt_truncation)?) } else { None };
+    let mut gt_volume = if has_gt { Some(Tsdf::new(grid, cfg.gt_truncation())?) } else { None };
     for m in &maps {
         let capped = cap(&m.depth, cfg.max_fusion_depth);
         let weights = fusion_weights(capped.view(), Some(m.confidence.view()), &m.camera, cfg.fusion_weight);
@@ -584,7 +593,7 @@ fn map_json(
         "fusion": {
             "voxel_m": cfg.voxel,
             "truncation_m": cfg.truncation,
-            "gt_truncation_m": GT_TRUNCATION_VOXELS * cfg.voxel,
+            "gt_truncation_m": cfg.gt_truncation(),
             "max_fusion_depth_m": cfg.max_fusion_depth,
             "consistency": {
                 "min_views": cfg.consistency.min_views,

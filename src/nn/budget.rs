@@ -136,8 +136,7 @@ impl LayerCheck {
                 self.conv(host(input)?, layer, stride, act, host(output)?)
             }
             NetworkOp::ConcatConv { a, b, layer, stride, act, output } => {
-                let x = ndarray::concatenate(ndarray::Axis(2), &[host(a)?.view(), host(b)?.view()])
-                    .map_err(|e| crate::error::Error::invalid_argument("concat", e.to_string()))?;
+                let x = crate::ops::concat_channels(host(a)?.view(), host(b)?.view())?;
                 self.conv(&x, layer, stride, act, host(output)?)
             }
             NetworkOp::Deconv { input, layer, output } => self.deconv(host(input)?, layer, host(output)?),

@@ -17,6 +17,7 @@ use crate::backend::{CpuBackend, LayerOp, NetworkOp, Observed, Observer, Tensor}
 use crate::error::{Error, Result};
 use crate::nn::network::{run_network, Arena};
 use crate::nn::{ForwardOutput, NetworkWeights, PreparedNetwork};
+use crate::ops::concat_channels;
 use crate::ops::conv2d::backward_fast::conv2d_backward_input_prepared;
 use crate::ops::conv2d::{conv2d_backward_weight, relu_backward, Conv2dImpl};
 use crate::ops::deconv2d::{deconv2d_backward_input, deconv2d_backward_weight};
@@ -73,18 +74,13 @@ impl Observer for TapeRecorder {
 }
 
 impl ConvInput {
-    /// The input as a host map (the concatenation formed now, exactly as `concat_channels` does).
+    /// The input as a host map (the concatenation formed now by `concat_channels`, the CPU's op).
     fn into_host(self) -> Array3<f32> {
         match self {
             ConvInput::Map(t) => host(t),
             ConvInput::Concat(a, b) => {
                 let (a, b) = (host(a), host(b));
-                // Standard layout, a's channels first, as `concat_channels` writes it.
-                let ((h, w, ca), cb) = (a.dim(), b.dim().2);
-                let mut x = Array3::zeros((h, w, ca + cb));
-                x.slice_mut(s![.., .., ..ca]).assign(&a);
-                x.slice_mut(s![.., .., ca..]).assign(&b);
-                x
+                concat_channels(a.view(), b.view()).expect("the forward pass concatenated maps of one size")
             }
         }
     }

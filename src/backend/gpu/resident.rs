@@ -10,9 +10,11 @@ use std::sync::Arc;
 use ndarray::{Array2, Array3};
 
 use super::{f32s, record, u32s, unsupported, GpuBackend};
-use crate::backend::resident::{check_bins, check_fraction, check_radius};
+use crate::backend::resident::{check_bins, check_radius};
 use crate::backend::ResidentVolume;
-use crate::costvolume::{border_weight, evidence_threshold, scale_of_spreads, WtaDepth, UNSEEN_COST};
+use crate::costvolume::{
+    border_weight, check_evidence_fraction, evidence_threshold, scale_of_spreads, WtaDepth, UNSEEN_COST,
+};
 use crate::dtam::{DtamProblem, DtamReport, DtamResult, Resident};
 use crate::error::Result;
 use crate::geometry::InverseDepthBins;
@@ -91,7 +93,7 @@ impl ResidentVolume for GpuResident {
     }
 
     fn filter_evidence(&mut self, fraction: f64) -> Result<()> {
-        check_fraction(fraction)?;
+        check_evidence_fraction(fraction)?;
         // Counts are at most `frames` (<= MAX_FRAMES, a u16), so the table is indexed by any count.
         let table: Vec<u32> = (0..=self.frames)
             .map(|n| u32::from(evidence_threshold(u16::try_from(n).unwrap_or(u16::MAX), fraction)))

@@ -23,13 +23,8 @@ pub(super) fn winner_take_all(
     bins: &InverseDepthBins,
 ) -> Result<WtaDepth> {
     gpu.require_f64("winner_take_all", "the parabola refinement is the CPU's f64 arithmetic")?;
+    crate::backend::resident::check_bins(costs.dim(), bins)?;
     let (h, w, k) = costs.dim();
-    if k != bins.count {
-        return Err(crate::error::Error::invalid_argument(
-            "winner_take_all",
-            format!("{k} costs per pixel for {} hypotheses", bins.count),
-        ));
-    }
     let costs = costs.as_standard_layout();
     let flat = costs.as_slice().expect("standard layout is contiguous");
     check_finite("winner_take_all", "cost", flat.iter().copied())?;

@@ -35,6 +35,7 @@ mod patch_volume;
 mod photometric;
 mod plot;
 mod readers;
+mod refine;
 mod reliability;
 mod synth;
 mod synth_real;

@@ -104,6 +104,8 @@ fn parse_frames(text: &str) -> Result<(usize, usize)> {
 pub fn run(mut args: MapArgs) -> Result<()> {
     // `map` works on the learned features' own grid unless told otherwise (SPEC.md §16.9).
     args.mapping.level.get_or_insert(densefeat::mapping::sequence_map::MAP_LEVEL);
+    // ... and refines its depth photometrically (SPEC.md §10.3, §16.9).
+    args.mapping.refine.get_or_insert(densefeat::mapping::sequence_map::MAP_REFINE);
     let frames = args.frames.as_deref().map(parse_frames).transpose()?;
     let seq = args.mapping.open_sequence(&args.sequence)?;
     let mut keyframe =

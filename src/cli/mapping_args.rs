@@ -17,6 +17,7 @@ use densefeat::mapping::keyframe::{
 use densefeat::mapping::normals::NormalsSource;
 use densefeat::mapping::output::DEFAULT_MIN_CONFIDENCE;
 use densefeat::mapping::photometric::PhotometricMode;
+use densefeat::mapping::refine::REFINE_DEFAULTS;
 use densefeat::mapping::{FeatureKind, KeyframeResult, Truncation};
 use densefeat::sequence::{open_with, OpenOptions, Sequence};
 
@@ -67,6 +68,10 @@ pub struct MappingArgs {
     /// others 0).
     #[arg(long)]
     pub border_taper: Option<f64>,
+    /// Photometric sub-bin refinement of the regularised depth (SPEC.md §10.3): `on` or `off`
+    /// [default: off; `map`: on, chosen on validation meshes, §16.9]
+    #[arg(long, value_parser = parse_on_off)]
+    pub refine: Option<bool>,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1);
     /// default: per feature type, chosen on validation (SPEC §10.1a: rgb 300, learned 30, others 100;
     /// the normal prior's solve: rgb 300, learned 100; `map`'s learned features 10, §16.9).
@@ -273,6 +278,7 @@ impl MappingArgs {
             min_evidence: self.min_evidence,
             lambda_sweep: Vec::new(),
             border_taper: self.border_taper,
+            refine: self.refine.unwrap_or(false).then_some(REFINE_DEFAULTS),
             backend: self.backend.resolve()?,
             photometric: self.photometric,
             truncation: Truncation {
@@ -283,6 +289,18 @@ impl MappingArgs {
                 patch7: self.truncate_patch7,
             },
         })
+    }
+}
+
+/// Parses `on` / `off`.
+///
+/// # Errors
+/// A message for clap.
+pub fn parse_on_off(s: &str) -> std::result::Result<bool, String> {
+    match s.trim().to_ascii_lowercase().as_str() {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("{s:?}: expected `on` or `off`")),
     }
 }
 

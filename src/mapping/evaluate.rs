@@ -322,6 +322,7 @@ pub fn evaluate(
                 tv: t.tv / n,
                 normals: t.normals / n,
                 photometric: t.photometric / n,
+                refine: t.refine / n,
             };
             let cs: Vec<DepthMetrics> =
                 per_keyframe_conf.iter().filter(|(pm, _)| *pm == m).map(|(_, d)| *d).collect();
@@ -366,6 +367,7 @@ fn add_timings(sum: &mut StageTimings, t: &StageTimings) {
     sum.tv += t.tv;
     sum.normals += t.normals;
     sum.photometric += t.photometric;
+    sum.refine += t.refine;
 }
 
 /// Mean of per-keyframe metrics (`count` summed).

@@ -23,6 +23,7 @@ use crate::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
 use crate::image::{to_gray, DepthMap, RgbImage};
 use crate::mapping::normals::{self, NormalsSource};
 use crate::mapping::photometric::{self, PhotometricFit, PhotometricMode};
+use crate::mapping::refine::{self, RefineParams, RefineReport, RefineView};
 use crate::mapping::resample::downsample_to_at;
 use crate::mapping::{FeatureExtractor, FeatureKind};
 use crate::sequence::Sequence;
@@ -190,6 +191,9 @@ pub struct KeyframeConfig {
     /// keyframe's border from the interior. 0: off; `None` (the default): the feature kind's
     /// [`FeatureKind::default_border_taper`].
     pub border_taper: Option<f64>,
+    /// Photometric sub-bin refinement of the regularised estimates (SPEC.md §10.3); `None`: off
+    /// (the default; `map` turns it on, §16.9).
+    pub refine: Option<RefineParams>,
 }
 
 /// Default of [`KeyframeConfig::bins`].
@@ -225,6 +229,7 @@ impl KeyframeConfig {
             photometric: PhotometricMode::None,
             truncation: Truncation::DEFAULT,
             border_taper: None,
+            refine: None,
         }
     }
 
@@ -264,6 +269,9 @@ impl KeyframeConfig {
     fn validate(&self) -> Result<InverseDepthBins> {
         if self.bins < 2 {
             return Err(Error::invalid_argument("bins", format!("{}: need at least 2", self.bins)));
+        }
+        if let Some(p) = &self.refine {
+            p.validate()?;
         }
         if self.regularizer != Regularizer::None {
             self.dtam.validate()?;
@@ -337,12 +345,14 @@ pub struct StageTimings {
     pub normals: f64,
     /// Photometric calibration (0 without it).
     pub photometric: f64,
+    /// The photometric sub-bin refinement, loading its frames included (0 without it).
+    pub refine: f64,
 }
 
 impl StageTimings {
     /// Sum of the stages.
     pub fn total(&self) -> f64 {
-        self.load + self.features + self.cost_volume + self.wta + self.tv + self.normals + self.photometric
+        self.load + self.features + self.cost_volume + self.wta + self.tv + self.normals + self.photometric + self.refine
     }
 }
 
@@ -419,6 +429,9 @@ pub struct KeyframeResult {
     pub photometric: PhotometricFit,
     /// The per-frame truncation `τ` the volume was built with ([`NO_TRUNCATION`] for none).
     pub truncation: f32,
+    /// What the photometric refinement did (SPEC.md §10.3), when it ran: the report of the last
+    /// estimate it refined (`tv`, then `normals`).
+    pub refined: Option<RefineReport>,
 }
 
 impl KeyframeResult {
@@ -679,6 +692,36 @@ pub fn reconstruct_with(
         }
         progress(Stage::Tv, total, total);
     }
+    let mut refined = None;
+    if let Some(p) = cfg.refine.as_ref().filter(|_| tv.is_some() || normals_estimate.is_some()) {
+        let t = Instant::now();
+        let frames = refine::select_frames(&live, p.frames)
+            .par_iter()
+            .map(|&m| seq.load_frame_rgb(m))
+            .collect::<Result<Vec<_>>>()?;
+        let greys: Vec<Array2<f64>> = frames.iter().map(|f| to_gray(&f.rgb).mapv(f64::from)).collect();
+        let views: Vec<RefineView> = frames
+            .iter()
+            .zip(&greys)
+            .map(|(f, g)| RefineView { grey: g.view(), camera: f.camera, pose: relative_pose(&key.pose, &f.pose) })
+            .collect();
+        let key_grey = to_gray(&key.rgb).mapv(f64::from);
+        for e in [tv.as_mut(), normals_estimate.as_mut()].into_iter().flatten() {
+            let (inverse_depth, depth, report) = refine::refine_estimate(
+                e.inverse_depth.view(),
+                e.depth.view(),
+                level,
+                key_grey.view(),
+                &key_camera,
+                &views,
+                &bins,
+                p,
+            )?;
+            *e = DepthEstimate { inverse_depth, depth };
+            refined = Some(report);
+        }
+        timings.refine = t.elapsed().as_secs_f64();
+    }
 
     Ok(KeyframeResult {
         keyframe: cfg.keyframe,
@@ -703,6 +746,7 @@ pub fn reconstruct_with(
         memory_estimate: estimate,
         photometric: photo,
         truncation,
+        refined,
     })
 }
 

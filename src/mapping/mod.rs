@@ -12,6 +12,7 @@ pub mod keyframe_select;
 pub mod normals;
 pub mod output;
 pub mod photometric;
+pub mod refine;
 pub mod resample;
 pub mod sequence_map;
 

@@ -40,6 +40,11 @@ use crate::sequence::Sequence;
 /// third to a sixth of the time per keyframe (`docs/map/results.md`).
 pub const MAP_LEVEL: u32 = 1;
 
+/// Whether `densefeat map` refines each keyframe's depth photometrically by default (SPEC.md §10.3,
+/// §16.9): yes. Chosen on the validation scenes (2026-12-06): mean F-score at 5 cm 0.381 without,
+/// see `docs/map/results.md` for the figures with it.
+pub const MAP_REFINE: bool = true;
+
 /// `densefeat map`'s default DTAM `λ` for the learned features (SPEC.md §16.9): 10, below the depth
 /// commands' 30 (§10.1a). Chosen on the validation scenes by the mean F-score at 5 cm over λ ∈ {3,
 /// 10, 30, 100} (2026-12-05: 0.365 / **0.372** / 0.360 / 0.329; `docs/map/results.md`): a mesh at
@@ -294,6 +299,7 @@ impl MapConfig {
             self.min_confidence,
             c.backend.name()
         ) + &if taper > 0.0 { format!(" border_taper={taper}") } else { String::new() }
+            + &c.refine.map_or(String::new(), |p| format!(" refine={p:?}"))
     }
 }
 
@@ -370,6 +376,7 @@ pub fn map_sequence(
             "window": [k.past, k.future],
             "live_frames": r.live_frames,
             "stage_timings_s": r.timings,
+            "refined": r.refined,
             "seconds": seconds,
         });
         write_text(&stage.join("keyframe.json"), &serde_json::to_string_pretty(&doc).expect("plain data"))?;
@@ -589,6 +596,7 @@ fn map_json(
             "depth_range_auto": cfg.auto_depth_range,
             "level": cfg.keyframe.level,
             "min_confidence": cfg.min_confidence,
+            "refine": cfg.keyframe.refine,
         },
         "fusion": {
             "voxel_m": cfg.voxel,

@@ -1,0 +1,543 @@
+//! Photometric sub-bin refinement of a keyframe's regularised depth (SPEC.md §10.3).
+//!
+//! After DTAM, every input-resolution pixel's inverse depth is searched again within
+//! `± radius_bins` bin steps of the estimate (bilinearly upsampled from the mapper's level), by the
+//! zero-mean normalised cross-correlation of grey `(2r+1)²` windows against a few live frames at
+//! their own resolution. Per hypothesis the mean of the best half of the frames' costs is taken (a
+//! frame that is occluded there is outvoted), the minimum over the hypotheses is located to a
+//! fraction of a sample by a parabola, and a pixel moves only where that minimum is interior and
+//! curved enough. The level-`L` estimate then moves by the tent-weighted mean of the moves of the
+//! level-0 pixels it was interpolated to (the adjoint of the upsampling).
+//!
+//! [`refine_level0`] is the fast path (whole-image warps, separable window sums, rows in parallel);
+//! [`refine_level0_reference`] the plain-loop reference that it equals bit for bit (the window sums
+//! are formed in the same order: a row's sum over `dx`, then the rows' sums over `dy`).
+
+use nalgebra::Point3;
+use ndarray::{Array2, ArrayView2, Zip};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
+
+/// The refinement's parameters (SPEC.md §10.3; defaults [`REFINE_DEFAULTS`], chosen on the
+/// validation scenes by mesh F-score, docs/map/results.md).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RefineParams {
+    /// Half-width of the search, in bin steps `Δρ = (ρ_max − ρ_min)/(K − 1)`.
+    pub radius_bins: f64,
+    /// Hypotheses over `[−radius, radius]`, evenly spaced, odd (the estimate itself is one).
+    pub samples: usize,
+    /// The window is `(2 r + 1)²` pixels.
+    pub half_window: usize,
+    /// At most this many live frames: every `⌈n / frames⌉`-th of the window, from its first.
+    pub frames: usize,
+    /// Per hypothesis, the mean of the lowest `⌈fraction · n⌉` of the `n` frames' costs.
+    pub best_fraction: f64,
+    /// A keyframe window whose grey variance (levels², `0..=255`) is at most this is not refined.
+    pub min_variance: f64,
+    /// The parabola's second difference per squared bin step must exceed this.
+    pub min_curvature: f64,
+}
+
+/// The defaults of `map` (SPEC.md §10.3, §16.9).
+pub const REFINE_DEFAULTS: RefineParams = RefineParams {
+    radius_bins: 2.0,
+    samples: 33,
+    half_window: 3,
+    frames: 12,
+    best_fraction: 0.5,
+    min_variance: 1.0,
+    min_curvature: 0.002,
+};
+
+/// Variance floor inside the correlation's square root (levels²).
+const VARIANCE_FLOOR: f64 = 1e-6;
+
+impl RefineParams {
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming the parameter that is out of range.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |what: &str, why: String| Err(Error::invalid_argument(what, why));
+        if !(self.radius_bins.is_finite() && self.radius_bins > 0.0) {
+            return bad("refine radius", format!("{}: must be a positive number of bins", self.radius_bins));
+        }
+        if self.samples < 3 || self.samples % 2 == 0 {
+            return bad("refine samples", format!("{}: must be odd and at least 3", self.samples));
+        }
+        if self.half_window == 0 {
+            return bad("refine window", "the half-width must be at least 1 pixel".into());
+        }
+        if self.frames == 0 {
+            return bad("refine frames", "at least 1 live frame".into());
+        }
+        if !(self.best_fraction > 0.0 && self.best_fraction <= 1.0) {
+            return bad("refine best fraction", format!("{}: must be in (0, 1]", self.best_fraction));
+        }
+        if !(self.min_variance.is_finite() && self.min_variance >= 0.0) {
+            return bad("refine variance", format!("{}: must be >= 0", self.min_variance));
+        }
+        if !(self.min_curvature.is_finite() && self.min_curvature >= 0.0) {
+            return bad("refine curvature", format!("{}: must be >= 0", self.min_curvature));
+        }
+        Ok(())
+    }
+
+    /// Spacing of the hypotheses in bin steps.
+    fn spacing(&self) -> f64 {
+        2.0 * self.radius_bins / (self.samples - 1) as f64
+    }
+
+    /// Offset of hypothesis `a`, in bin steps.
+    fn offset(&self, a: usize) -> f64 {
+        -self.radius_bins + a as f64 * self.spacing()
+    }
+}
+
+/// One live frame: its grey image at its own resolution (`0..=255`), its camera, and `T_nr`, which
+/// takes keyframe-camera points into its camera.
+#[derive(Clone, Debug)]
+pub struct RefineView<'a> {
+    /// `[H, W]` grey levels.
+    pub grey: ArrayView2<'a, f64>,
+    /// The frame's camera at level 0.
+    pub camera: PinholeCamera,
+    /// `T_nr`.
+    pub pose: Pose,
+}
+
+/// What the refinement did to one estimate.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct RefineReport {
+    /// Live frames used.
+    pub frames: usize,
+    /// Level-0 pixels with an estimate and a window inside the image.
+    pub candidates: usize,
+    /// Of those, the pixels that moved.
+    pub refined: usize,
+}
+
+/// The live frames the refinement uses: every `⌈n / frames⌉`-th of `live`, from its first.
+pub fn select_frames(live: &[usize], frames: usize) -> Vec<usize> {
+    let stride = live.len().div_ceil(frames.max(1)).max(1);
+    live.iter().step_by(stride).copied().collect()
+}
+
+/// The grey value of `view` seen from keyframe pixel `(x, y)` at inverse depth `rho`: back-project
+/// with the keyframe camera, move by `T_nr`, project, sample bilinearly. NaN where the point is not
+/// in front of the camera or projects outside `[0, W−1] × [0, H−1]`, or `rho` is not positive.
+#[inline]
+fn warped_grey(view: &RefineView, key: &PinholeCamera, x: usize, y: usize, rho: f64) -> f64 {
+    if !(rho > 0.0) {
+        return f64::NAN;
+    }
+    let p = view.pose * Point3::from(key.ray(x as f64, y as f64) / rho);
+    let Some(q) = view.camera.project(&p.coords) else { return f64::NAN };
+    if !view.camera.contains(q.x, q.y) {
+        return f64::NAN;
+    }
+    bilinear(&view.grey, q.x, q.y)
+}
+
+/// Bilinear sample at `(u, v)` inside `[0, W−1] × [0, H−1]` (integer pixel centres).
+#[inline]
+fn bilinear(img: &ArrayView2<f64>, u: f64, v: f64) -> f64 {
+    let (h, w) = img.dim();
+    let (x0, y0) = (u.floor() as usize, v.floor() as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = (u - x0 as f64, v - y0 as f64);
+    let top = (1.0 - fx) * img[[y0, x0]] + fx * img[[y0, x1]];
+    let bottom = (1.0 - fx) * img[[y1, x0]] + fx * img[[y1, x1]];
+    (1.0 - fy) * top + fy * bottom
+}
+
+/// One frame's cost from the window sums: `1 − ZNCC`, or `+∞` when the keyframe window is too flat
+/// or any warped sample is missing (a NaN sum).
+#[inline]
+fn zncc_cost(n: f64, sw: f64, sww: f64, swi: f64, si: f64, sii: f64, min_variance: f64) -> f64 {
+    let (mw, mi) = (sw / n, si / n);
+    let vi = sii / n - mi * mi;
+    if !(vi > min_variance) {
+        return f64::INFINITY;
+    }
+    let vw = sww / n - mw * mw;
+    let cov = swi / n - mw * mi;
+    let c = 1.0 - cov / (vw.max(VARIANCE_FLOOR) * vi.max(VARIANCE_FLOOR)).sqrt();
+    if c.is_finite() {
+        c
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// The mean of the lowest `⌈fraction · n⌉` finite costs, or `+∞` with fewer than
+/// `max(2, ⌊frames / 2⌋)` finite ones. `costs` is reordered.
+#[inline]
+fn best_mean(costs: &mut [f64], frames: usize, fraction: f64) -> f64 {
+    let mut n = 0;
+    for i in 0..costs.len() {
+        if costs[i].is_finite() {
+            costs.swap(n, i);
+            n += 1;
+        }
+    }
+    if n < (frames / 2).max(2) {
+        return f64::INFINITY;
+    }
+    let seen = &mut costs[..n];
+    seen.sort_by(f64::total_cmp);
+    let k = ((fraction * n as f64).ceil() as usize).clamp(1, n);
+    let mut s = 0.0;
+    for &c in &seen[..k] {
+        s += c;
+    }
+    s / k as f64
+}
+
+/// The running minimum over the hypotheses of one pixel, with its neighbours' costs.
+#[derive(Clone, Copy, Debug)]
+struct Track {
+    best: usize,
+    cost: f64,
+    before: f64,
+    after: f64,
+    last: f64,
+}
+
+impl Track {
+    const START: Track =
+        Track { best: usize::MAX, cost: f64::INFINITY, before: f64::NAN, after: f64::NAN, last: f64::NAN };
+
+    #[inline]
+    fn push(&mut self, a: usize, c: f64) {
+        if a > 0 && self.best == a - 1 {
+            self.after = c;
+        }
+        if c < self.cost {
+            *self = Track { best: a, cost: c, before: self.last, after: f64::NAN, last: c };
+        }
+        self.last = c;
+    }
+
+    /// The refined inverse depth, or NaN where the minimum is at an end, a neighbour is unseen, or
+    /// the parabola is too flat.
+    #[inline]
+    fn finish(&self, rho0: f64, step: f64, p: &RefineParams) -> f64 {
+        if self.best == 0 || self.best >= p.samples - 1 || !(self.before.is_finite() && self.after.is_finite()) {
+            return f64::NAN;
+        }
+        let h = p.spacing();
+        let den = self.before - 2.0 * self.cost + self.after;
+        if !(den > p.min_curvature * h * h) {
+            return f64::NAN;
+        }
+        let sub = (0.5 * (self.before - self.after) / den).clamp(-0.5, 0.5);
+        rho0 + (p.offset(self.best) + sub * h) * step
+    }
+}
+
+fn check_inputs(key: &ArrayView2<f64>, camera: &PinholeCamera, rho0: &ArrayView2<f64>, views: &[RefineView]) -> Result<()> {
+    if key.dim() != (camera.height, camera.width) || rho0.dim() != key.dim() {
+        return Err(Error::invalid_argument(
+            "refine",
+            format!(
+                "keyframe image {:?}, inverse depth {:?} and camera {}x{} disagree",
+                key.dim(),
+                rho0.dim(),
+                camera.width,
+                camera.height
+            ),
+        ));
+    }
+    for (i, v) in views.iter().enumerate() {
+        if v.grey.dim() != (v.camera.height, v.camera.width) {
+            return Err(Error::invalid_argument(
+                "refine",
+                format!("live view {i}: image {:?} but camera {}x{}", v.grey.dim(), v.camera.width, v.camera.height),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Fast path: the refined inverse depth of every level-0 pixel, NaN where it did not move
+/// (SPEC.md §10.3). `rho0` is the estimate at the keyframe image's resolution (NaN: none); `step`
+/// the bin step `Δρ`. Bit-identical to [`refine_level0_reference`] and for any thread count.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for bad parameters or images whose sizes disagree with their cameras.
+pub fn refine_level0(
+    key: ArrayView2<f64>,
+    camera: &PinholeCamera,
+    rho0: ArrayView2<f64>,
+    views: &[RefineView],
+    step: f64,
+    p: &RefineParams,
+) -> Result<Array2<f64>> {
+    p.validate()?;
+    check_inputs(&key, camera, &rho0, views)?;
+    let (h, w) = key.dim();
+    let r = p.half_window;
+    let n = ((2 * r + 1) * (2 * r + 1)) as f64;
+    let mut out = Array2::from_elem((h, w), f64::NAN);
+    if h <= 2 * r || w <= 2 * r || views.is_empty() {
+        return Ok(out);
+    }
+    let key_sq = key.mapv(|v| v * v);
+    let (si, sii) = (window_sums(key.view(), r), window_sums(key_sq.view(), r));
+    let mut tracks = Array2::from_elem((h, w), Track::START);
+    let mut costs = vec![Array2::<f64>::zeros((h, w)); views.len()];
+    // Per row: the horizontal window sums of (g, g², g·I), g the frame's warped grey value.
+    let mut rows = Array2::from_elem((h, w), [0.0f64; 3]);
+    for a in 0..p.samples {
+        let offset = p.offset(a) * step;
+        for (view, cost) in views.iter().zip(costs.iter_mut()) {
+            // The frame's grey value at every pixel's own hypothesis, summed along the row...
+            par_rows(&mut rows, |y, row| {
+                let g: Vec<f64> = (0..w)
+                    .map(|x| {
+                        let r0 = rho0[[y, x]];
+                        if r0.is_finite() { warped_grey(view, camera, x, y, r0 + offset) } else { f64::NAN }
+                    })
+                    .collect();
+                for x in r..w - r {
+                    let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
+                    for xx in x - r..=x + r {
+                        s0 += g[xx];
+                        s1 += g[xx] * g[xx];
+                        s2 += g[xx] * key[[y, xx]];
+                    }
+                    row[x] = [s0, s1, s2];
+                }
+            });
+            // ... then over the window's rows, and the correlation.
+            let rows = &rows;
+            par_rows(cost, |y, out| {
+                for (x, c) in out.iter_mut().enumerate() {
+                    *c = if interior(y, x, h, w, r) {
+                        let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
+                        for yy in y - r..=y + r {
+                            let [a0, a1, a2] = rows[[yy, x]];
+                            s0 += a0;
+                            s1 += a1;
+                            s2 += a2;
+                        }
+                        zncc_cost(n, s0, s1, s2, si[[y, x]], sii[[y, x]], p.min_variance)
+                    } else {
+                        f64::INFINITY
+                    };
+                }
+            });
+        }
+        let frames = views.len();
+        par_rows(&mut tracks, |y, row| {
+            let mut buf = vec![0.0; frames];
+            for (x, t) in row.iter_mut().enumerate() {
+                for (b, c) in buf.iter_mut().zip(&costs) {
+                    *b = c[[y, x]];
+                }
+                t.push(a, best_mean(&mut buf, frames, p.best_fraction));
+            }
+        });
+    }
+    Zip::from(&mut out).and(&tracks).and(&rho0).for_each(|o, t, &r0| *o = t.finish(r0, step, p));
+    Ok(out)
+}
+
+/// `f(y, row)` for every row of a standard-layout array, rows in parallel (each row's values depend
+/// on that row's work alone, so the result is the same for any thread count).
+fn par_rows<T: Send>(a: &mut Array2<T>, f: impl Fn(usize, &mut [T]) + Sync) {
+    let w = a.ncols().max(1);
+    a.as_slice_mut().expect("a freshly allocated array is contiguous").par_chunks_mut(w).enumerate().for_each(|(y, row)| f(y, row));
+}
+
+/// Whether the window of `(y, x)` lies inside an `h x w` image.
+#[inline]
+fn interior(y: usize, x: usize, h: usize, w: usize, r: usize) -> bool {
+    y >= r && x >= r && y + r < h && x + r < w
+}
+
+/// Window sums `Σ_dy (Σ_dx v[y+dy, x+dx])` for interior pixels (0 elsewhere), in that order.
+fn window_sums(v: ArrayView2<f64>, r: usize) -> Array2<f64> {
+    let (h, w) = v.dim();
+    let mut rows = Array2::<f64>::zeros((h, w));
+    par_rows(&mut rows, |y, row| {
+        for x in r..w.saturating_sub(r) {
+            let mut s = 0.0;
+            for xx in x - r..=x + r {
+                s += v[[y, xx]];
+            }
+            row[x] = s;
+        }
+    });
+    let mut out = Array2::<f64>::zeros((h, w));
+    par_rows(&mut out, |y, row| {
+        if y < r || y + r >= h {
+            return;
+        }
+        for x in r..w - r {
+            let mut s = 0.0;
+            for yy in y - r..=y + r {
+                s += rows[[yy, x]];
+            }
+            row[x] = s;
+        }
+    });
+    out
+}
+
+/// Plain-loop reference of [`refine_level0`] (SPEC.md §10.3): per pixel, per hypothesis, per frame,
+/// the window's warps and sums directly.
+///
+/// # Errors
+/// As [`refine_level0`].
+pub fn refine_level0_reference(
+    key: ArrayView2<f64>,
+    camera: &PinholeCamera,
+    rho0: ArrayView2<f64>,
+    views: &[RefineView],
+    step: f64,
+    p: &RefineParams,
+) -> Result<Array2<f64>> {
+    p.validate()?;
+    check_inputs(&key, camera, &rho0, views)?;
+    let (h, w) = key.dim();
+    let r = p.half_window as isize;
+    let n = ((2 * r + 1) * (2 * r + 1)) as f64;
+    let mut out = Array2::from_elem((h, w), f64::NAN);
+    if views.is_empty() {
+        return Ok(out);
+    }
+    for y in 0..h {
+        for x in 0..w {
+            if !interior(y, x, h, w, p.half_window) {
+                continue;
+            }
+            let mut track = Track::START;
+            for a in 0..p.samples {
+                let offset = p.offset(a) * step;
+                let mut per_frame = Vec::with_capacity(views.len());
+                for view in views {
+                    let (mut sw, mut sww, mut swi, mut si, mut sii) = (0.0, 0.0, 0.0, 0.0, 0.0);
+                    for dy in -r..=r {
+                        let (mut rw, mut rww, mut rwi, mut ri, mut rii) = (0.0, 0.0, 0.0, 0.0, 0.0);
+                        for dx in -r..=r {
+                            let (yy, xx) = ((y as isize + dy) as usize, (x as isize + dx) as usize);
+                            let r0 = rho0[[yy, xx]];
+                            let g = if r0.is_finite() { warped_grey(view, camera, xx, yy, r0 + offset) } else { f64::NAN };
+                            let k = key[[yy, xx]];
+                            rw += g;
+                            rww += g * g;
+                            rwi += g * k;
+                            ri += k;
+                            rii += k * k;
+                        }
+                        sw += rw;
+                        sww += rww;
+                        swi += rwi;
+                        si += ri;
+                        sii += rii;
+                    }
+                    per_frame.push(zncc_cost(n, sw, sww, swi, si, sii, p.min_variance));
+                }
+                track.push(a, best_mean(&mut per_frame, views.len(), p.best_fraction));
+            }
+            out[[y, x]] = track.finish(rho0[[y, x]], step, p);
+        }
+    }
+    Ok(out)
+}
+
+/// The level-0 inverse depth of a level-`level` estimate: level-0 pixel `x` sits at level-`L`
+/// coordinate `x / 2^L` (SPEC.md §2.6); bilinear between the four neighbours, clamped to the grid,
+/// NaN unless all four have an estimate (`valid`).
+pub fn upsample(rho: ArrayView2<f32>, valid: ArrayView2<bool>, level: u32, h0: usize, w0: usize) -> Array2<f64> {
+    let (h, w) = rho.dim();
+    let s = f64::from(1u32 << level);
+    Array2::from_shape_fn((h0, w0), |(y, x)| {
+        let (u, v) = ((x as f64 / s).min((w - 1) as f64), (y as f64 / s).min((h - 1) as f64));
+        let (x0, y0) = (u.floor() as usize, v.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        if !(valid[[y0, x0]] && valid[[y0, x1]] && valid[[y1, x0]] && valid[[y1, x1]]) {
+            return f64::NAN;
+        }
+        let (fx, fy) = (u - x0 as f64, v - y0 as f64);
+        let g = |yy: usize, xx: usize| f64::from(rho[[yy, xx]]);
+        (1.0 - fy) * ((1.0 - fx) * g(y0, x0) + fx * g(y0, x1)) + fy * ((1.0 - fx) * g(y1, x0) + fx * g(y1, x1))
+    })
+}
+
+/// A refined level-`level` estimate: `(inverse depth, depth, report)`. Each level-`L` pixel with an
+/// estimate moves by `Σ w δ / Σ w` over the level-0 pixels of its tent `w = (1 − |x/2^L − i|)⁺
+/// (1 − |y/2^L − j|)⁺` (the adjoint of [`upsample`]), `δ` the level-0 move (0 where a pixel did not
+/// move); it keeps its value when none moved or the result is not positive.
+///
+/// # Errors
+/// As [`refine_level0`]; [`Error::InvalidArgument`] when the maps do not match the keyframe camera at
+/// `level`.
+#[allow(clippy::too_many_arguments)]
+pub fn refine_estimate(
+    inverse_depth: ArrayView2<f32>,
+    depth: ArrayView2<f32>,
+    level: u32,
+    key: ArrayView2<f64>,
+    camera: &PinholeCamera,
+    views: &[RefineView],
+    bins: &InverseDepthBins,
+    p: &RefineParams,
+) -> Result<(Array2<f32>, Array2<f32>, RefineReport)> {
+    let at = camera.at_level(level);
+    if inverse_depth.dim() != (at.height, at.width) || depth.dim() != inverse_depth.dim() {
+        return Err(Error::invalid_argument(
+            "refine",
+            format!("the estimate is {:?}, the keyframe camera at level {level} {}x{}", inverse_depth.dim(), at.width, at.height),
+        ));
+    }
+    let valid = Zip::from(&inverse_depth)
+        .and(&depth)
+        .map_collect(|&r, &d| r.is_finite() && r > 0.0 && d.is_finite() && d > 0.0);
+    let (h0, w0) = (camera.height, camera.width);
+    let rho0 = upsample(inverse_depth, valid.view(), level, h0, w0);
+    let step = (bins.rho_max - bins.rho_min) / (bins.count - 1) as f64;
+    let refined = refine_level0(key, camera, rho0.view(), views, step, p)?;
+    let r = p.half_window;
+    let report = RefineReport {
+        frames: views.len(),
+        candidates: Zip::indexed(&rho0).fold(0, |n, (y, x), v| n + usize::from(v.is_finite() && interior(y, x, h0, w0, r))),
+        refined: refined.iter().filter(|v| v.is_finite()).count(),
+    };
+    let s = 1usize << level;
+    let mut inv = inverse_depth.to_owned();
+    let mut dep = depth.to_owned();
+    Zip::indexed(&mut inv).and(&mut dep).for_each(|(j, i), rho, d| {
+        if !valid[[j, i]] {
+            return;
+        }
+        let (mut num, mut den, mut moved) = (0.0, 0.0, false);
+        for y in (j * s).saturating_sub(s - 1)..(j * s + s).min(h0) {
+            let wy = 1.0 - (y as f64 / s as f64 - j as f64).abs();
+            for x in (i * s).saturating_sub(s - 1)..(i * s + s).min(w0) {
+                let wt = wy * (1.0 - (x as f64 / s as f64 - i as f64).abs());
+                if wt <= 0.0 {
+                    continue;
+                }
+                den += wt;
+                let v = refined[[y, x]];
+                if v.is_finite() {
+                    num += wt * (v - rho0[[y, x]]);
+                    moved = true;
+                }
+            }
+        }
+        if !moved {
+            return;
+        }
+        let new = f64::from(*rho) + num / den;
+        if new > 0.0 && new.is_finite() {
+            *rho = new as f32;
+            *d = 1.0 / *rho;
+        }
+    });
+    Ok((inv, dep, report))
+}

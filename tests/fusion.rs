@@ -460,7 +460,13 @@ fn map_writes_mesh_metrics_and_resumes() {
         doc["keyframes"].as_array().unwrap().iter().map(|k| k["index"].as_u64().unwrap()).collect();
     assert!(keys.len() >= 2, "{keys:?}");
     assert!(out.join("mesh.png").is_file());
+    // `map` refines its keyframes photometrically by default (SPEC.md §10.3, §16.9) and says so.
+    assert_eq!(doc["mapping"]["refine"]["samples"].as_u64(), Some(17), "{doc}");
     let kf = out.join(format!("keyframes/kf_{:05}/keyframe.json", keys[1]));
+    let kdoc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&kf).unwrap()).unwrap();
+    let refined = &kdoc["refined"];
+    assert!(refined["candidates"].as_u64().unwrap() > 0, "{kdoc}");
+    assert!(refined["refined"].as_u64().unwrap() <= refined["candidates"].as_u64().unwrap(), "{kdoc}");
     let stamp = std::fs::metadata(&kf).unwrap().modified().unwrap();
 
     // A re-run reuses every keyframe and reproduces the mesh bit for bit.
@@ -492,6 +498,20 @@ fn map_writes_mesh_metrics_and_resumes() {
     let third = map_cmd(&out, &["--min-evidence", "0.3"]);
     let text = String::from_utf8_lossy(&third.stdout).to_string();
     assert!(third.status.success() && text.contains(&format!("{} computed", keys.len())), "{text}");
+    // So does turning the refinement off; map.json then records none.
+    let fourth = map_cmd(&out, &["--min-evidence", "0.3", "--refine", "off"]);
+    let text = String::from_utf8_lossy(&fourth.stdout).to_string();
+    assert!(fourth.status.success() && text.contains(&format!("{} computed", keys.len())), "{text}");
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("map.json")).unwrap()).unwrap();
+    assert!(doc["mapping"]["refine"].is_null(), "{doc}");
+    let bad = map_cmd(&out, &["--refine", "maybe"]);
+    assert!(!bad.status.success());
+    assert!(
+        String::from_utf8_lossy(&bad.stderr).contains("--refine"),
+        "{}",
+        String::from_utf8_lossy(&bad.stderr)
+    );
 }
 
 #[test]

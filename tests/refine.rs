@@ -4,8 +4,8 @@
 use crate::common;
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use densefeat::mapping::refine::{
-    refine_estimate, refine_level0, refine_level0_reference, select_frames, upsample, RefineParams, RefineView,
-    REFINE_DEFAULTS,
+    refine_estimate, refine_level0, refine_level0_reference, select_frames, upsample, RefineParams,
+    RefineView, REFINE_DEFAULTS,
 };
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::Array2;
@@ -41,7 +41,10 @@ fn camera(w: usize, h: usize) -> PinholeCamera {
 
 /// `T_rn` of a camera at `t` (keyframe frame) turned by small angles.
 fn pose(t: [f64; 3], angles: [f64; 3]) -> Pose {
-    Pose::from_parts(Translation3::new(t[0], t[1], t[2]), UnitQuaternion::from_euler_angles(angles[0], angles[1], angles[2]))
+    Pose::from_parts(
+        Translation3::new(t[0], t[1], t[2]),
+        UnitQuaternion::from_euler_angles(angles[0], angles[1], angles[2]),
+    )
 }
 
 struct Scene {
@@ -74,8 +77,14 @@ impl Scene {
     }
 }
 
-const CENTRES: [[f64; 3]; 6] =
-    [[0.3, 0.0, 0.0], [-0.3, 0.05, 0.0], [0.2, 0.2, 0.05], [-0.15, -0.2, 0.0], [0.4, -0.1, -0.05], [-0.4, 0.1, 0.02]];
+const CENTRES: [[f64; 3]; 6] = [
+    [0.3, 0.0, 0.0],
+    [-0.3, 0.05, 0.0],
+    [0.2, 0.2, 0.05],
+    [-0.15, -0.2, 0.0],
+    [0.4, -0.1, -0.05],
+    [-0.4, 0.1, 0.02],
+];
 
 fn bits(a: &Array2<f64>) -> Vec<u64> {
     a.iter().map(|v| v.to_bits()).collect()
@@ -87,7 +96,8 @@ fn refinement_sharpens_a_rendered_plane() {
     let step = 0.04; // Δρ, 1/m: 1.6 px of disparity per bin over 0.4 m of baseline at f = 40
     let (h, w) = s.truth.dim();
     // The estimate off by +0.8 bin on the left half and -0.6 bin on the right.
-    let rho0 = Array2::from_shape_fn((h, w), |(y, x)| s.truth[[y, x]] + if x < w / 2 { 0.8 } else { -0.6 } * step);
+    let rho0 =
+        Array2::from_shape_fn((h, w), |(y, x)| s.truth[[y, x]] + if x < w / 2 { 0.8 } else { -0.6 } * step);
     let out = refine_level0(s.key.view(), &s.cam, rho0.view(), &s.views(), step, &REFINE_DEFAULTS).unwrap();
     let r = REFINE_DEFAULTS.half_window;
     let (mut errors, mut candidates) = (Vec::new(), 0);
@@ -141,8 +151,9 @@ fn refinement_is_independent_of_thread_count() {
     let step = 0.04;
     let rho0 = s.truth.mapv(|v| v + 0.7 * step);
     let run = |n| {
-        common::thread_pool(n)
-            .install(|| refine_level0(s.key.view(), &s.cam, rho0.view(), &s.views(), step, &REFINE_DEFAULTS).unwrap())
+        common::thread_pool(n).install(|| {
+            refine_level0(s.key.view(), &s.cam, rho0.view(), &s.views(), step, &REFINE_DEFAULTS).unwrap()
+        })
     };
     let one = bits(&run(1));
     for n in [2, 3, 8] {
@@ -164,7 +175,8 @@ fn level1_estimate_moves_by_the_tent_mean_of_its_pixels() {
     let depth = inv.mapv(|r| if r > 0.0 { 1.0 / r } else { 0.0 });
     let views = s.views();
     let (new_inv, new_depth, report) =
-        refine_estimate(inv.view(), depth.view(), 1, s.key.view(), &s.cam, &views, &bins, &REFINE_DEFAULTS).unwrap();
+        refine_estimate(inv.view(), depth.view(), 1, s.key.view(), &s.cam, &views, &bins, &REFINE_DEFAULTS)
+            .unwrap();
     assert_eq!(report.frames, views.len());
     assert!(report.refined > 0 && report.refined <= report.candidates);
     // The pixel without an estimate keeps none.

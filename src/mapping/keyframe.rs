@@ -352,7 +352,14 @@ pub struct StageTimings {
 impl StageTimings {
     /// Sum of the stages.
     pub fn total(&self) -> f64 {
-        self.load + self.features + self.cost_volume + self.wta + self.tv + self.normals + self.photometric + self.refine
+        self.load
+            + self.features
+            + self.cost_volume
+            + self.wta
+            + self.tv
+            + self.normals
+            + self.photometric
+            + self.refine
     }
 }
 
@@ -703,7 +710,11 @@ pub fn reconstruct_with(
         let views: Vec<RefineView> = frames
             .iter()
             .zip(&greys)
-            .map(|(f, g)| RefineView { grey: g.view(), camera: f.camera, pose: relative_pose(&key.pose, &f.pose) })
+            .map(|(f, g)| RefineView {
+                grey: g.view(),
+                camera: f.camera,
+                pose: relative_pose(&key.pose, &f.pose),
+            })
             .collect();
         let key_grey = to_gray(&key.rgb).mapv(f64::from);
         for e in [tv.as_mut(), normals_estimate.as_mut()].into_iter().flatten() {

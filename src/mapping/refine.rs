@@ -44,7 +44,7 @@ pub struct RefineParams {
 /// The defaults of `map` (SPEC.md §10.3, §16.9).
 pub const REFINE_DEFAULTS: RefineParams = RefineParams {
     radius_bins: 2.0,
-    samples: 33,
+    samples: 17,
     half_window: 3,
     frames: 12,
     best_fraction: 0.5,
@@ -63,7 +63,7 @@ impl RefineParams {
         if !(self.radius_bins.is_finite() && self.radius_bins > 0.0) {
             return bad("refine radius", format!("{}: must be a positive number of bins", self.radius_bins));
         }
-        if self.samples < 3 || self.samples % 2 == 0 {
+        if self.samples < 3 || self.samples.is_multiple_of(2) {
             return bad("refine samples", format!("{}: must be odd and at least 3", self.samples));
         }
         if self.half_window == 0 {
@@ -129,7 +129,7 @@ pub fn select_frames(live: &[usize], frames: usize) -> Vec<usize> {
 /// in front of the camera or projects outside `[0, W−1] × [0, H−1]`, or `rho` is not positive.
 #[inline]
 fn warped_grey(view: &RefineView, key: &PinholeCamera, x: usize, y: usize, rho: f64) -> f64 {
-    if !(rho > 0.0) {
+    if rho.is_nan() || rho <= 0.0 {
         return f64::NAN;
     }
     let p = view.pose * Point3::from(key.ray(x as f64, y as f64) / rho);
@@ -158,7 +158,7 @@ fn bilinear(img: &ArrayView2<f64>, u: f64, v: f64) -> f64 {
 fn zncc_cost(n: f64, sw: f64, sww: f64, swi: f64, si: f64, sii: f64, min_variance: f64) -> f64 {
     let (mw, mi) = (sw / n, si / n);
     let vi = sii / n - mi * mi;
-    if !(vi > min_variance) {
+    if vi.is_nan() || vi <= min_variance {
         return f64::INFINITY;
     }
     let vw = sww / n - mw * mw;
@@ -224,12 +224,15 @@ impl Track {
     /// the parabola is too flat.
     #[inline]
     fn finish(&self, rho0: f64, step: f64, p: &RefineParams) -> f64 {
-        if self.best == 0 || self.best >= p.samples - 1 || !(self.before.is_finite() && self.after.is_finite()) {
+        if self.best == 0
+            || self.best >= p.samples - 1
+            || !(self.before.is_finite() && self.after.is_finite())
+        {
             return f64::NAN;
         }
         let h = p.spacing();
         let den = self.before - 2.0 * self.cost + self.after;
-        if !(den > p.min_curvature * h * h) {
+        if den.is_nan() || den <= p.min_curvature * h * h {
             return f64::NAN;
         }
         let sub = (0.5 * (self.before - self.after) / den).clamp(-0.5, 0.5);
@@ -237,7 +240,12 @@ impl Track {
     }
 }
 
-fn check_inputs(key: &ArrayView2<f64>, camera: &PinholeCamera, rho0: &ArrayView2<f64>, views: &[RefineView]) -> Result<()> {
+fn check_inputs(
+    key: &ArrayView2<f64>,
+    camera: &PinholeCamera,
+    rho0: &ArrayView2<f64>,
+    views: &[RefineView],
+) -> Result<()> {
     if key.dim() != (camera.height, camera.width) || rho0.dim() != key.dim() {
         return Err(Error::invalid_argument(
             "refine",
@@ -254,7 +262,12 @@ fn check_inputs(key: &ArrayView2<f64>, camera: &PinholeCamera, rho0: &ArrayView2
         if v.grey.dim() != (v.camera.height, v.camera.width) {
             return Err(Error::invalid_argument(
                 "refine",
-                format!("live view {i}: image {:?} but camera {}x{}", v.grey.dim(), v.camera.width, v.camera.height),
+                format!(
+                    "live view {i}: image {:?} but camera {}x{}",
+                    v.grey.dim(),
+                    v.camera.width,
+                    v.camera.height
+                ),
             ));
         }
     }
@@ -298,17 +311,21 @@ pub fn refine_level0(
                 let g: Vec<f64> = (0..w)
                     .map(|x| {
                         let r0 = rho0[[y, x]];
-                        if r0.is_finite() { warped_grey(view, camera, x, y, r0 + offset) } else { f64::NAN }
+                        if r0.is_finite() {
+                            warped_grey(view, camera, x, y, r0 + offset)
+                        } else {
+                            f64::NAN
+                        }
                     })
                     .collect();
-                for x in r..w - r {
+                for (x, sums) in row.iter_mut().enumerate().take(w - r).skip(r) {
                     let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
                     for xx in x - r..=x + r {
                         s0 += g[xx];
                         s1 += g[xx] * g[xx];
                         s2 += g[xx] * key[[y, xx]];
                     }
-                    row[x] = [s0, s1, s2];
+                    *sums = [s0, s1, s2];
                 }
             });
             // ... then over the window's rows, and the correlation.
@@ -349,7 +366,11 @@ pub fn refine_level0(
 /// on that row's work alone, so the result is the same for any thread count).
 fn par_rows<T: Send>(a: &mut Array2<T>, f: impl Fn(usize, &mut [T]) + Sync) {
     let w = a.ncols().max(1);
-    a.as_slice_mut().expect("a freshly allocated array is contiguous").par_chunks_mut(w).enumerate().for_each(|(y, row)| f(y, row));
+    a.as_slice_mut()
+        .expect("a freshly allocated array is contiguous")
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(y, row)| f(y, row));
 }
 
 /// Whether the window of `(y, x)` lies inside an `h x w` image.
@@ -363,12 +384,12 @@ fn window_sums(v: ArrayView2<f64>, r: usize) -> Array2<f64> {
     let (h, w) = v.dim();
     let mut rows = Array2::<f64>::zeros((h, w));
     par_rows(&mut rows, |y, row| {
-        for x in r..w.saturating_sub(r) {
+        for (x, sum) in row.iter_mut().enumerate().take(w.saturating_sub(r)).skip(r) {
             let mut s = 0.0;
             for xx in x - r..=x + r {
                 s += v[[y, xx]];
             }
-            row[x] = s;
+            *sum = s;
         }
     });
     let mut out = Array2::<f64>::zeros((h, w));
@@ -425,7 +446,11 @@ pub fn refine_level0_reference(
                         for dx in -r..=r {
                             let (yy, xx) = ((y as isize + dy) as usize, (x as isize + dx) as usize);
                             let r0 = rho0[[yy, xx]];
-                            let g = if r0.is_finite() { warped_grey(view, camera, xx, yy, r0 + offset) } else { f64::NAN };
+                            let g = if r0.is_finite() {
+                                warped_grey(view, camera, xx, yy, r0 + offset)
+                            } else {
+                                f64::NAN
+                            };
                             let k = key[[yy, xx]];
                             rw += g;
                             rww += g * g;
@@ -452,7 +477,13 @@ pub fn refine_level0_reference(
 /// The level-0 inverse depth of a level-`level` estimate: level-0 pixel `x` sits at level-`L`
 /// coordinate `x / 2^L` (SPEC.md §2.6); bilinear between the four neighbours, clamped to the grid,
 /// NaN unless all four have an estimate (`valid`).
-pub fn upsample(rho: ArrayView2<f32>, valid: ArrayView2<bool>, level: u32, h0: usize, w0: usize) -> Array2<f64> {
+pub fn upsample(
+    rho: ArrayView2<f32>,
+    valid: ArrayView2<bool>,
+    level: u32,
+    h0: usize,
+    w0: usize,
+) -> Array2<f64> {
     let (h, w) = rho.dim();
     let s = f64::from(1u32 << level);
     Array2::from_shape_fn((h0, w0), |(y, x)| {
@@ -464,7 +495,8 @@ pub fn upsample(rho: ArrayView2<f32>, valid: ArrayView2<bool>, level: u32, h0: u
         }
         let (fx, fy) = (u - x0 as f64, v - y0 as f64);
         let g = |yy: usize, xx: usize| f64::from(rho[[yy, xx]]);
-        (1.0 - fy) * ((1.0 - fx) * g(y0, x0) + fx * g(y0, x1)) + fy * ((1.0 - fx) * g(y1, x0) + fx * g(y1, x1))
+        (1.0 - fy) * ((1.0 - fx) * g(y0, x0) + fx * g(y0, x1))
+            + fy * ((1.0 - fx) * g(y1, x0) + fx * g(y1, x1))
     })
 }
 
@@ -491,7 +523,12 @@ pub fn refine_estimate(
     if inverse_depth.dim() != (at.height, at.width) || depth.dim() != inverse_depth.dim() {
         return Err(Error::invalid_argument(
             "refine",
-            format!("the estimate is {:?}, the keyframe camera at level {level} {}x{}", inverse_depth.dim(), at.width, at.height),
+            format!(
+                "the estimate is {:?}, the keyframe camera at level {level} {}x{}",
+                inverse_depth.dim(),
+                at.width,
+                at.height
+            ),
         ));
     }
     let valid = Zip::from(&inverse_depth)
@@ -504,7 +541,8 @@ pub fn refine_estimate(
     let r = p.half_window;
     let report = RefineReport {
         frames: views.len(),
-        candidates: Zip::indexed(&rho0).fold(0, |n, (y, x), v| n + usize::from(v.is_finite() && interior(y, x, h0, w0, r))),
+        candidates: Zip::indexed(&rho0)
+            .fold(0, |n, (y, x), v| n + usize::from(v.is_finite() && interior(y, x, h0, w0, r))),
         refined: refined.iter().filter(|v| v.is_finite()).count(),
     };
     let s = 1usize << level;

@@ -460,6 +460,9 @@ fn map_writes_mesh_metrics_and_resumes() {
         doc["keyframes"].as_array().unwrap().iter().map(|k| k["index"].as_u64().unwrap()).collect();
     assert!(keys.len() >= 2, "{keys:?}");
     assert!(out.join("mesh.png").is_file());
+    // The fusion's upper bound: the ground-truth depth through the estimate's fusion (SPEC.md §16.5).
+    let bound = doc["metrics_gt_depth"]["fscore"].as_f64().unwrap();
+    assert!(bound > f && bound <= 1.0, "bound {bound}, estimate {f}");
     // `map` refines its keyframes photometrically by default (SPEC.md §10.3, §16.9) and says so.
     assert_eq!(doc["mapping"]["refine"]["samples"].as_u64(), Some(17), "{doc}");
     let kf = out.join(format!("keyframes/kf_{:05}/keyframe.json", keys[1]));

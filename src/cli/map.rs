@@ -218,6 +218,13 @@ pub fn run(mut args: MapArgs) -> Result<()> {
             .collect();
         println!("F-score at {}", at.join(", "));
     }
+    if let Some(b) = &s.metrics_gt_depth {
+        println!(
+            "the ground-truth depth fused as the estimate is (the fusion's upper bound): precision {:.4}, \
+             recall {:.4}, F-score {:.4} at {} m",
+            b.precision, b.recall, b.fscore, b.threshold
+        );
+    }
     println!(
         "wrote mesh.ply, mesh.png, map.json (and mesh_gt.ply with ground truth) to {}",
         args.out.display()

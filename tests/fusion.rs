@@ -445,6 +445,7 @@ fn map_writes_mesh_metrics_and_resumes() {
     let text = String::from_utf8_lossy(&first.stdout).to_string();
     assert!(first.status.success(), "{text}\n{}", String::from_utf8_lossy(&first.stderr));
     assert!(text.contains("F-score"), "{text}");
+    assert!(text.contains("confident keyframe pixels kept"), "the filter's share is reported: {text}");
     let mesh = read_mesh_ply(&out.join("mesh.ply")).unwrap();
     assert!(!mesh.triangles.is_empty());
     let gt = read_mesh_ply(&out.join("mesh_gt.ply")).unwrap();

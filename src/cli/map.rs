@@ -97,6 +97,10 @@ fn parse_frames(text: &str) -> Result<(usize, usize)> {
     Ok((a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?))
 }
 
+/// Below this share of confident keyframe pixels kept by the depth filter, `map` warns that the mesh
+/// will be fragmentary (every validation scene keeps more: the real room a third, the renders 65-90 %).
+const LOW_CONFIRMED_SHARE: f64 = 0.25;
+
 /// Runs the command.
 ///
 /// # Errors
@@ -187,6 +191,23 @@ pub fn run(mut args: MapArgs) -> Result<()> {
         t.metrics,
         t.write
     );
+    let (before, after) = s.fused_pixels;
+    if args.consistency_views > 0 && before > 0 {
+        let share = after as f64 / before as f64;
+        println!(
+            "depth filter (SPEC.md §16.10): {after} of {before} confident keyframe pixels kept ({:.0} %)",
+            100.0 * share
+        );
+        // A quarter: below every validation scene (the real room keeps a third, the renders 65-90 %).
+        if share < LOW_CONFIRMED_SHARE {
+            println!(
+                "warning: most keyframe depth is not confirmed by the neighbouring keyframes, so the mesh will be \
+                 fragmentary: the depth maps disagree (fast motion or blur, poses that disagree with the images, \
+                 or too little baseline); `python3 tools/map/pose_depth_consistency.py SEQ` checks the poses of an \
+                 RGB-D capture"
+            );
+        }
+    }
     println!("mesh: {} vertices, {} triangles", s.mesh.0, s.mesh.1);
     if s.components.removed_components > 0 {
         println!(

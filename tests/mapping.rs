@@ -225,6 +225,22 @@ fn memory_limit_fails_up_front() {
 }
 
 #[test]
+fn the_refinement_counts_against_the_memory_limit() {
+    // SPEC.md §10.3: its images and planes are held with the volume, so they count up front.
+    let seq = fixture();
+    let mut cfg = small_config();
+    let volume = memory_estimate(120, 160, cfg.bins, 3);
+    let refine = densefeat::mapping::refine::memory_bytes(240, 320, 10); // 10 live frames, level 0
+    assert!(volume < 20 << 20 && volume + refine > 20 << 20, "{volume} {refine}");
+    cfg.max_memory_mb = 20;
+    cfg.refine = Some(densefeat::mapping::refine::REFINE_DEFAULTS);
+    let (name, what) = invalid_argument(reconstruct(&seq, &cfg, |_, _, _| {}).unwrap_err());
+    assert_eq!(name, "max-memory-mb");
+    let mib = refine.div_ceil(1 << 20);
+    assert!(what.contains(&format!("refinement's {mib} MiB")) && what.contains("--refine off"), "{what}");
+}
+
+#[test]
 fn eval_without_ground_truth_is_an_error() {
     // The fixture without its depth folder.
     let dir = tempfile::tempdir().unwrap();

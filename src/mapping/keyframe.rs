@@ -430,7 +430,7 @@ pub struct KeyframeResult {
     pub cost_scale: f64,
     /// DTAM at each [`KeyframeConfig::lambda_sweep`] value, in that order.
     pub sweep: Vec<(f64, DepthEstimate)>,
-    /// [`memory_estimate`] of this run, bytes.
+    /// [`memory_estimate`] of this run plus the refinement's [`refine::memory_bytes`] when it runs, bytes.
     pub memory_estimate: u64,
     /// The photometric fit used (the identity without calibration).
     pub photometric: PhotometricFit,
@@ -573,14 +573,28 @@ pub fn reconstruct_with(
     let key_features = extractor.extract(&key.rgb)?.data;
     timings.features += t.elapsed().as_secs_f64();
     let channels = key_features.dim().2;
-    let estimate = memory_estimate(camera.height, camera.width, cfg.bins, channels);
+    // The refinement (SPEC.md §10.3) runs while the volume is still held: its images and planes count
+    // too (the live frames at the keyframe's size).
+    let refine_bytes = cfg
+        .refine
+        .as_ref()
+        .map_or(0, |p| refine::memory_bytes(key_camera.height, key_camera.width, p.frames.min(live.len())));
+    let estimate = memory_estimate(camera.height, camera.width, cfg.bins, channels) + refine_bytes;
     let limit = cfg.max_memory_mb as u64 * 1024 * 1024;
     if estimate > limit {
+        let refine_note = if refine_bytes > 0 {
+            format!(
+                " (the photometric refinement's {} MiB included; --refine off drops it)",
+                refine_bytes.div_ceil(1024 * 1024)
+            )
+        } else {
+            String::new()
+        };
         return Err(Error::invalid_argument(
             "max-memory-mb",
             format!(
-                "the cost volume {}x{}x{} with {channels} feature channels needs about {} MiB, over the \
-                 limit of {} MiB: use fewer --bins, a coarser --level, or raise --max-memory-mb",
+                "the cost volume {}x{}x{} with {channels} feature channels needs about {} MiB{refine_note}, over \
+                 the limit of {} MiB: use fewer --bins, a coarser --level, or raise --max-memory-mb",
                 camera.height,
                 camera.width,
                 cfg.bins,

@@ -118,6 +118,13 @@ pub struct RefineReport {
     pub refined: usize,
 }
 
+/// Bytes the refinement holds at its peak for an `h x w` keyframe and `frames` live frames of that
+/// size: per pixel the grey images, each frame's cost plane and the loaded RGB frames (4 x 3 B each),
+/// and 112 B of key sums, upsampled and refined estimates, row sums and running minima.
+pub fn memory_bytes(h: usize, w: usize, frames: usize) -> u64 {
+    (h as u64) * (w as u64) * (112 + 28 * frames as u64)
+}
+
 /// The live frames the refinement uses: every `⌈n / frames⌉`-th of `live`, from its first.
 pub fn select_frames(live: &[usize], frames: usize) -> Vec<usize> {
     let stride = live.len().div_ceil(frames.max(1)).max(1);

@@ -103,6 +103,7 @@ pub fn write_outputs_with(result: &KeyframeResult, dir: &Path, min_confidence: f
             })),
             "memory_estimate_bytes": result.memory_estimate,
             "photometric": result.photometric,
+            "refined": result.refined,
         });
         let text = serde_json::to_string_pretty(&doc).expect("plain data");
         write_atomic_with(&push(dir.join("metrics.json")), |w| w.write_all(text.as_bytes()))?;

@@ -4,7 +4,7 @@
 use crate::common;
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose};
 use densefeat::mapping::refine::{
-    refine_estimate, refine_level0, refine_level0_reference, select_frames, upsample, RefineParams,
+    refine_estimate, refine_level0, refine_level0_reference, select_frames, upsample, Level0, RefineParams,
     RefineView, REFINE_DEFAULTS,
 };
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
@@ -98,7 +98,11 @@ fn refinement_sharpens_a_rendered_plane() {
     // The estimate off by +0.8 bin on the left half and -0.6 bin on the right.
     let rho0 =
         Array2::from_shape_fn((h, w), |(y, x)| s.truth[[y, x]] + if x < w / 2 { 0.8 } else { -0.6 } * step);
-    let out = refine_level0(s.key.view(), &s.cam, rho0.view(), &s.views(), step, &REFINE_DEFAULTS).unwrap();
+    let out = refine_level0(
+        &Level0 { key: s.key.view(), camera: &s.cam, rho0: rho0.view(), views: &s.views(), step },
+        &REFINE_DEFAULTS,
+    )
+    .unwrap();
     let r = REFINE_DEFAULTS.half_window;
     let (mut errors, mut candidates) = (Vec::new(), 0);
     for y in r..h - r {
@@ -130,12 +134,20 @@ fn flat_windows_and_missing_estimates_stay_put() {
     let step = 0.04;
     let flat = Array2::from_elem(s.key.dim(), 90.0);
     let rho0 = s.truth.mapv(|v| v + 0.5 * step);
-    let out = refine_level0(flat.view(), &s.cam, rho0.view(), &s.views(), step, &REFINE_DEFAULTS).unwrap();
+    let out = refine_level0(
+        &Level0 { key: flat.view(), camera: &s.cam, rho0: rho0.view(), views: &s.views(), step },
+        &REFINE_DEFAULTS,
+    )
+    .unwrap();
     assert!(out.iter().all(|v| v.is_nan()), "a flat keyframe window has nothing to match");
     // Without an estimate at a pixel, no window that contains it moves.
     let mut holed = rho0.clone();
     holed[[16, 20]] = f64::NAN;
-    let out = refine_level0(s.key.view(), &s.cam, holed.view(), &s.views(), step, &REFINE_DEFAULTS).unwrap();
+    let out = refine_level0(
+        &Level0 { key: s.key.view(), camera: &s.cam, rho0: holed.view(), views: &s.views(), step },
+        &REFINE_DEFAULTS,
+    )
+    .unwrap();
     let r = REFINE_DEFAULTS.half_window;
     for y in 16 - r..=16 + r {
         for x in 20 - r..=20 + r {
@@ -152,7 +164,17 @@ fn refinement_is_independent_of_thread_count() {
     let rho0 = s.truth.mapv(|v| v + 0.7 * step);
     let run = |n| {
         common::thread_pool(n).install(|| {
-            refine_level0(s.key.view(), &s.cam, rho0.view(), &s.views(), step, &REFINE_DEFAULTS).unwrap()
+            refine_level0(
+                &Level0 {
+                    key: s.key.view(),
+                    camera: &s.cam,
+                    rho0: rho0.view(),
+                    views: &s.views(),
+                    step: step,
+                },
+                &REFINE_DEFAULTS,
+            )
+            .unwrap()
         })
     };
     let one = bits(&run(1));
@@ -184,7 +206,11 @@ fn level1_estimate_moves_by_the_tent_mean_of_its_pixels() {
     // Recompute one interior level-1 pixel by hand from the level-0 moves.
     let valid = inv.mapv(|r| r > 0.0);
     let rho0 = upsample(inv.view(), valid.view(), 1, s.cam.height, s.cam.width);
-    let moved = refine_level0(s.key.view(), &s.cam, rho0.view(), &views, step, &REFINE_DEFAULTS).unwrap();
+    let moved = refine_level0(
+        &Level0 { key: s.key.view(), camera: &s.cam, rho0: rho0.view(), views: &views, step },
+        &REFINE_DEFAULTS,
+    )
+    .unwrap();
     let (j, i) = (8, 9);
     let (mut num, mut den) = (0.0, 0.0);
     for y in 2 * j - 1..=2 * j + 1 {
@@ -218,7 +244,11 @@ fn bad_inputs_are_refused() {
     let rho0 = s.truth.clone();
     let views = s.views();
     let wrong = Array2::<f64>::zeros((24, 31));
-    let e = refine_level0(wrong.view(), &s.cam, rho0.view(), &views, 0.04, &REFINE_DEFAULTS).unwrap_err();
+    let e = refine_level0(
+        &Level0 { key: wrong.view(), camera: &s.cam, rho0: rho0.view(), views: &views, step: 0.04 },
+        &REFINE_DEFAULTS,
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("refine"), "{e}");
     for p in [
         RefineParams { samples: 32, ..REFINE_DEFAULTS },
@@ -229,10 +259,21 @@ fn bad_inputs_are_refused() {
         RefineParams { best_fraction: 0.0, ..REFINE_DEFAULTS },
         RefineParams { min_curvature: f64::NAN, ..REFINE_DEFAULTS },
     ] {
-        assert!(refine_level0(s.key.view(), &s.cam, rho0.view(), &views, 0.04, &p).is_err(), "{p:?}");
+        assert!(
+            refine_level0(
+                &Level0 { key: s.key.view(), camera: &s.cam, rho0: rho0.view(), views: &views, step: 0.04 },
+                &p
+            )
+            .is_err(),
+            "{p:?}"
+        );
     }
     let small = RefineView { grey: wrong.view(), camera: s.cam, pose: Pose::identity() };
-    assert!(refine_level0(s.key.view(), &s.cam, rho0.view(), &[small], 0.04, &REFINE_DEFAULTS).is_err());
+    assert!(refine_level0(
+        &Level0 { key: s.key.view(), camera: &s.cam, rho0: rho0.view(), views: &[small], step: 0.04 },
+        &REFINE_DEFAULTS
+    )
+    .is_err());
 }
 
 #[test]
@@ -276,8 +317,8 @@ proptest! {
             if v < 0.05 { f64::NAN } else { 0.2 + 0.6 * v }
         });
         let p = RefineParams { samples, half_window, frames, best_fraction, min_curvature, radius_bins: 1.0 + offset_bins.abs(), ..REFINE_DEFAULTS };
-        let fast = refine_level0(key.view(), &cam, rho0.view(), &views, 0.05, &p).unwrap();
-        let naive = refine_level0_reference(key.view(), &cam, rho0.view(), &views, 0.05, &p).unwrap();
-        prop_assert_eq!(bits(&fast), bits(&naive));
+        let fast_path = refine_level0(&Level0 { key: key.view(), camera: &cam, rho0: rho0.view(), views: &views, step: 0.05 }, &p).unwrap();
+        let reference = refine_level0_reference(&Level0 { key: key.view(), camera: &cam, rho0: rho0.view(), views: &views, step: 0.05 }, &p).unwrap();
+        prop_assert_eq!(bits(&fast_path), bits(&reference));
     }
 }

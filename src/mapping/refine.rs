@@ -247,38 +247,54 @@ impl Track {
     }
 }
 
-fn check_inputs(
-    key: &ArrayView2<f64>,
-    camera: &PinholeCamera,
-    rho0: &ArrayView2<f64>,
-    views: &[RefineView],
-) -> Result<()> {
-    if key.dim() != (camera.height, camera.width) || rho0.dim() != key.dim() {
-        return Err(Error::invalid_argument(
-            "refine",
-            format!(
-                "keyframe image {:?}, inverse depth {:?} and camera {}x{} disagree",
-                key.dim(),
-                rho0.dim(),
-                camera.width,
-                camera.height
-            ),
-        ));
-    }
-    for (i, v) in views.iter().enumerate() {
-        if v.grey.dim() != (v.camera.height, v.camera.width) {
+/// The level-0 problem: the keyframe's grey image and camera, the estimate at that resolution
+/// (NaN: none), the live views and the bin step `Δρ`.
+#[derive(Clone, Copy, Debug)]
+pub struct Level0<'a, 'v> {
+    /// `[H, W]` grey levels of the keyframe.
+    pub key: ArrayView2<'a, f64>,
+    /// The keyframe's camera at level 0.
+    pub camera: &'a PinholeCamera,
+    /// `[H, W]` inverse depth to refine, NaN where there is none.
+    pub rho0: ArrayView2<'a, f64>,
+    /// The live frames.
+    pub views: &'a [RefineView<'v>],
+    /// `Δρ`, 1/m.
+    pub step: f64,
+}
+
+impl<'a, 'v> Level0<'a, 'v> {
+    /// The problem itself once the parameters and the sizes are checked.
+    fn checked(&self, p: &RefineParams) -> Result<Level0<'a, 'v>> {
+        p.validate()?;
+        let (key, camera, rho0) = (&self.key, self.camera, &self.rho0);
+        if key.dim() != (camera.height, camera.width) || rho0.dim() != key.dim() {
             return Err(Error::invalid_argument(
                 "refine",
                 format!(
-                    "live view {i}: image {:?} but camera {}x{}",
-                    v.grey.dim(),
-                    v.camera.width,
-                    v.camera.height
+                    "keyframe image {:?}, inverse depth {:?} and camera {}x{} disagree",
+                    key.dim(),
+                    rho0.dim(),
+                    camera.width,
+                    camera.height
                 ),
             ));
         }
+        for (i, v) in self.views.iter().enumerate() {
+            if v.grey.dim() != (v.camera.height, v.camera.width) {
+                return Err(Error::invalid_argument(
+                    "refine",
+                    format!(
+                        "live view {i}: image {:?} but camera {}x{}",
+                        v.grey.dim(),
+                        v.camera.width,
+                        v.camera.height
+                    ),
+                ));
+            }
+        }
+        Ok(*self)
     }
-    Ok(())
 }
 
 /// Fast path: the refined inverse depth of every level-0 pixel, NaN where it did not move
@@ -287,16 +303,8 @@ fn check_inputs(
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] for bad parameters or images whose sizes disagree with their cameras.
-pub fn refine_level0(
-    key: ArrayView2<f64>,
-    camera: &PinholeCamera,
-    rho0: ArrayView2<f64>,
-    views: &[RefineView],
-    step: f64,
-    p: &RefineParams,
-) -> Result<Array2<f64>> {
-    p.validate()?;
-    check_inputs(&key, camera, &rho0, views)?;
+pub fn refine_level0(problem: &Level0, p: &RefineParams) -> Result<Array2<f64>> {
+    let Level0 { key, camera, rho0, views, step } = problem.checked(p)?;
     let (h, w) = key.dim();
     let r = p.half_window;
     let n = ((2 * r + 1) * (2 * r + 1)) as f64;
@@ -420,16 +428,8 @@ fn window_sums(v: ArrayView2<f64>, r: usize) -> Array2<f64> {
 ///
 /// # Errors
 /// As [`refine_level0`].
-pub fn refine_level0_reference(
-    key: ArrayView2<f64>,
-    camera: &PinholeCamera,
-    rho0: ArrayView2<f64>,
-    views: &[RefineView],
-    step: f64,
-    p: &RefineParams,
-) -> Result<Array2<f64>> {
-    p.validate()?;
-    check_inputs(&key, camera, &rho0, views)?;
+pub fn refine_level0_reference(problem: &Level0, p: &RefineParams) -> Result<Array2<f64>> {
+    let Level0 { key, camera, rho0, views, step } = problem.checked(p)?;
     let (h, w) = key.dim();
     let r = p.half_window as isize;
     let n = ((2 * r + 1) * (2 * r + 1)) as f64;
@@ -544,7 +544,7 @@ pub fn refine_estimate(
     let (h0, w0) = (camera.height, camera.width);
     let rho0 = upsample(inverse_depth, valid.view(), level, h0, w0);
     let step = (bins.rho_max - bins.rho_min) / (bins.count - 1) as f64;
-    let refined = refine_level0(key, camera, rho0.view(), views, step, p)?;
+    let refined = refine_level0(&Level0 { key, camera, rho0: rho0.view(), views, step }, p)?;
     let r = p.half_window;
     let report = RefineReport {
         frames: views.len(),

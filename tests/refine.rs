@@ -165,13 +165,7 @@ fn refinement_is_independent_of_thread_count() {
     let run = |n| {
         common::thread_pool(n).install(|| {
             refine_level0(
-                &Level0 {
-                    key: s.key.view(),
-                    camera: &s.cam,
-                    rho0: rho0.view(),
-                    views: &s.views(),
-                    step: step,
-                },
+                &Level0 { key: s.key.view(), camera: &s.cam, rho0: rho0.view(), views: &s.views(), step },
                 &REFINE_DEFAULTS,
             )
             .unwrap()

@@ -345,7 +345,7 @@ pub struct StageTimings {
     pub normals: f64,
     /// Photometric calibration (0 without it).
     pub photometric: f64,
-    /// The photometric sub-bin refinement, loading its frames included (0 without it).
+    /// The photometric sub-bin refinement (0 without it; its frames are read by the cost-volume loop).
     pub refine: f64,
 }
 
@@ -629,6 +629,13 @@ pub fn reconstruct_with(
     // and added in window order.
     let batch = rayon::current_num_threads().clamp(1, 8);
     let mut loaded = std::collections::VecDeque::new();
+    // The refinement's live frames (SPEC.md §10.3) are kept from this loop as grey images with their
+    // camera and `T_nr`, so no frame is read twice.
+    let refine_frames = match &cfg.refine {
+        Some(p) if cfg.regularizer != Regularizer::None => refine::select_frames(&live, p.frames),
+        _ => Vec::new(),
+    };
+    let mut refine_inputs = Vec::with_capacity(refine_frames.len());
     for (i, &n) in live.iter().enumerate() {
         if loaded.is_empty() {
             let t = Instant::now();
@@ -641,6 +648,13 @@ pub fn reconstruct_with(
         }
         let frame = loaded.pop_front().expect("a batch was just loaded");
         debug_assert_eq!(frame.index, n);
+        if refine_frames.binary_search(&n).is_ok() {
+            refine_inputs.push((
+                to_gray(&frame.rgb).mapv(f64::from),
+                frame.camera,
+                relative_pose(&key.pose, &frame.pose),
+            ));
+        }
         let t = Instant::now();
         let f = extractor.extract(&photo.correct_live(i, &frame.rgb))?.data;
         timings.features += t.elapsed().as_secs_f64();
@@ -716,19 +730,9 @@ pub fn reconstruct_with(
     let mut refined = None;
     if let Some(p) = cfg.refine.as_ref().filter(|_| tv.is_some() || normals_estimate.is_some()) {
         let t = Instant::now();
-        let frames = refine::select_frames(&live, p.frames)
-            .par_iter()
-            .map(|&m| seq.load_frame_rgb(m))
-            .collect::<Result<Vec<_>>>()?;
-        let greys: Vec<Array2<f64>> = frames.iter().map(|f| to_gray(&f.rgb).mapv(f64::from)).collect();
-        let views: Vec<RefineView> = frames
+        let views: Vec<RefineView> = refine_inputs
             .iter()
-            .zip(&greys)
-            .map(|(f, g)| RefineView {
-                grey: g.view(),
-                camera: f.camera,
-                pose: relative_pose(&key.pose, &f.pose),
-            })
+            .map(|(grey, camera, pose)| RefineView { grey: grey.view(), camera: *camera, pose: *pose })
             .collect();
         let key_grey = to_gray(&key.rgb).mapv(f64::from);
         for e in [tv.as_mut(), normals_estimate.as_mut()].into_iter().flatten() {

@@ -119,8 +119,9 @@ pub struct RefineReport {
 }
 
 /// Bytes the refinement holds at its peak for an `h x w` keyframe and `frames` live frames of that
-/// size: per pixel the grey images, each frame's cost plane and the loaded RGB frames (4 x 3 B each),
-/// and 112 B of key sums, upsampled and refined estimates, row sums and running minima.
+/// size, a conservative bound: per pixel and frame the grey image and cost plane (f64) and 12 B for
+/// the RGB frames decoded beside them, and 112 B of key sums, upsampled and refined estimates, row
+/// sums and running minima.
 pub fn memory_bytes(h: usize, w: usize, frames: usize) -> u64 {
     (h as u64) * (w as u64) * (112 + 28 * frames as u64)
 }

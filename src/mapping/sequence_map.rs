@@ -394,15 +394,8 @@ pub fn map_sequence(
     // Depth that agrees with its neighbours (SPEC.md §16.10): confidence first (as before), then
     // the multi-view check against the nearest keyframes and the discontinuity rule.
     let fused_pixels_before: usize = maps.iter().map(|m| valid_confident(m, cfg.min_confidence)).sum();
-    let filtered: Vec<DepthMap> = (0..maps.len())
-        .map(|i| {
-            let lo = i.saturating_sub(cfg.consistency_neighbours);
-            let hi = (i + cfg.consistency_neighbours + 1).min(maps.len());
-            let others: Vec<ViewDepth<'_>> =
-                (lo..hi).filter(|&j| j != i).map(|j| view_of(&maps[j])).collect();
-            filter_depth(&view_of(&maps[i]), &others, &cfg.consistency, cfg.edge_ratio)
-        })
-        .collect();
+    let views: Vec<ViewDepth<'_>> = maps.iter().map(view_of).collect();
+    let filtered = filter_keyframes(cfg, &views);
     for (m, d) in maps.iter_mut().zip(filtered) {
         m.depth = d;
     }
@@ -513,11 +506,8 @@ fn fusion_bound(cfg: &MapConfig, maps: &[KeyframeMaps], grid: VoxelGrid, gt: &Me
         .filter_map(|m| m.gt.as_ref().map(|d| ViewDepth { depth: d.view(), camera: m.camera, pose: m.pose }))
         .collect();
     let mut volume = Tsdf::new(grid, cfg.truncation)?;
-    for (i, (m, view)) in maps.iter().zip(&views).enumerate() {
-        let lo = i.saturating_sub(cfg.consistency_neighbours);
-        let hi = (i + cfg.consistency_neighbours + 1).min(views.len());
-        let others: Vec<ViewDepth<'_>> = (lo..hi).filter(|&j| j != i).map(|j| views[j]).collect();
-        let depth = cap(&filter_depth(view, &others, &cfg.consistency, cfg.edge_ratio), cfg.max_fusion_depth);
+    for (m, filtered) in maps.iter().zip(filter_keyframes(cfg, &views)) {
+        let depth = cap(&filtered, cfg.max_fusion_depth);
         let weights = fusion_weights(depth.view(), None, &m.camera, cfg.fusion_weight);
         volume.integrate(&DepthObservation {
             depth: depth.view(),
@@ -529,6 +519,19 @@ fn fusion_bound(cfg: &MapConfig, maps: &[KeyframeMaps], grid: VoxelGrid, gt: &Me
     }
     let (mesh, _) = remove_small_components(&extract_mesh(&volume), cfg.min_component_triangles);
     Ok(mesh_metrics(&mesh, gt, cfg.fscore_threshold))
+}
+
+/// Each keyframe's depth filtered against its `--consistency-neighbours` nearest keyframes on each
+/// side and by the discontinuity rule (SPEC.md §16.10).
+fn filter_keyframes(cfg: &MapConfig, views: &[ViewDepth<'_>]) -> Vec<DepthMap> {
+    (0..views.len())
+        .map(|i| {
+            let lo = i.saturating_sub(cfg.consistency_neighbours);
+            let hi = (i + cfg.consistency_neighbours + 1).min(views.len());
+            let others: Vec<ViewDepth<'_>> = (lo..hi).filter(|&j| j != i).map(|j| views[j]).collect();
+            filter_depth(&views[i], &others, &cfg.consistency, cfg.edge_ratio)
+        })
+        .collect()
 }
 
 /// A keyframe's depth, camera and pose for the filter of SPEC.md §16.10.

@@ -1,5 +1,5 @@
 //! `densefeat bench`: timing of the feature network's forward pass, the machine's SGEMM peak, the
-//! cost volume and the DTAM solver, each inside a rayon pool of `--threads` threads.
+//! cost volume, the DTAM solver and the depth refinement, each inside a rayon pool of `--threads` threads.
 
 use std::time::Instant;
 
@@ -29,6 +29,8 @@ pub enum BenchCommand {
     Costvolume(super::bench_costvolume::BenchCostvolumeArgs),
     /// Time the DTAM Huber-TV solver: one iteration (with its parts) and a full default solve.
     Tv(super::bench_tv::BenchTvArgs),
+    /// Time the photometric sub-bin refinement of one keyframe (SPEC.md §10.3) on a synthetic plane.
+    Refine(super::bench_refine::BenchRefineArgs),
     /// Time one training step (forward, deeply supervised loss, backward) on a synthetic pair.
     Train(super::train::BenchTrainArgs),
 }
@@ -180,6 +182,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         BenchCommand::Gemm(a) => run_gemm(a),
         BenchCommand::Costvolume(a) => super::bench_costvolume::run(a.clone()),
         BenchCommand::Tv(a) => super::bench_tv::run(a),
+        BenchCommand::Refine(a) => super::bench_refine::run(a),
         BenchCommand::Train(a) => super::train::run_bench(a),
     }
 }

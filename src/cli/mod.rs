@@ -8,6 +8,7 @@ use densefeat::error::Result;
 pub mod backend_flag;
 pub mod bench;
 pub mod bench_costvolume;
+pub mod bench_refine;
 pub mod bench_tv;
 #[cfg(feature = "gpu")]
 mod bench_tv_gpu;

@@ -13,7 +13,7 @@
 //! [`refine_level0_reference`] the plain-loop reference that it equals bit for bit (the window sums
 //! are formed in the same order: a row's sum over `dx`, then the rows' sums over `dy`).
 
-use nalgebra::Point3;
+use nalgebra::{Matrix3, Vector3};
 use ndarray::{Array2, ArrayView2, Zip};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -132,27 +132,49 @@ pub fn select_frames(live: &[usize], frames: usize) -> Vec<usize> {
     live.iter().step_by(stride).copied().collect()
 }
 
-/// The grey value of `view` seen from keyframe pixel `(x, y)` at inverse depth `rho`: back-project
-/// with the keyframe camera, move by `T_nr`, project, sample bilinearly. NaN where the point is not
-/// in front of the camera or projects outside `[0, W−1] × [0, H−1]`, or `rho` is not positive.
-#[inline]
-fn warped_grey(view: &RefineView, key: &PinholeCamera, x: usize, y: usize, rho: f64) -> f64 {
-    if rho.is_nan() || rho <= 0.0 {
-        return f64::NAN;
-    }
-    let p = view.pose * Point3::from(key.ray(x as f64, y as f64) / rho);
-    let Some(q) = view.camera.project(&p.coords) else { return f64::NAN };
-    if !view.camera.contains(q.x, q.y) {
-        return f64::NAN;
-    }
-    bilinear(&view.grey, q.x, q.y)
+/// A live view ready to be sampled: `T_nr`'s rotation as a matrix, so that the part of the warp
+/// that does not depend on the inverse depth, `R K_r⁻¹ ỹ`, is formed once per pixel (SPEC.md §10.3).
+struct Warper<'a, 'v> {
+    view: &'a RefineView<'v>,
+    rot: Matrix3<f64>,
 }
 
-/// Bilinear sample at `(u, v)` inside `[0, W−1] × [0, H−1]` (integer pixel centres).
+impl<'a, 'v> Warper<'a, 'v> {
+    fn new(view: &'a RefineView<'v>) -> Self {
+        Warper { view, rot: *view.pose.rotation.to_rotation_matrix().matrix() }
+    }
+
+    /// `R K_r⁻¹ ỹ` for the keyframe ray `ray = K_r⁻¹ ỹ`.
+    #[inline]
+    fn bearing(&self, ray: &Vector3<f64>) -> Vector3<f64> {
+        self.rot * ray
+    }
+
+    /// The view's grey value at the point of bearing `b` and inverse depth `rho`: the point
+    /// `ρ · T_nr(K_r⁻¹ỹ / ρ) = b + ρ t` (the same ray, scaled by `ρ > 0`), projected and sampled
+    /// bilinearly. NaN where `rho` is not positive, the point is not in front of the camera or it
+    /// projects outside `[0, W−1] × [0, H−1]`.
+    #[inline]
+    fn sample(&self, b: &Vector3<f64>, rho: f64) -> f64 {
+        if rho.is_nan() || rho <= 0.0 {
+            return f64::NAN;
+        }
+        let t = &self.view.pose.translation.vector;
+        let p = Vector3::new(b.x + rho * t.x, b.y + rho * t.y, b.z + rho * t.z);
+        let Some(q) = self.view.camera.project(&p) else { return f64::NAN };
+        if !self.view.camera.contains(q.x, q.y) {
+            return f64::NAN;
+        }
+        bilinear(&self.view.grey, q.x, q.y)
+    }
+}
+
+/// Bilinear sample at `(u, v)` inside `[0, W−1] × [0, H−1]` (integer pixel centres; there the
+/// truncation `as usize` is the floor).
 #[inline]
 fn bilinear(img: &ArrayView2<f64>, u: f64, v: f64) -> f64 {
     let (h, w) = img.dim();
-    let (x0, y0) = (u.floor() as usize, v.floor() as usize);
+    let (x0, y0) = (u as usize, v as usize);
     let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
     let (fx, fy) = (u - x0 as f64, v - y0 as f64);
     let top = (1.0 - fx) * img[[y0, x0]] + fx * img[[y0, x1]];
@@ -180,24 +202,32 @@ fn zncc_cost(n: f64, sw: f64, sww: f64, swi: f64, si: f64, sii: f64, min_varianc
 }
 
 /// The mean of the lowest `⌈fraction · n⌉` finite costs, or `+∞` with fewer than
-/// `max(2, ⌊frames / 2⌋)` finite ones. `costs` is reordered.
+/// `max(2, ⌊frames / 2⌋)` finite ones. `costs` is reordered: the finite ones first, ascending.
 #[inline]
 fn best_mean(costs: &mut [f64], frames: usize, fraction: f64) -> f64 {
+    // An insertion sort of the finite costs (a handful): the same order as sorting them by
+    // `f64::total_cmp`, as the sum's bits need, without the general sort's overhead.
     let mut n = 0;
     for i in 0..costs.len() {
-        if costs[i].is_finite() {
-            costs.swap(n, i);
-            n += 1;
+        let c = costs[i];
+        if !c.is_finite() {
+            continue;
         }
+        costs[i] = costs[n];
+        let mut j = n;
+        while j > 0 && costs[j - 1].total_cmp(&c).is_gt() {
+            costs[j] = costs[j - 1];
+            j -= 1;
+        }
+        costs[j] = c;
+        n += 1;
     }
     if n < (frames / 2).max(2) {
         return f64::INFINITY;
     }
-    let seen = &mut costs[..n];
-    seen.sort_by(f64::total_cmp);
     let k = ((fraction * n as f64).ceil() as usize).clamp(1, n);
     let mut s = 0.0;
-    for &c in &seen[..k] {
+    for &c in &costs[..k] {
         s += c;
     }
     s / k as f64
@@ -315,67 +345,111 @@ pub fn refine_level0(problem: &Level0, p: &RefineParams) -> Result<Array2<f64>> 
     }
     let key_sq = key.mapv(|v| v * v);
     let (si, sii) = (window_sums(key.view(), r), window_sums(key_sq.view(), r));
+    // The keyframe rays K_r⁻¹ỹ by column and row, formed as `PinholeCamera::ray` forms them.
+    let rays_x: Vec<f64> = (0..w).map(|x| camera.ray(x as f64, 0.0).x).collect();
+    let rays_y: Vec<f64> = (0..h).map(|y| camera.ray(0.0, y as f64).y).collect();
+    let warpers: Vec<Warper> = views.iter().map(Warper::new).collect();
+    let frames = views.len();
     let mut tracks = Array2::from_elem((h, w), Track::START);
-    let mut costs = vec![Array2::<f64>::zeros((h, w)); views.len()];
-    // Per row: the horizontal window sums of (g, g², g·I), g the frame's warped grey value.
-    let mut rows = Array2::from_elem((h, w), [0.0f64; 3]);
+    // Per pixel the frames' costs of the current hypothesis, side by side.
+    let mut costs = vec![0.0f64; h * w * frames];
+    // Per row the horizontal window sums of g, g² and g·I (g the frame's warped grey value), one
+    // after the other.
+    let mut rows = Array2::<f64>::zeros((h, 3 * w));
+    let span = r..w - r;
     for a in 0..p.samples {
         let offset = p.offset(a) * step;
-        for (view, cost) in views.iter().zip(costs.iter_mut()) {
+        for (v, warper) in warpers.iter().enumerate() {
             // The frame's grey value at every pixel's own hypothesis, summed along the row...
             par_rows(&mut rows, |y, row| {
-                let g: Vec<f64> = (0..w)
-                    .map(|x| {
-                        let r0 = rho0[[y, x]];
-                        if r0.is_finite() {
-                            warped_grey(view, camera, x, y, r0 + offset)
-                        } else {
-                            f64::NAN
-                        }
-                    })
-                    .collect();
-                for (x, sums) in row.iter_mut().enumerate().take(w - r).skip(r) {
-                    let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
-                    for xx in x - r..=x + r {
-                        s0 += g[xx];
-                        s1 += g[xx] * g[xx];
-                        s2 += g[xx] * key[[y, xx]];
-                    }
-                    *sums = [s0, s1, s2];
+                let (mut g, mut gg, mut gi) = (vec![0.0; w], vec![0.0; w], vec![0.0; w]);
+                for x in 0..w {
+                    let r0 = rho0[[y, x]];
+                    let value = if r0.is_finite() {
+                        let ray = Vector3::new(rays_x[x], rays_y[y], 1.0);
+                        warper.sample(&warper.bearing(&ray), r0 + offset)
+                    } else {
+                        f64::NAN
+                    };
+                    g[x] = value;
+                    gg[x] = value * value;
+                    gi[x] = value * key[[y, x]];
+                }
+                for (sums, terms) in row.chunks_exact_mut(w).zip([&g, &gg, &gi]) {
+                    window_sum_into(&mut sums[span.clone()], |d| &terms[d..], 2 * r + 1);
                 }
             });
             // ... then over the window's rows, and the correlation.
             let rows = &rows;
-            par_rows(cost, |y, out| {
-                for (x, c) in out.iter_mut().enumerate() {
-                    *c = if interior(y, x, h, w, r) {
-                        let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
-                        for yy in y - r..=y + r {
-                            let [a0, a1, a2] = rows[[yy, x]];
-                            s0 += a0;
-                            s1 += a1;
-                            s2 += a2;
-                        }
-                        zncc_cost(n, s0, s1, s2, si[[y, x]], sii[[y, x]], p.min_variance)
+            par_chunks(&mut costs, w * frames, |y, out| {
+                let interior_row = y >= r && y + r < h;
+                let mut acc = vec![0.0; 3 * w];
+                if interior_row {
+                    let first = (y - r) * 3 * w;
+                    let all = rows.as_slice().expect("a freshly allocated array is contiguous");
+                    window_sum_into(&mut acc, |d| &all[first + d * 3 * w..], 2 * r + 1);
+                }
+                for x in 0..w {
+                    out[x * frames + v] = if interior_row && span.contains(&x) {
+                        zncc_cost(
+                            n,
+                            acc[x],
+                            acc[w + x],
+                            acc[2 * w + x],
+                            si[[y, x]],
+                            sii[[y, x]],
+                            p.min_variance,
+                        )
                     } else {
                         f64::INFINITY
                     };
                 }
             });
         }
-        let frames = views.len();
+        let costs = &costs;
         par_rows(&mut tracks, |y, row| {
             let mut buf = vec![0.0; frames];
             for (x, t) in row.iter_mut().enumerate() {
-                for (b, c) in buf.iter_mut().zip(&costs) {
-                    *b = c[[y, x]];
-                }
+                let at = (y * w + x) * frames;
+                buf.copy_from_slice(&costs[at..at + frames]);
                 t.push(a, best_mean(&mut buf, frames, p.best_fraction));
             }
         });
     }
     Zip::from(&mut out).and(&tracks).and(&rho0).for_each(|o, t, &r0| *o = t.finish(r0, step, p));
     Ok(out)
+}
+
+/// `out[i] = Σ_{d < taps} terms(d)[i]`, summed from `0.0` with `d` ascending, as the plain loop
+/// does (so the same bits), eight outputs at a time in registers (which the compiler vectorises).
+#[inline]
+fn window_sum_into<'t>(out: &mut [f64], terms: impl Fn(usize) -> &'t [f64], taps: usize) {
+    const LANES: usize = 8;
+    let len = out.len();
+    let full = len - len % LANES;
+    for i in (0..full).step_by(LANES) {
+        let mut acc = [0.0f64; LANES];
+        for d in 0..taps {
+            let t = &terms(d)[i..i + LANES];
+            for (a, v) in acc.iter_mut().zip(t) {
+                *a += v;
+            }
+        }
+        out[i..i + LANES].copy_from_slice(&acc);
+    }
+    for (i, o) in out.iter_mut().enumerate().skip(full) {
+        let mut acc = 0.0;
+        for d in 0..taps {
+            acc += terms(d)[i];
+        }
+        *o = acc;
+    }
+}
+
+/// `f(i, chunk)` for the consecutive `len`-element chunks of `a`, in parallel (each chunk's values
+/// depend on that chunk's work alone, so the result is the same for any thread count).
+fn par_chunks<T: Send>(a: &mut [T], len: usize, f: impl Fn(usize, &mut [T]) + Sync) {
+    a.par_chunks_mut(len.max(1)).enumerate().for_each(|(i, chunk)| f(i, chunk));
 }
 
 /// `f(y, row)` for every row of a standard-layout array, rows in parallel (each row's values depend
@@ -448,6 +522,7 @@ pub fn refine_level0_reference(problem: &Level0, p: &RefineParams) -> Result<Arr
                 let offset = p.offset(a) * step;
                 let mut per_frame = Vec::with_capacity(views.len());
                 for view in views {
+                    let warper = Warper::new(view);
                     let (mut sw, mut sww, mut swi, mut si, mut sii) = (0.0, 0.0, 0.0, 0.0, 0.0);
                     for dy in -r..=r {
                         let (mut rw, mut rww, mut rwi, mut ri, mut rii) = (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -455,7 +530,8 @@ pub fn refine_level0_reference(problem: &Level0, p: &RefineParams) -> Result<Arr
                             let (yy, xx) = ((y as isize + dy) as usize, (x as isize + dx) as usize);
                             let r0 = rho0[[yy, xx]];
                             let g = if r0.is_finite() {
-                                warped_grey(view, camera, xx, yy, r0 + offset)
+                                let ray = camera.ray(xx as f64, yy as f64);
+                                warper.sample(&warper.bearing(&ray), r0 + offset)
                             } else {
                                 f64::NAN
                             };

@@ -7,4 +7,4 @@ mod inputs;
 
 pub use cpu_time::process_cpu_seconds;
 pub use gemm::{gemm_gflops, GEMM_ROW_BLOCK};
-pub use inputs::{bench_inputs, pattern, tv_inputs, BenchInputs, TvInputs};
+pub use inputs::{bench_inputs, pattern, refine_inputs, tv_inputs, BenchInputs, RefineInputs, TvInputs};

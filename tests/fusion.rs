@@ -464,6 +464,18 @@ fn map_writes_mesh_metrics_and_resumes() {
     // The fusion's upper bound: the ground-truth depth through the estimate's fusion (SPEC.md §16.5).
     let bound = doc["metrics_gt_depth"]["fscore"].as_f64().unwrap();
     assert!(bound > f && bound <= 1.0, "bound {bound}, estimate {f}");
+    // The parallax report (SPEC.md §16.11): one angle per keyframe and their median (this test's
+    // ±3-frame windows see the room under less than a degree; `map`'s ±30 see it under 1.4-6.8°).
+    let mut angles: Vec<f64> = doc["triangulation_deg"]["per_keyframe"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a.as_f64().unwrap())
+        .collect();
+    assert_eq!(angles.len(), keys.len(), "{doc}");
+    assert!(angles.iter().all(|&a| a > 0.1 && a < 10.0), "{angles:?}");
+    angles.sort_by(f64::total_cmp);
+    assert_eq!(doc["triangulation_deg"]["median"].as_f64(), Some(angles[(angles.len() - 1) / 2]), "{doc}");
     // `map` refines its keyframes photometrically by default (SPEC.md §10.3, §16.9) and says so.
     assert_eq!(doc["mapping"]["refine"]["samples"].as_u64(), Some(17), "{doc}");
     let kf = out.join(format!("keyframes/kf_{:05}/keyframe.json", keys[1]));

@@ -30,6 +30,7 @@ mod nn_winograd;
 mod nn_winograd_deconv;
 mod normals_net;
 #[cfg(not(feature = "gpu"))]
+mod parallax;
 mod parity;
 mod patch_volume;
 mod photometric;

@@ -208,6 +208,26 @@ pub fn run(mut args: MapArgs) -> Result<()> {
             );
         }
     }
+    if let Some(median) = densefeat::mapping::parallax::median_over_keyframes(&s.triangulation_deg) {
+        let (lo, hi) = s
+            .triangulation_deg
+            .iter()
+            .flatten()
+            .fold((f64::INFINITY, 0.0f64), |(lo, hi), &a| (lo.min(a), hi.max(a)));
+        println!(
+            "parallax (SPEC.md §16.11): median triangulation angle {median:.2}° over the keyframes \
+             ({lo:.2}-{hi:.2}° per keyframe)"
+        );
+        if median < densefeat::mapping::parallax::MIN_TRIANGULATION_DEG {
+            println!(
+                "warning: the camera mostly turns instead of moving: its live frames see the keyframes' points \
+                 under {median:.2}° (under {}°), too little parallax to triangulate depth to a few per cent, so \
+                 the mesh will be inaccurate and sparse; film while moving the camera sideways (10-30 cm \
+                 between views of the same surface)",
+                densefeat::mapping::parallax::MIN_TRIANGULATION_DEG
+            );
+        }
+    }
     println!("mesh: {} vertices, {} triangles", s.mesh.0, s.mesh.1);
     if s.components.removed_components > 0 {
         println!(

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use densefeat::error::{Error, Result};
-use densefeat::synth::{write_scene, Scene, SceneConfig, Style};
+use densefeat::synth::{write_scene, Motion, Scene, SceneConfig, Style};
 
 /// Arguments of `densefeat synth`.
 #[derive(Debug, Clone, Args)]
@@ -24,6 +24,11 @@ pub struct SynthArgs {
     /// `real` (photo textures, furniture, random intrinsics, realistic sensor with blur and JPEG).
     #[arg(long, default_value = "classic")]
     pub style: String,
+    /// Camera motion: `handheld` (a walk with up to half a metre of translation) or `turn` (turning
+    /// on the spot: a tenth of the translation, three times the panning; rotation-dominant, weak
+    /// parallax, as TUM fr1/rpy).
+    #[arg(long, default_value = "handheld")]
+    pub motion: String,
     /// Output folder (created if missing; existing frames are overwritten).
     #[arg(long)]
     pub out: PathBuf,
@@ -50,8 +55,16 @@ pub fn run(args: SynthArgs) -> Result<()> {
         return Err(Error::invalid_argument("--frames", "0: must be at least 1"));
     }
     let style: Style = args.style.parse()?;
-    let cfg =
-        SceneConfig { seed: args.seed, width, height, frames: args.frames, style, ..SceneConfig::default() };
+    let motion: Motion = args.motion.parse()?;
+    let cfg = SceneConfig {
+        seed: args.seed,
+        width,
+        height,
+        frames: args.frames,
+        style,
+        motion,
+        ..SceneConfig::default()
+    };
     let scene = Scene::generate(&cfg)?;
     let start = std::time::Instant::now();
     let quiet = args.quiet;

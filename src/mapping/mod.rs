@@ -11,6 +11,7 @@ pub mod keyframe;
 pub mod keyframe_select;
 pub mod normals;
 pub mod output;
+pub mod parallax;
 pub mod photometric;
 pub mod refine;
 pub mod resample;

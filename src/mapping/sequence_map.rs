@@ -149,6 +149,9 @@ pub struct MapSummary {
     pub fused_pixels: (usize, usize),
     /// The small pieces removed from the estimated mesh (SPEC.md §16.3a).
     pub components: ComponentReport,
+    /// Per keyframe, the median over its depth pixels of the largest angle under which its live
+    /// cameras see the point, degrees (SPEC.md §16.11); `None` without depth or live frames.
+    pub triangulation_deg: Vec<Option<f64>>,
 }
 
 /// Wall seconds per stage.
@@ -393,6 +396,19 @@ pub fn map_sequence(
     let mut maps = load_keyframes(seq, cfg, &plan, out)?;
     // Depth that agrees with its neighbours (SPEC.md §16.10): confidence first (as before), then
     // the multi-view check against the nearest keyframes and the discontinuity rule.
+    let triangulation_deg: Vec<Option<f64>> = plan
+        .keyframes
+        .iter()
+        .zip(&maps)
+        .map(|(k, m)| {
+            let centres: Vec<Vector3<f64>> = (k.index - k.past..=k.index + k.future)
+                .filter(|&j| j != k.index)
+                .map(|j| seq.frames[j].pose.translation.vector)
+                .collect();
+            let confident = confident_depth(m, cfg.min_confidence);
+            super::parallax::median_triangulation_angle(&confident, &m.camera, &m.pose, &centres)
+        })
+        .collect();
     let fused_pixels_before: usize = maps.iter().map(|m| valid_confident(m, cfg.min_confidence)).sum();
     let views: Vec<ViewDepth<'_>> = maps.iter().map(view_of).collect();
     let filtered = filter_keyframes(cfg, &views);
@@ -487,6 +503,7 @@ pub fn map_sequence(
         metrics_gt_depth,
         fused_pixels,
         components,
+        triangulation_deg,
     };
     let doc = map_json(seq, cfg, &summary, &grid, &mesh, gt_mesh.as_ref(), observed, gt_volume.as_ref());
     write_text(
@@ -540,6 +557,17 @@ fn view_of(m: &KeyframeMaps) -> ViewDepth<'_> {
 }
 
 /// Pixels of a keyframe with valid depth and confidence at least `min` (what fusion integrates).
+/// The keyframe's depth where it is valid and confident (0 elsewhere).
+fn confident_depth(m: &KeyframeMaps, min: f32) -> DepthMap {
+    let mut d = m.depth.clone();
+    ndarray::Zip::from(&mut d).and(&m.confidence).for_each(|z, &c| {
+        if !(is_valid_depth(*z) && c >= min) {
+            *z = 0.0;
+        }
+    });
+    d
+}
+
 fn valid_confident(m: &KeyframeMaps, min: f32) -> usize {
     m.depth.iter().zip(m.confidence.iter()).filter(|(&d, &c)| is_valid_depth(d) && c >= min).count()
 }
@@ -664,6 +692,11 @@ fn map_json(
             "volume_bytes_bound": s.plan.fusion_bytes_bound,
             "observed_voxels": observed,
             "observed_voxels_gt": gt_volume.map(Tsdf::observed),
+        },
+        "triangulation_deg": {
+            "per_keyframe": s.triangulation_deg,
+            "median": super::parallax::median_over_keyframes(&s.triangulation_deg),
+            "warn_below": super::parallax::MIN_TRIANGULATION_DEG,
         },
         "mesh": { "vertices": mesh.vertices.len(), "triangles": mesh.triangles.len(), "edges": mesh.edge_report() },
         "mesh_gt": gt_mesh.map(|g| json!({

@@ -54,7 +54,7 @@ pub use scene::{Lamp, Light, Scene, SynthFrame};
 pub use sensor::{jpeg_round_trip, Sensor, FOCAL_RANGE_640, JPEG_QUALITY, MAX_SHUTTER, PRINCIPAL_JITTER};
 pub use surface::{Cuboid, Hit, Quad, Shape, Surface};
 pub use texture::{random_colour, Albedo, Texture, PALETTE_LEN};
-pub use trajectory::{look_at, CameraPath};
+pub use trajectory::{look_at, CameraPath, Motion};
 pub use write::{write_scene, write_sequence};
 
 use crate::error::{Error, Result};
@@ -134,6 +134,8 @@ pub struct SceneConfig {
     pub photometric: PhotometricConfig,
     /// Scene style.
     pub style: Style,
+    /// How the camera moves.
+    pub motion: Motion,
 }
 
 impl Default for SceneConfig {
@@ -147,6 +149,7 @@ impl Default for SceneConfig {
             samples_per_axis: 2,
             photometric: PhotometricConfig::default(),
             style: Style::Classic,
+            motion: Motion::Handheld,
         }
     }
 }

@@ -100,7 +100,7 @@ impl Scene {
         let camera = cfg.camera()?;
         let mut rng = SplitMix64::new(cfg.seed);
         let (mut layout_rng, mut path_rng, mut photo_rng) = (rng.fork(), rng.fork(), rng.fork());
-        let path = CameraPath::random(Vector3::zeros(), &mut path_rng);
+        let path = CameraPath::random(Vector3::zeros(), &mut path_rng).with_motion(cfg.motion);
         let poses = (0..cfg.frames).map(|i| path.pose(i)).collect();
         if cfg.style == Style::Real {
             let mut sensor_rng = rng.fork();
@@ -108,6 +108,7 @@ impl Scene {
             let (room, lamp) = furnish::generate(&mut layout_rng, &path);
             let photometric = random_photometric(&mut photo_rng);
             let mut summary = room.summary;
+            summary.push(format!("camera motion {}", cfg.motion));
             summary.push(format!(
                 "camera fx {:.1} fy {:.1} cx {:.1} cy {:.1}",
                 camera.fx, camera.fy, camera.cx, camera.cy
@@ -126,6 +127,8 @@ impl Scene {
             });
         }
         let room = layout::generate(&mut layout_rng, &path);
+        let mut summary = room.summary;
+        summary.push(format!("camera motion {}", cfg.motion));
         Ok(Self {
             camera,
             poses,
@@ -133,7 +136,7 @@ impl Scene {
             light: room.light,
             photometric: Photometric::new(cfg.photometric, &mut photo_rng),
             samples_per_axis: cfg.samples_per_axis,
-            summary: room.summary,
+            summary,
             lamp: None,
             path: None,
             sensor: None,

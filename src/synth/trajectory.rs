@@ -24,6 +24,52 @@ const ROLL_AMPLITUDE: f64 = 0.035;
 /// Per-frame uniform jitter half-widths: camera position (m), target (m), roll (rad).
 const JITTER: [f64; 3] = [0.0015, 0.008, 0.002];
 
+/// How a camera path moves (`densefeat synth --motion`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Motion {
+    /// A hand-held walk: translation of up to half a metre, a gently panning view (the default).
+    #[default]
+    Handheld,
+    /// Turning on the spot: a tenth of the hand-held translation, the view panning and tilting three
+    /// times as far and four times as fast (rotation-dominant, like TUM fr1/rpy): weak parallax.
+    Turn,
+}
+
+impl Motion {
+    /// Factors of the translation amplitudes, the target's pan and tilt amplitudes, and the
+    /// divisor of the target's periods (all exactly 1 for the hand-held path, so its poses keep
+    /// their bits).
+    fn factors(self) -> (f64, f64, f64) {
+        match self {
+            Motion::Handheld => (1.0, 1.0, 1.0),
+            Motion::Turn => (0.1, 3.0, 4.0),
+        }
+    }
+}
+
+impl std::str::FromStr for Motion {
+    type Err = crate::error::Error;
+    fn from_str(s: &str) -> crate::error::Result<Self> {
+        match s {
+            "handheld" => Ok(Motion::Handheld),
+            "turn" => Ok(Motion::Turn),
+            _ => Err(crate::error::Error::invalid_argument(
+                "--motion",
+                format!("{s:?}: expected handheld or turn"),
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Motion {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Motion::Handheld => "handheld",
+            Motion::Turn => "turn",
+        })
+    }
+}
+
 /// A seeded camera path.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CameraPath {
@@ -35,6 +81,7 @@ pub struct CameraPath {
     /// Downward offset of the target, metres at [`LOOK_DISTANCE`] (a slight downward look).
     tilt: f64,
     key: u64,
+    motion: Motion,
 }
 
 impl CameraPath {
@@ -44,7 +91,25 @@ impl CameraPath {
         let mut wave = |p: (f64, f64)| (rng.range(p.0, p.1), rng.range(0.0, tau));
         let waves = [0; 3].map(|_| [wave(SLOW_PERIOD), wave(FAST_PERIOD)]);
         let view_waves = [wave(SLOW_PERIOD), wave(SLOW_PERIOD), wave(FAST_PERIOD)];
-        Self { centre, waves, view_waves, tilt: rng.range(0.2, 0.5), key: rng.next_u64() }
+        Self {
+            centre,
+            waves,
+            view_waves,
+            tilt: rng.range(0.2, 0.5),
+            key: rng.next_u64(),
+            motion: Motion::Handheld,
+        }
+    }
+
+    /// The same path moving as `motion` says (the random draws are those of [`CameraPath::random`]).
+    pub fn with_motion(mut self, motion: Motion) -> Self {
+        self.motion = motion;
+        self
+    }
+
+    /// How the path moves.
+    pub fn motion(&self) -> Motion {
+        self.motion
     }
 
     /// Half-extent of the box around the path centre that every camera position stays in.
@@ -66,15 +131,23 @@ impl CameraPath {
     pub fn pose(&self, i: usize) -> Pose {
         let (t, tau) = (i as f64, std::f64::consts::TAU);
         let wave = |(period, phase): (f64, f64)| sin(tau * t / period + phase);
+        let (move_f, look_f, speed) = self.motion.factors();
+        let look = |(period, phase): (f64, f64)| wave((period / speed, phase));
         let mut eye = self.centre;
         for k in 0..3 {
             let [slow, fast] = self.waves[k];
-            eye[k] += TRANSLATION_AMPLITUDE[k][0] * wave(slow) + TRANSLATION_AMPLITUDE[k][1] * wave(fast);
+            eye[k] += TRANSLATION_AMPLITUDE[k][0] * move_f * wave(slow)
+                + TRANSLATION_AMPLITUDE[k][1] * move_f * wave(fast);
             eye[k] += self.jitter(i, k as u64, JITTER[0]);
         }
         let target = Vector3::new(
-            self.centre.x + TARGET_AMPLITUDE[0] * wave(self.view_waves[0]) + self.jitter(i, 3, JITTER[1]),
-            eye.y + self.tilt + TARGET_AMPLITUDE[1] * wave(self.view_waves[1]) + self.jitter(i, 4, JITTER[1]),
+            self.centre.x
+                + TARGET_AMPLITUDE[0] * look_f * look(self.view_waves[0])
+                + self.jitter(i, 3, JITTER[1]),
+            eye.y
+                + self.tilt
+                + TARGET_AMPLITUDE[1] * look_f * look(self.view_waves[1])
+                + self.jitter(i, 4, JITTER[1]),
             self.centre.z + LOOK_DISTANCE,
         );
         let roll = ROLL_AMPLITUDE * wave(self.view_waves[2]) + self.jitter(i, 5, JITTER[2]);
@@ -89,15 +162,21 @@ impl CameraPath {
         let tau = std::f64::consts::TAU;
         let wave = |(period, phase): (f64, f64)| sin(tau * t / period + phase);
         let jitter = |k: u64, w: f64| (1.0 - f) * self.jitter(i, k, w) + f * self.jitter(i + 1, k, w);
+        let (move_f, look_f, speed) = self.motion.factors();
+        let look = |(period, phase): (f64, f64)| wave((period / speed, phase));
         let mut eye = self.centre;
         for k in 0..3 {
             let [slow, fast] = self.waves[k];
-            eye[k] += TRANSLATION_AMPLITUDE[k][0] * wave(slow) + TRANSLATION_AMPLITUDE[k][1] * wave(fast);
+            eye[k] += TRANSLATION_AMPLITUDE[k][0] * move_f * wave(slow)
+                + TRANSLATION_AMPLITUDE[k][1] * move_f * wave(fast);
             eye[k] += jitter(k as u64, JITTER[0]);
         }
         let target = Vector3::new(
-            self.centre.x + TARGET_AMPLITUDE[0] * wave(self.view_waves[0]) + jitter(3, JITTER[1]),
-            eye.y + self.tilt + TARGET_AMPLITUDE[1] * wave(self.view_waves[1]) + jitter(4, JITTER[1]),
+            self.centre.x + TARGET_AMPLITUDE[0] * look_f * look(self.view_waves[0]) + jitter(3, JITTER[1]),
+            eye.y
+                + self.tilt
+                + TARGET_AMPLITUDE[1] * look_f * look(self.view_waves[1])
+                + jitter(4, JITTER[1]),
             self.centre.z + LOOK_DISTANCE,
         );
         let roll = ROLL_AMPLITUDE * wave(self.view_waves[2]) + jitter(5, JITTER[2]);
@@ -133,6 +212,45 @@ mod tests {
         // No roll, level target: camera x stays horizontal.
         let level = look_at(&eye, &Vector3::new(0.3, -0.2, 3.0), 0.0);
         assert!((level.rotation * Vector3::x() - Vector3::x()).norm() < 1e-12);
+    }
+
+    /// The rotation (radians) between two poses.
+    fn turned(a: &Pose, b: &Pose) -> f64 {
+        a.rotation.angle_to(&b.rotation)
+    }
+
+    #[test]
+    fn turning_motion_is_rotation_dominant_and_handheld_keeps_its_bits() {
+        let base = CameraPath::random(Vector3::zeros(), &mut SplitMix64::new(9));
+        let turn = base.clone().with_motion(Motion::Turn);
+        let handheld = base.clone().with_motion(Motion::Handheld);
+        assert_eq!(turn.motion(), Motion::Turn);
+        let (mut move_h, mut move_t, mut rot_h, mut rot_t) = (0.0, 0.0, 0.0, 0.0);
+        for i in 0..40 {
+            // The default motion is the path `random` draws, bit for bit (the fixture depends on it).
+            assert_eq!(handheld.pose(i), base.pose(i));
+            assert_eq!(handheld.pose_at(i as f64 + 0.25), base.pose_at(i as f64 + 0.25));
+            let (h0, h1, t0, t1) = (base.pose(i), base.pose(i + 1), turn.pose(i), turn.pose(i + 1));
+            move_h += (h1.translation.vector - h0.translation.vector).norm();
+            move_t += (t1.translation.vector - t0.translation.vector).norm();
+            rot_h += turned(&h0, &h1);
+            rot_t += turned(&t0, &t1);
+        }
+        // A tenth of the translation, except the per-frame jitter which both keep...
+        assert!(move_t < 0.5 * move_h, "turn moved {move_t} m, handheld {move_h} m");
+        // ... and several times the rotation.
+        assert!(rot_t > 2.5 * rot_h, "turn rotated {rot_t} rad, handheld {rot_h} rad");
+        assert!(turn.pose(0) != base.pose(0));
+        // Inside the same box (the room generators keep clear of it).
+        let h = CameraPath::half_extent();
+        for i in 0..2000 {
+            let p = turn.pose(i).translation.vector;
+            assert!(p.x.abs() <= h.x && p.y.abs() <= h.y && p.z.abs() <= h.z, "frame {i}: {p:?}");
+        }
+        assert_eq!("turn".parse::<Motion>().unwrap(), Motion::Turn);
+        assert_eq!("handheld".parse::<Motion>().unwrap(), Motion::Handheld);
+        let err = "spin".parse::<Motion>().unwrap_err().to_string();
+        assert!(err.contains("--motion") && err.contains("spin"), "{err}");
     }
 
     #[test]

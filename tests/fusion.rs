@@ -437,6 +437,52 @@ fn map_cmd(out: &std::path::Path, extra: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
+/// Every file under `dir` but the JSON reports (which hold timings), by relative path.
+fn output_files(dir: &std::path::Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    let mut out = std::collections::BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_none_or(|x| x != "json") {
+                out.insert(p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn map_feature_cache_changes_no_bits() {
+    // SPEC.md §16.12: the cache only saves extractions; depth, pictures and meshes are the same bytes.
+    let dir = tempfile::tempdir().unwrap();
+    let (cached, fresh) = (dir.path().join("cached"), dir.path().join("fresh"));
+    let a = map_cmd(&cached, &[]);
+    assert!(a.status.success(), "{}", String::from_utf8_lossy(&a.stderr));
+    let b = map_cmd(&fresh, &["--feature-cache-mb", "0"]);
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let doc = |d: &std::path::Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(d.join("map.json")).unwrap()).unwrap()
+    };
+    let (da, db) = (doc(&cached), doc(&fresh));
+    assert!(da["feature_cache"]["hits"].as_u64().unwrap() > 0, "{}", da["feature_cache"]);
+    assert_eq!(db["feature_cache"]["hits"].as_u64(), Some(0), "{}", db["feature_cache"]);
+    // The same frames are looked at either way.
+    let total = |d: &serde_json::Value| {
+        d["feature_cache"]["hits"].as_u64().unwrap() + d["feature_cache"]["misses"].as_u64().unwrap()
+    };
+    assert_eq!(total(&da), total(&db));
+    assert_eq!(da["metrics"], db["metrics"]);
+    let (fa, fb) = (output_files(&cached), output_files(&fresh));
+    assert!(fa.len() > 10, "{:?}", fa.keys());
+    assert_eq!(fa.keys().collect::<Vec<_>>(), fb.keys().collect::<Vec<_>>());
+    for (name, bytes) in &fa {
+        assert!(bytes == &fb[name], "{name} differs");
+    }
+}
+
 #[test]
 fn map_writes_mesh_metrics_and_resumes() {
     let dir = tempfile::tempdir().unwrap();

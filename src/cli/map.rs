@@ -82,6 +82,11 @@ pub struct MapArgs {
     /// Distance threshold of precision, recall and F-score, metres.
     #[arg(long, default_value_t = 0.05)]
     pub fscore_threshold: f64,
+    /// Keep frames' features for the next keyframes, at most this many MiB (and within what
+    /// --max-memory-mb leaves beside each keyframe); 0 extracts every frame for every keyframe.
+    /// Results are the same bits either way (SPEC.md §16.12).
+    #[arg(long, default_value_t = densefeat::mapping::feature_cache::DEFAULT_FEATURE_CACHE_MB)]
+    pub feature_cache_mb: usize,
     /// Mapping flags (window, depth range, bins, DTAM, memory limit).
     #[command(flatten)]
     pub mapping: MappingArgs,
@@ -143,6 +148,7 @@ pub fn run(mut args: MapArgs) -> Result<()> {
         edge_ratio: args.edge_ratio,
         min_component_triangles: args.min_component,
         fusion_weight: args.fusion_weight,
+        feature_cache_mb: args.feature_cache_mb,
     };
     let plan = cfg.plan(&seq)?;
     let keys: Vec<usize> = plan.keyframes.iter().map(|k| k.index).collect();
@@ -191,6 +197,14 @@ pub fn run(mut args: MapArgs) -> Result<()> {
         t.metrics,
         t.write
     );
+    let (hits, misses) = s.feature_cache;
+    if hits > 0 {
+        println!(
+            "features: {hits} of {} frames taken from the cache of earlier keyframes (--feature-cache-mb {})",
+            hits + misses,
+            args.feature_cache_mb
+        );
+    }
     let (before, after) = s.fused_pixels;
     if args.consistency_views > 0 && before > 0 {
         let share = after as f64 / before as f64;

@@ -6,6 +6,7 @@
 //! volume's `[H_L, W_L, K]` sums, counts and the costs copy DTAM reads dominate and are estimated
 //! up front ([`memory_estimate`]).
 
+use std::borrow::Cow;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -21,6 +22,7 @@ use crate::error::{Error, Result};
 use crate::eval::{depth_metrics, DepthMetrics};
 use crate::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
 use crate::image::{to_gray, DepthMap, RgbImage};
+use crate::mapping::feature_cache::FeatureCache;
 use crate::mapping::normals::{self, NormalsSource};
 use crate::mapping::photometric::{self, PhotometricFit, PhotometricMode};
 use crate::mapping::refine::{self, RefineParams, RefineReport, RefineView};
@@ -521,6 +523,22 @@ pub fn reconstruct_with(
     seq: &Sequence,
     cfg: &KeyframeConfig,
     extractor: &FeatureExtractor,
+    progress: impl FnMut(Stage, usize, usize),
+) -> Result<KeyframeResult> {
+    reconstruct_cached(seq, cfg, extractor, &mut FeatureCache::new(0), progress)
+}
+
+/// [`reconstruct_with`] taking frames' features from `cache` and leaving its own there for the next
+/// keyframes (`map`, SPEC.md §16.12): the cache is sized to what `max_memory_mb` leaves beside this
+/// keyframe's own work. The same bits as [`reconstruct`].
+///
+/// # Errors
+/// As [`reconstruct_with`].
+pub fn reconstruct_cached(
+    seq: &Sequence,
+    cfg: &KeyframeConfig,
+    extractor: &FeatureExtractor,
+    cache: &mut FeatureCache,
     mut progress: impl FnMut(Stage, usize, usize),
 ) -> Result<KeyframeResult> {
     let bins = cfg.validate()?;
@@ -570,7 +588,12 @@ pub fn reconstruct_with(
     };
     timings.normals += t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let key_features = extractor.extract(&key.rgb)?.data;
+    let cached_key = cache.get(cfg.keyframe).cloned();
+    let key_was_cached = cached_key.is_some();
+    let key_features = match cached_key {
+        Some(f) => f,
+        None => extractor.extract(&key.rgb)?.data,
+    };
     timings.features += t.elapsed().as_secs_f64();
     let channels = key_features.dim().2;
     // The refinement (SPEC.md §10.3) runs while the volume is still held: its images and planes count
@@ -602,6 +625,11 @@ pub fn reconstruct_with(
                 cfg.max_memory_mb
             ),
         ));
+    }
+    // What the limit leaves beside this keyframe's work holds the features of frames for the next.
+    cache.fit(4 * key_features.len() as u64, limit - estimate);
+    if !key_was_cached {
+        cache.offer(cfg.keyframe, &key_features);
     }
     let photo = if cfg.photometric == PhotometricMode::None {
         PhotometricFit::identity(live.len())
@@ -656,7 +684,19 @@ pub fn reconstruct_with(
             ));
         }
         let t = Instant::now();
-        let f = extractor.extract(&photo.correct_live(i, &frame.rgb))?.data;
+        // A frame corrected for this keyframe's exposure has features of its own; an uncorrected
+        // one has the same features for every keyframe, so they are cached.
+        let f = match photo.correct_live(i, &frame.rgb) {
+            Cow::Owned(corrected) => extractor.extract(&corrected)?.data,
+            Cow::Borrowed(_) => match cache.get(n) {
+                Some(f) => f.clone(),
+                None => {
+                    let f = extractor.extract(&frame.rgb)?.data;
+                    cache.offer(n, &f);
+                    f
+                }
+            },
+        };
         timings.features += t.elapsed().as_secs_f64();
         let t = Instant::now();
         cv.add_frame_seen_by(

@@ -5,6 +5,7 @@
 
 pub mod costcurve;
 pub mod evaluate;
+pub mod feature_cache;
 pub mod features;
 pub mod figure;
 pub mod keyframe;
@@ -20,8 +21,8 @@ pub mod sequence_map;
 pub use evaluate::{evaluate, EvalOptions, EvalTable, Method};
 pub use features::{FeatureExtractor, FeatureKind, FeatureMap};
 pub use keyframe::{
-    memory_estimate, reconstruct, reconstruct_with, DepthEstimate, KeyframeConfig, KeyframeResult,
-    Regularizer, Stage, StageTimings, Truncation, DEFAULT_TRUNCATION_B1, DEFAULT_TRUNCATION_DSIFT,
-    DEFAULT_TRUNCATION_LEARNED, DEFAULT_TRUNCATION_PATCH7, DEFAULT_TRUNCATION_RGB,
+    memory_estimate, reconstruct, reconstruct_cached, reconstruct_with, DepthEstimate, KeyframeConfig,
+    KeyframeResult, Regularizer, Stage, StageTimings, Truncation, DEFAULT_TRUNCATION_B1,
+    DEFAULT_TRUNCATION_DSIFT, DEFAULT_TRUNCATION_LEARNED, DEFAULT_TRUNCATION_PATCH7, DEFAULT_TRUNCATION_RGB,
 };
 pub use output::{write_outputs, write_outputs_with};

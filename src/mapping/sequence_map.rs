@@ -16,6 +16,7 @@ use nalgebra::Vector3;
 use serde::Serialize;
 use serde_json::json;
 
+use super::feature_cache::FeatureCache;
 use super::features::FeatureExtractor;
 use super::keyframe::{depth_at_level, KeyframeConfig, Regularizer, Stage};
 use super::keyframe_select::{keyframe_window, select_keyframes, KeyframeRule};
@@ -103,6 +104,8 @@ pub struct MapConfig {
     pub min_component_triangles: usize,
     /// Per-pixel fusion weight (SPEC.md §16.2a).
     pub fusion_weight: FusionWeight,
+    /// Budget of the features kept for the next keyframes, MiB (SPEC.md §16.12; 0: none).
+    pub feature_cache_mb: usize,
 }
 
 /// One keyframe's plan.
@@ -149,6 +152,8 @@ pub struct MapSummary {
     pub fused_pixels: (usize, usize),
     /// The small pieces removed from the estimated mesh (SPEC.md §16.3a).
     pub components: ComponentReport,
+    /// Frames whose features came from the cache, and those extracted (SPEC.md §16.12).
+    pub feature_cache: (usize, usize),
     /// Per keyframe, the median over its depth pixels of the largest angle under which its live
     /// cameras see the point, degrees (SPEC.md §16.11); `None` without depth or live frames.
     pub triangulation_deg: Vec<Option<f64>>,
@@ -349,6 +354,8 @@ pub fn map_sequence(
     // One extractor for every computed keyframe (the weights read and the network built once per
     // run), made when the first keyframe needs it.
     let mut extractor: Option<FeatureExtractor> = None;
+    // Frames' features for the next keyframes (SPEC.md §16.12), dropped before the fusion.
+    let mut cache = FeatureCache::new(cfg.feature_cache_mb as u64 * 1024 * 1024);
     for (i, k) in plan.keyframes.iter().enumerate() {
         let dir = keyframe_dir(out, k.index);
         let fp = cfg.fingerprint(seq, k);
@@ -368,7 +375,7 @@ pub fn map_sequence(
                 kcfg.backend.clone(),
             )?),
         };
-        let r = super::keyframe::reconstruct_with(seq, &kcfg, ex, |s: Stage, d, tot| {
+        let r = super::keyframe::reconstruct_cached(seq, &kcfg, ex, &mut cache, |s: Stage, d, tot| {
             progress(i, n, &format!("keyframe {}: {s} {d}/{tot}", k.index))
         })?;
         let mut staging = Staging::new();
@@ -391,6 +398,8 @@ pub fn map_sequence(
         progress(i + 1, n, &format!("keyframe {} done ({seconds:.1} s)", k.index));
     }
 
+    let feature_cache = cache.hits_and_misses();
+    drop(cache);
     progress(n, n, "fusion");
     let t = Instant::now();
     let mut maps = load_keyframes(seq, cfg, &plan, out)?;
@@ -504,6 +513,7 @@ pub fn map_sequence(
         fused_pixels,
         components,
         triangulation_deg,
+        feature_cache,
     };
     let doc = map_json(seq, cfg, &summary, &grid, &mesh, gt_mesh.as_ref(), observed, gt_volume.as_ref());
     write_text(
@@ -692,6 +702,11 @@ fn map_json(
             "volume_bytes_bound": s.plan.fusion_bytes_bound,
             "observed_voxels": observed,
             "observed_voxels_gt": gt_volume.map(Tsdf::observed),
+        },
+        "feature_cache": {
+            "budget_mb": cfg.feature_cache_mb,
+            "hits": s.feature_cache.0,
+            "misses": s.feature_cache.1,
         },
         "triangulation_deg": {
             "per_keyframe": s.triangulation_deg,

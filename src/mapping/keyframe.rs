@@ -2,9 +2,10 @@
 //! extract features on the common level-`L` grid, stream the live frames into a cost volume,
 //! take the winner-take-all depth and, with [`Regularizer::Tv`], regularise it with DTAM.
 //!
-//! Memory: only the keyframe's and one live frame's images and features are held at a time; the
-//! volume's `[H_L, W_L, K]` sums, counts and the costs copy DTAM reads dominate and are estimated
-//! up front ([`memory_estimate`]).
+//! Memory: only the keyframe's and one live frame's images and features are held at a time (plus,
+//! in `map`, the features kept for the next keyframes by [`reconstruct_cached`], within what the
+//! limit leaves); the volume's `[H_L, W_L, K]` sums, counts and the costs copy DTAM reads dominate
+//! and are estimated up front ([`memory_estimate`]).
 
 use std::borrow::Cow;
 use std::sync::Arc;

@@ -1,6 +1,7 @@
 //! `densefeat bench refine`: time the photometric sub-bin refinement (SPEC.md §10.3) of one keyframe
 //! at the input resolution on a synthetic textured plane: the fast path (median of `--runs`) and,
-//! once, its plain-loop reference; both results are compared bit for bit.
+//! once, its plain-loop reference; both results are compared bit for bit. The SGEMM indicator
+//! measured right after shows a loaded machine.
 
 use std::time::Instant;
 
@@ -67,6 +68,8 @@ pub fn run(args: &BenchRefineArgs) -> Result<()> {
         }
         Ok(())
     })?;
+    // The machine's SGEMM yardstick, measured right after (a loaded machine shows here).
+    let sgemm = pool.install(|| densefeat::perf::gemm_gflops(256, 5));
     let out = out.expect("at least one run");
     let moved = out.iter().filter(|v| v.is_finite()).count() as f64 / out.len() as f64;
     let ms = super::bench_tv::median_ms(times);
@@ -81,6 +84,7 @@ pub fn run(args: &BenchRefineArgs) -> Result<()> {
         work / (ms / 1e3) / 1e6,
         100.0 * moved
     );
+    println!("SGEMM indicator (256x256x256, {} threads): {sgemm:.1} GFLOP/s", args.threads);
     if args.reference {
         let t = Instant::now();
         let r = pool.install(|| refine_level0_reference(&problem, &p))?;

@@ -280,9 +280,7 @@ pub fn run(mut args: MapArgs) -> Result<()> {
             b.precision, b.recall, b.fscore, b.threshold
         );
     }
-    println!(
-        "wrote mesh.ply, mesh.png, map.json (and mesh_gt.ply with ground truth) to {}",
-        args.out.display()
-    );
+    let gt = if s.metrics.is_some() { ", mesh_gt.ply (the fused ground truth)" } else { "" };
+    println!("wrote mesh.ply, mesh.png, map.json{gt} to {}", args.out.display());
     Ok(())
 }

@@ -1,5 +1,6 @@
 //! TSDF fusion, mesh extraction, PLY and mesh metrics (SPEC.md §16).
 
+use crate::common;
 use densefeat::fusion::grid::{Aabb, VoxelGrid};
 use densefeat::fusion::metrics::{nearest_distances, KdTree};
 use densefeat::fusion::ply::{read_mesh_ply, write_mesh_ply};
@@ -437,23 +438,6 @@ fn map_cmd(out: &std::path::Path, extra: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
-/// Every file under `dir` but the JSON reports (which hold timings), by relative path.
-fn output_files(dir: &std::path::Path) -> std::collections::BTreeMap<String, Vec<u8>> {
-    let mut out = std::collections::BTreeMap::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else if p.extension().is_none_or(|x| x != "json") {
-                out.insert(p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    out
-}
-
 #[test]
 fn map_feature_cache_changes_no_bits() {
     // SPEC.md §16.12: the cache only saves extractions; depth, pictures and meshes are the same bytes.
@@ -475,6 +459,12 @@ fn map_feature_cache_changes_no_bits() {
     };
     assert_eq!(total(&da), total(&db));
     assert_eq!(da["metrics"], db["metrics"]);
+    // Every file but the JSON reports (which hold timings).
+    let output_files = |d: &std::path::Path| {
+        let mut f = common::files(d);
+        f.retain(|name, _| !name.ends_with(".json"));
+        f
+    };
     let (fa, fb) = (output_files(&cached), output_files(&fresh));
     assert!(fa.len() > 10, "{:?}", fa.keys());
     assert_eq!(fa.keys().collect::<Vec<_>>(), fb.keys().collect::<Vec<_>>());

@@ -1,6 +1,7 @@
 //! The synthetic renderer: fixture reproducibility, thread-count independence, seeds, analytic
 //! depth, and multi-view consistency through the photometric warp check.
 
+use crate::common;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -19,24 +20,6 @@ fn fixture_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/synthetic/room_s1")
 }
 
-/// Every file under `root`, by relative path.
-fn files(root: &Path) -> BTreeMap<String, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(&dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                let rel = path.strip_prefix(root).unwrap().to_string_lossy().into_owned();
-                out.insert(rel, std::fs::read(&path).unwrap());
-            }
-        }
-    }
-    out
-}
-
 #[test]
 fn fixture_regenerates_byte_identical() {
     let tmp = tempfile::tempdir().unwrap();
@@ -45,7 +28,7 @@ fn fixture_regenerates_byte_identical() {
     let out_str = out.to_str().unwrap();
     args.extend(["--out", out_str, "--quiet"]);
     crate::common::run_densefeat(&args).unwrap();
-    let (want, got) = (files(&fixture_dir()), files(&out));
+    let (want, got) = (common::files(&fixture_dir()), common::files(&out));
     let want: BTreeMap<_, _> = want.into_iter().filter(|(k, _)| !k.ends_with(".md")).collect();
     assert_eq!(want.keys().collect::<Vec<_>>(), got.keys().collect::<Vec<_>>(), "file lists differ");
     assert_eq!(want.len(), 2 * 40 + 2);
@@ -60,7 +43,7 @@ fn demo_fixture_config_renders_the_committed_fixture() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = densefeat::synth::Scene::generate(&densefeat::synth::demo_fixture_config()).unwrap();
     densefeat::synth::write_scene(&scene, tmp.path(), |_, _| {}).unwrap();
-    let (want, got) = (files(&fixture_dir()), files(tmp.path()));
+    let (want, got) = (common::files(&fixture_dir()), common::files(tmp.path()));
     let want: BTreeMap<_, _> = want.into_iter().filter(|(k, _)| !k.ends_with(".md")).collect();
     assert_eq!(want.keys().collect::<Vec<_>>(), got.keys().collect::<Vec<_>>(), "file lists differ");
     for (name, bytes) in &want {

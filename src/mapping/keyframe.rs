@@ -589,11 +589,9 @@ pub fn reconstruct_cached(
     };
     timings.normals += t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let cached_key = cache.get(cfg.keyframe).cloned();
-    let key_was_cached = cached_key.is_some();
-    let key_features = match cached_key {
-        Some(f) => f,
-        None => extractor.extract(&key.rgb)?.data,
+    let (key_features, key_was_cached) = match cache.get(cfg.keyframe) {
+        Some(f) => (f.clone(), true),
+        None => (extractor.extract(&key.rgb)?.data, false),
     };
     timings.features += t.elapsed().as_secs_f64();
     let channels = key_features.dim().2;

@@ -455,12 +455,8 @@ fn par_chunks<T: Send>(a: &mut [T], len: usize, f: impl Fn(usize, &mut [T]) + Sy
 /// `f(y, row)` for every row of a standard-layout array, rows in parallel (each row's values depend
 /// on that row's work alone, so the result is the same for any thread count).
 fn par_rows<T: Send>(a: &mut Array2<T>, f: impl Fn(usize, &mut [T]) + Sync) {
-    let w = a.ncols().max(1);
-    a.as_slice_mut()
-        .expect("a freshly allocated array is contiguous")
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each(|(y, row)| f(y, row));
+    let w = a.ncols();
+    par_chunks(a.as_slice_mut().expect("a freshly allocated array is contiguous"), w, f);
 }
 
 /// Whether the window of `(y, x)` lies inside an `h x w` image.
@@ -472,27 +468,21 @@ fn interior(y: usize, x: usize, h: usize, w: usize, r: usize) -> bool {
 /// Window sums `Σ_dy (Σ_dx v[y+dy, x+dx])` for interior pixels (0 elsewhere), in that order.
 fn window_sums(v: ArrayView2<f64>, r: usize) -> Array2<f64> {
     let (h, w) = v.dim();
+    let v = v.as_standard_layout();
+    let v = v.as_slice().expect("standard layout");
+    let taps = 2 * r + 1;
     let mut rows = Array2::<f64>::zeros((h, w));
     par_rows(&mut rows, |y, row| {
-        for (x, sum) in row.iter_mut().enumerate().take(w.saturating_sub(r)).skip(r) {
-            let mut s = 0.0;
-            for xx in x - r..=x + r {
-                s += v[[y, xx]];
-            }
-            *sum = s;
+        if w > 2 * r {
+            let line = &v[y * w..(y + 1) * w];
+            window_sum_into(&mut row[r..w - r], |d| &line[d..], taps);
         }
     });
     let mut out = Array2::<f64>::zeros((h, w));
+    let all = rows.as_slice().expect("a freshly allocated array is contiguous");
     par_rows(&mut out, |y, row| {
-        if y < r || y + r >= h {
-            return;
-        }
-        for x in r..w - r {
-            let mut s = 0.0;
-            for yy in y - r..=y + r {
-                s += rows[[yy, x]];
-            }
-            row[x] = s;
+        if y >= r && y + r < h && w > 2 * r {
+            window_sum_into(&mut row[r..w - r], |d| &all[(y - r + d) * w + r..], taps);
         }
     });
     out
@@ -512,6 +502,7 @@ pub fn refine_level0_reference(problem: &Level0, p: &RefineParams) -> Result<Arr
     if views.is_empty() {
         return Ok(out);
     }
+    let warpers: Vec<Warper> = views.iter().map(Warper::new).collect();
     for y in 0..h {
         for x in 0..w {
             if !interior(y, x, h, w, p.half_window) {
@@ -521,8 +512,7 @@ pub fn refine_level0_reference(problem: &Level0, p: &RefineParams) -> Result<Arr
             for a in 0..p.samples {
                 let offset = p.offset(a) * step;
                 let mut per_frame = Vec::with_capacity(views.len());
-                for view in views {
-                    let warper = Warper::new(view);
+                for warper in &warpers {
                     let (mut sw, mut sww, mut swi, mut si, mut sii) = (0.0, 0.0, 0.0, 0.0, 0.0);
                     for dy in -r..=r {
                         let (mut rw, mut rww, mut rwi, mut ri, mut rii) = (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -620,7 +610,7 @@ pub fn refine_estimate(
         .map_collect(|&r, &d| r.is_finite() && r > 0.0 && d.is_finite() && d > 0.0);
     let (h0, w0) = (camera.height, camera.width);
     let rho0 = upsample(inverse_depth, valid.view(), level, h0, w0);
-    let step = (bins.rho_max - bins.rho_min) / (bins.count - 1) as f64;
+    let step = bins.step();
     let refined = refine_level0(&Level0 { key, camera, rho0: rho0.view(), views, step }, p)?;
     let r = p.half_window;
     let report = RefineReport {

@@ -410,14 +410,13 @@ pub fn map_sequence(
         .iter()
         .zip(&maps)
         .map(|(k, m)| {
-            let centres: Vec<Vector3<f64>> = (k.index - k.past..=k.index + k.future)
-                .filter(|&j| j != k.index)
-                .map(|j| seq.frames[j].pose.translation.vector)
-                .collect();
+            let live = cfg.keyframe_config(k).live_frames(seq.len())?;
+            let centres: Vec<Vector3<f64>> =
+                live.iter().map(|&j| seq.frames[j].pose.translation.vector).collect();
             let confident = confident_depth(m, cfg.min_confidence);
-            super::parallax::median_triangulation_angle(&confident, &m.camera, &m.pose, &centres)
+            Ok(super::parallax::median_triangulation_angle(&confident, &m.camera, &m.pose, &centres))
         })
-        .collect();
+        .collect::<Result<_>>()?;
     let fused_pixels_before: usize = maps.iter().map(|m| valid_confident(m, cfg.min_confidence)).sum();
     let views: Vec<ViewDepth<'_>> = maps.iter().map(view_of).collect();
     let filtered = filter_keyframes(cfg, &views);
@@ -566,7 +565,6 @@ fn view_of(m: &KeyframeMaps) -> ViewDepth<'_> {
     ViewDepth { depth: m.depth.view(), camera: m.camera, pose: m.pose }
 }
 
-/// Pixels of a keyframe with valid depth and confidence at least `min` (what fusion integrates).
 /// The keyframe's depth where it is valid and confident (0 elsewhere).
 fn confident_depth(m: &KeyframeMaps, min: f32) -> DepthMap {
     let mut d = m.depth.clone();
@@ -578,6 +576,7 @@ fn confident_depth(m: &KeyframeMaps, min: f32) -> DepthMap {
     d
 }
 
+/// Pixels of a keyframe with valid depth and confidence at least `min` (what fusion integrates).
 fn valid_confident(m: &KeyframeMaps, min: f32) -> usize {
     m.depth.iter().zip(m.confidence.iter()).filter(|(&d, &c)| is_valid_depth(d) && c >= min).count()
 }

@@ -3,7 +3,7 @@
 
 pub mod record3d;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// `../shared/data/<name>` relative to the crate, or `None` (after printing `SKIPPED`) when it is
 /// missing. With `DENSEFEAT_REQUIRE_DATA=1` a missing folder panics instead.
@@ -69,4 +69,22 @@ pub fn run_densefeat(args: &[&str]) -> Result<(), String> {
     } else {
         Err(String::from_utf8_lossy(&out.stderr).into_owned())
     }
+}
+
+/// Every file under `root`, by relative path.
+pub fn files(root: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    let mut out = std::collections::BTreeMap::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                let rel = path.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+                out.insert(rel, std::fs::read(&path).unwrap());
+            }
+        }
+    }
+    out
 }

@@ -564,6 +564,26 @@ fn map_writes_mesh_metrics_and_resumes() {
         "{}",
         String::from_utf8_lossy(&bad.stderr)
     );
+    // The refinement's variance floor is recorded, is part of the keyframes' fingerprint, and
+    // needs the refinement on; a negative floor is refused naming the flag.
+    let fifth = map_cmd(&out, &["--min-evidence", "0.3", "--refine-min-variance", "2.5"]);
+    let text = String::from_utf8_lossy(&fifth.stdout).to_string();
+    assert!(fifth.status.success() && text.contains(&format!("{} computed", keys.len())), "{text}");
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("map.json")).unwrap()).unwrap();
+    assert_eq!(doc["mapping"]["refine"]["min_variance"], 2.5, "{doc}");
+    for (flags, says) in [
+        (&["--refine-min-variance=-1"][..], "expected a number >= 0"),
+        (&["--refine-min-variance", "NaN"][..], "expected a number >= 0"),
+        (&["--refine-min-variance", "4", "--refine", "off"][..], "needs --refine on"),
+    ] {
+        let bad = map_cmd(&out, flags);
+        let err = String::from_utf8_lossy(&bad.stderr).to_string();
+        assert!(
+            !bad.status.success() && err.contains("--refine-min-variance") && err.contains(says),
+            "{err}"
+        );
+    }
 }
 
 #[test]

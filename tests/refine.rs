@@ -158,6 +158,42 @@ fn flat_windows_and_missing_estimates_stay_put() {
 }
 
 #[test]
+fn faint_windows_below_the_variance_floor_stay_put() {
+    // The plane's texture scaled down until no 7x7 keyframe window varies by more than 0.9 times
+    // the default floor (9 grey levels²): camera noise, not texture, would decide those moves.
+    let s = Scene::new(40, 32, &CENTRES[..4]);
+    let step = 0.04;
+    let r = REFINE_DEFAULTS.half_window;
+    let (h, w) = s.key.dim();
+    let mut max_var: f64 = 0.0;
+    for y in r..h - r {
+        for x in r..w - r {
+            let win = s.key.slice(ndarray::s![y - r..=y + r, x - r..=x + r]);
+            let m = win.mean().unwrap();
+            max_var = max_var.max(win.mapv(|v| (v - m) * (v - m)).mean().unwrap());
+        }
+    }
+    let k = (0.9 * REFINE_DEFAULTS.min_variance / max_var).sqrt();
+    let faint = |a: &Array2<f64>| a.mapv(|v| 128.0 + k * (v - 128.0));
+    let key = faint(&s.key);
+    let greys: Vec<Array2<f64>> = s.greys.iter().map(faint).collect();
+    let views: Vec<RefineView<'_>> = greys
+        .iter()
+        .zip(&s.poses)
+        .map(|(g, p)| RefineView { grey: g.view(), camera: s.cam, pose: *p })
+        .collect();
+    let rho0 = s.truth.mapv(|v| v + 0.5 * step);
+    let run = |p: &RefineParams| {
+        refine_level0(&Level0 { key: key.view(), camera: &s.cam, rho0: rho0.view(), views: &views, step }, p)
+            .unwrap()
+    };
+    assert!(run(&REFINE_DEFAULTS).iter().all(|v| v.is_nan()), "a window under the floor moved");
+    // The same noiseless windows over a floor of 1 (before 2026-12-06) do move: the floor is what stops them.
+    let moved = run(&RefineParams { min_variance: 1.0, ..REFINE_DEFAULTS });
+    assert!(moved.iter().filter(|v| v.is_finite()).count() > 100);
+}
+
+#[test]
 fn refinement_is_independent_of_thread_count() {
     let s = Scene::new(48, 40, &CENTRES);
     let step = 0.04;

@@ -17,7 +17,7 @@ use densefeat::mapping::keyframe::{
 use densefeat::mapping::normals::NormalsSource;
 use densefeat::mapping::output::DEFAULT_MIN_CONFIDENCE;
 use densefeat::mapping::photometric::PhotometricMode;
-use densefeat::mapping::refine::REFINE_DEFAULTS;
+use densefeat::mapping::refine::{RefineParams, REFINE_DEFAULTS};
 use densefeat::mapping::{FeatureKind, KeyframeResult, Truncation};
 use densefeat::sequence::{open_with, OpenOptions, Sequence};
 
@@ -72,6 +72,11 @@ pub struct MappingArgs {
     /// [default: off; `map`: on, chosen on validation meshes, §16.9]
     #[arg(long, value_parser = parse_on_off)]
     pub refine: Option<bool>,
+    /// The refinement leaves a pixel alone when the grey variance of its 7x7 keyframe window is at
+    /// most this (grey levels², 0..=255): there the window is the camera's noise, not texture
+    /// (SPEC.md §10.3). Needs the refinement on. [default: 9, chosen on validation meshes]
+    #[arg(long, value_parser = parse_non_negative)]
+    pub refine_min_variance: Option<f64>,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1);
     /// default: per feature type, chosen on validation (SPEC §10.1a: rgb 300, learned 30, others 100;
     /// the normal prior's solve: rgb 300, learned 100; `map`'s learned features 10, §16.9).
@@ -235,6 +240,25 @@ impl MappingArgs {
         }
     }
 
+    /// The refinement's parameters: none unless `--refine on` (or a command's default turned it
+    /// on), [`REFINE_DEFAULTS`] with `--refine-min-variance` applied.
+    ///
+    /// # Errors
+    /// `--refine-min-variance` with the refinement off.
+    pub fn refine_params(&self) -> Result<Option<RefineParams>> {
+        match (self.refine.unwrap_or(false), self.refine_min_variance) {
+            (false, Some(_)) => Err(Error::invalid_argument(
+                "--refine-min-variance",
+                "sets the refinement's variance floor: it needs --refine on",
+            )),
+            (false, None) => Ok(None),
+            (true, v) => Ok(Some(RefineParams {
+                min_variance: v.unwrap_or(REFINE_DEFAULTS.min_variance),
+                ..REFINE_DEFAULTS
+            })),
+        }
+    }
+
     /// A configuration for `keyframe` of `seq` with these flags (`--depth-range auto` resolved at
     /// `keyframe`).
     ///
@@ -278,7 +302,7 @@ impl MappingArgs {
             min_evidence: self.min_evidence,
             lambda_sweep: Vec::new(),
             border_taper: self.border_taper,
-            refine: self.refine.unwrap_or(false).then_some(REFINE_DEFAULTS),
+            refine: self.refine_params()?,
             backend: self.backend.resolve()?,
             photometric: self.photometric,
             truncation: Truncation {
@@ -301,6 +325,17 @@ pub fn parse_on_off(s: &str) -> std::result::Result<bool, String> {
         "on" => Ok(true),
         "off" => Ok(false),
         _ => Err(format!("{s:?}: expected `on` or `off`")),
+    }
+}
+
+/// Parses a finite number `>= 0`.
+///
+/// # Errors
+/// A message for clap.
+pub fn parse_non_negative(s: &str) -> std::result::Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v >= 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!("{s:?}: expected a number >= 0")),
     }
 }
 

@@ -48,7 +48,7 @@ pub const REFINE_DEFAULTS: RefineParams = RefineParams {
     half_window: 3,
     frames: 12,
     best_fraction: 0.5,
-    min_variance: 1.0,
+    min_variance: 9.0,
     min_curvature: 0.002,
 };
 

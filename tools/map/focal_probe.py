@@ -21,7 +21,8 @@ import numpy as np
 from PIL import Image
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from pose_depth_consistency import blur, grads, grey_error, load_sequence  # noqa: E402
+from pose_depth_consistency import blur, grey_error, load_sequence, usable  # noqa: E402
+from pose_depth_consistency import pairs as keyframe_pairs  # noqa: E402
 
 FOCAL = [0.90, 0.93, 0.95, 0.97, 1.0, 1.03, 1.05, 1.07, 1.10]
 DEPTH = [0.95, 1.0, 1.05, 1.10]
@@ -30,7 +31,6 @@ DEPTH = [0.95, 1.0, 1.05, 1.10]
 def main():
     seq = sys.argv[1]
     k0, poses, names, dnames = load_sequence(seq)
-    n = len(poses)
 
     @functools.lru_cache(maxsize=None)
     def grey(i):
@@ -38,35 +38,30 @@ def main():
 
     total = np.zeros((len(FOCAL), len(DEPTH)))
     pairs = 0
-    for kf in range(0, n, 5):
-        depth = np.array(Image.open(os.path.join(seq, "depth", dnames[kf])), dtype=float) / 1000.0
-        ref = grey(kf)
-        gx, gy = grads(ref)
+
+    @functools.lru_cache(maxsize=1)
+    def depth_of(kf):
+        return np.array(Image.open(os.path.join(seq, "depth", dnames[kf])), dtype=float) / 1000.0
+
+    for kf, j, t0 in keyframe_pairs(poses, 5, (-20, -10, 10, 20)):
+        depth, ref = depth_of(kf), grey(kf)
         yy, xx = np.mgrid[0: ref.shape[0], 0: ref.shape[1]]
-        m = (depth > 0) & (np.hypot(gx, gy) > 2.0)
-        m[:2], m[-2:], m[:, :2], m[:, -2:] = False, False, False, False
-        for off in (-20, -10, 10, 20):
-            j = kf + off
-            if not 0 <= j < n:
-                continue
-            t0 = np.linalg.inv(poses[j]) @ poses[kf]
-            if np.linalg.norm(t0[:3, 3]) < 0.02:
-                continue
-            err = np.zeros_like(total)
-            for a, sf in enumerate(FOCAL):
-                kk = k0.copy()
-                kk[0, 0] *= sf
-                kk[1, 1] *= sf
-                rays = np.linalg.inv(kk) @ np.stack([xx[m], yy[m], np.ones(m.sum())])
-                for b, sd in enumerate(DEPTH):
-                    err[a, b] = grey_error(kk, t0, rays * (depth[m] * sd), ref[m], grey(j))
-            ia, ib = np.unravel_index(np.nanargmin(err), err.shape)
-            ang = np.degrees(np.arccos(np.clip((np.trace(t0[:3, :3]) - 1) / 2, -1, 1)))
-            print(f"key {kf:3d} live {j:3d}: rotation {ang:4.1f} deg, |t| {100 * np.linalg.norm(t0[:3, 3]):4.1f} cm, "
-                  f"error {err[FOCAL.index(1.0), DEPTH.index(1.0)]:.2f} as given, best f x{FOCAL[ia]:.2f} "
-                  f"depth x{DEPTH[ib]:.2f}: {err[ia, ib]:.2f}", flush=True)
-            total += err
-            pairs += 1
+        m = usable(ref, depth)
+        err = np.zeros_like(total)
+        for a, sf in enumerate(FOCAL):
+            kk = k0.copy()
+            kk[0, 0] *= sf
+            kk[1, 1] *= sf
+            rays = np.linalg.inv(kk) @ np.stack([xx[m], yy[m], np.ones(m.sum())])
+            for b, sd in enumerate(DEPTH):
+                err[a, b] = grey_error(kk, t0, rays * (depth[m] * sd), ref[m], grey(j))
+        ia, ib = np.unravel_index(np.nanargmin(err), err.shape)
+        ang = np.degrees(np.arccos(np.clip((np.trace(t0[:3, :3]) - 1) / 2, -1, 1)))
+        print(f"key {kf:3d} live {j:3d}: rotation {ang:4.1f} deg, |t| {100 * np.linalg.norm(t0[:3, 3]):4.1f} cm, "
+              f"error {err[FOCAL.index(1.0), DEPTH.index(1.0)]:.2f} as given, best f x{FOCAL[ia]:.2f} "
+              f"depth x{DEPTH[ib]:.2f}: {err[ia, ib]:.2f}", flush=True)
+        total += err
+        pairs += 1
     print(f"{seq}: {pairs} pairs; mean grey error, rows focal scale {FOCAL}, columns depth scale {DEPTH}")
     for a, sf in enumerate(FOCAL):
         print(f"  f x{sf:.2f}: " + "  ".join(f"{total[a, b] / pairs:6.2f}" for b in range(len(DEPTH))))

@@ -115,6 +115,28 @@ def load_sequence(seq):
     return k0, poses, names, dnames
 
 
+def pairs(poses, step, offsets):
+    """(keyframe, live frame, keyframe -> live pose) for keyframes every `step` frames and live frames
+    at `offsets` from them, inside the sequence and at least 2 cm apart."""
+    n = len(poses)
+    for kf in range(0, n, step):
+        for off in offsets:
+            j = kf + off
+            if not 0 <= j < n:
+                continue
+            t0 = np.linalg.inv(poses[j]) @ poses[kf]
+            if np.linalg.norm(t0[:3, 3]) >= 0.02:
+                yield kf, j, t0
+
+
+def usable(ref, dep):
+    """The keyframe pixels the alignment uses: with depth, a grey gradient over 2 levels, 2 px inside."""
+    gx, gy = grads(ref)
+    m = (dep > 0) & (np.hypot(gx, gy) > 2.0)
+    m[:2], m[-2:], m[:, :2], m[:, -2:] = False, False, False, False
+    return m
+
+
 def refine_pair(k0, depth, ref0, live0, t0, min_points=0):
     """The keyframe -> live pose `t0` refined by direct alignment against the keyframe's depth,
     coarse to fine (level 1 at half resolution, then level 0), and the grey error at full resolution
@@ -129,10 +151,8 @@ def refine_pair(k0, depth, ref0, live0, t0, min_points=0):
             kk[:2] /= 2
             kk[0, 2] = (k0[0, 2] + 0.5) / 2 - 0.5
             kk[1, 2] = (k0[1, 2] + 0.5) / 2 - 0.5
-        gx, gy = grads(ref)
         yy, xx = np.mgrid[0: ref.shape[0], 0: ref.shape[1]]
-        m = (dep > 0) & (np.hypot(gx, gy) > 2.0)
-        m[:2], m[-2:], m[:, :2], m[:, -2:] = False, False, False, False
+        m = usable(ref, dep)
         if m.sum() < min_points:
             return None
         pts = np.linalg.inv(kk) @ np.stack([xx[m], yy[m], np.ones(m.sum())]) * dep[m]
@@ -142,7 +162,6 @@ def refine_pair(k0, depth, ref0, live0, t0, min_points=0):
 
 def check(seq, step, dscale, offsets=(-20, -10, 10, 20)):
     k0, poses, names, dnames = load_sequence(seq)
-    n = len(poses)
 
     @functools.lru_cache(maxsize=None)
     def blurred_grey(i):
@@ -150,25 +169,20 @@ def check(seq, step, dscale, offsets=(-20, -10, 10, 20)):
         img = np.array(Image.open(os.path.join(seq, "images", names[i])).convert("L"), dtype=float)
         return blur(img)
 
+    @functools.lru_cache(maxsize=1)
+    def depth_of(kf):
+        return np.array(Image.open(os.path.join(seq, "depth", dnames[kf])), dtype=float) / dscale
+
     rows = []
-    for kf in range(0, n, step):
-        depth = np.array(Image.open(os.path.join(seq, "depth", dnames[kf])), dtype=float) / dscale
-        ref0 = blurred_grey(kf)
-        for off in offsets:
-            j = kf + off
-            if not 0 <= j < n:
-                continue
-            t0 = np.linalg.inv(poses[j]) @ poses[kf]
-            if np.linalg.norm(t0[:3, 3]) < 0.02:
-                continue
-            t, e0, e1 = refine_pair(k0, depth, ref0, blurred_grey(j), t0)
-            dt = t @ np.linalg.inv(t0)
-            ang = np.degrees(np.arccos(np.clip((np.trace(dt[:3, :3]) - 1) / 2, -1, 1)))
-            ratio = np.linalg.norm(t[:3, 3]) / np.linalg.norm(t0[:3, 3])
-            rows.append((kf, j, ratio, ang, e0, e1))
-            print(f"key {kf:3d} live {j:3d}: |t| {100 * np.linalg.norm(t0[:3, 3]):5.1f} cm, "
-                  f"translation ratio {ratio:.3f}, rotation corrected {ang:.2f} deg, "
-                  f"grey error {e0:.1f} -> {e1:.1f}")
+    for kf, j, t0 in pairs(poses, step, offsets):
+        t, e0, e1 = refine_pair(k0, depth_of(kf), blurred_grey(kf), blurred_grey(j), t0)
+        dt = t @ np.linalg.inv(t0)
+        ang = np.degrees(np.arccos(np.clip((np.trace(dt[:3, :3]) - 1) / 2, -1, 1)))
+        ratio = np.linalg.norm(t[:3, 3]) / np.linalg.norm(t0[:3, 3])
+        rows.append((kf, j, ratio, ang, e0, e1))
+        print(f"key {kf:3d} live {j:3d}: |t| {100 * np.linalg.norm(t0[:3, 3]):5.1f} cm, "
+              f"translation ratio {ratio:.3f}, rotation corrected {ang:.2f} deg, "
+              f"grey error {e0:.1f} -> {e1:.1f}")
     r = np.array([x[2] for x in rows])
     print(f"{seq}: {len(rows)} pairs; translation ratio median {np.median(r):.3f} "
           f"(quartiles {np.percentile(r, 25):.3f} - {np.percentile(r, 75):.3f}); "

@@ -7,7 +7,7 @@
 # 101 scenes, and how many scenes gain or lose.
 #
 #   tools/map/wide_validation.sh TAG [map flags...]
-#   tools/map/wide_validation.sh --compare TAG_A TAG_B
+#   tools/map/wide_validation.sh --compare A B    (each a TAG or an fscore.csv file)
 #
 # Writes runs/mapwide/TAG/<scene>/ and runs/mapwide/TAG/fscore.csv (validate.sh's columns). About
 # 20 minutes per TAG on 2 cores. SEEDS="200000 200050" limits the renders.
@@ -15,8 +15,10 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 
 if [ "${1:-}" = "--compare" ]; then
-  [ $# -eq 3 ] || { echo "usage: $0 --compare TAG_A TAG_B" >&2; exit 2; }
-  exec python3 - "runs/mapwide/$2/fscore.csv" "runs/mapwide/$3/fscore.csv" <<'PY'
+  [ $# -eq 3 ] || { echo "usage: $0 --compare A B (each a TAG of runs/mapwide or an fscore.csv)" >&2; exit 2; }
+  csv() { if [ -f "$1" ]; then echo "$1"; else echo "runs/mapwide/$1/fscore.csv"; fi; }
+  for f in "$(csv "$2")" "$(csv "$3")"; do [ -f "$f" ] || { echo "$0 --compare: $f: no such file (run the TAG first)" >&2; exit 2; }; done
+  exec python3 - "$(csv "$2")" "$(csv "$3")" <<'PY'
 import csv, sys
 a = {r["scene"]: r for r in csv.DictReader(open(sys.argv[1]))}
 b = {r["scene"]: r for r in csv.DictReader(open(sys.argv[2]))}
@@ -33,7 +35,8 @@ def summary(name, scenes):
     worst = min(zip(d, scenes))
     print(f"| {name} ({len(scenes)}) | {ma:.4f} | {mb:.4f} | {mb - ma:+.4f} | "
           f"{sum(x > 0 for x in d)} / {sum(x < 0 for x in d)} | {worst[0]:+.4f} ({worst[1]}) |")
-print(f"| scenes | F @ 5 cm, {sys.argv[1].split('/')[-2]} | F @ 5 cm, {sys.argv[2].split('/')[-2]} | change | better / worse | largest loss |")
+name = lambda p: p.split("/")[-2] if p.endswith("/fscore.csv") else p.split("/")[-1].removesuffix(".csv")
+print(f"| scenes | F @ 5 cm, {name(sys.argv[1])} | F @ 5 cm, {name(sys.argv[2])} | change | better / worse | largest loss |")
 print("|---|---|---|---|---|---|")
 summary("classic renders", [s for s in common if s.startswith("s2")])
 summary("realistic renders", [s for s in common if s.startswith("r2")])

@@ -44,7 +44,7 @@ pub fn median_triangulation_angle(
     let centre = pose.translation.vector;
     let w = depth.ncols();
     let standard = depth.as_standard_layout();
-    let mut angles: Vec<f64> = standard
+    let angles: Vec<f64> = standard
         .as_slice()
         .expect("standard layout")
         .par_iter()
@@ -56,16 +56,16 @@ pub fn median_triangulation_angle(
             live_centres.iter().map(|c| angle_deg(&p, &centre, c)).fold(0.0, f64::max)
         })
         .collect();
-    if angles.is_empty() {
-        return None;
-    }
-    angles.sort_by(f64::total_cmp);
-    Some(angles[(angles.len() - 1) / 2])
+    lower_median(angles)
 }
 
 /// The median of the keyframes' medians (lower middle), over those that have one.
 pub fn median_over_keyframes(per_keyframe: &[Option<f64>]) -> Option<f64> {
-    let mut v: Vec<f64> = per_keyframe.iter().flatten().copied().collect();
+    lower_median(per_keyframe.iter().flatten().copied().collect())
+}
+
+/// The lower middle of `v` sorted by `f64::total_cmp`; `None` when empty.
+fn lower_median(mut v: Vec<f64>) -> Option<f64> {
     if v.is_empty() {
         return None;
     }

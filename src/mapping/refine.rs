@@ -361,8 +361,8 @@ pub fn refine_level0(problem: &Level0, p: &RefineParams) -> Result<Array2<f64>> 
         let offset = p.offset(a) * step;
         for (v, warper) in warpers.iter().enumerate() {
             // The frame's grey value at every pixel's own hypothesis, summed along the row...
-            par_rows(&mut rows, |y, row| {
-                let (mut g, mut gg, mut gi) = (vec![0.0; w], vec![0.0; w], vec![0.0; w]);
+            let scratch = || (vec![0.0; w], vec![0.0; w], vec![0.0; w]);
+            par_rows_with(&mut rows, scratch, |(g, gg, gi), y, row| {
                 for x in 0..w {
                     let r0 = rho0[[y, x]];
                     let value = if r0.is_finite() {
@@ -375,46 +375,52 @@ pub fn refine_level0(problem: &Level0, p: &RefineParams) -> Result<Array2<f64>> 
                     gg[x] = value * value;
                     gi[x] = value * key[[y, x]];
                 }
-                for (sums, terms) in row.chunks_exact_mut(w).zip([&g, &gg, &gi]) {
+                for (sums, terms) in row.chunks_exact_mut(w).zip([&*g, &*gg, &*gi]) {
                     window_sum_into(&mut sums[span.clone()], |d| &terms[d..], 2 * r + 1);
                 }
             });
             // ... then over the window's rows, and the correlation.
-            let rows = &rows;
-            par_chunks(&mut costs, w * frames, |y, out| {
-                let interior_row = y >= r && y + r < h;
-                let mut acc = vec![0.0; 3 * w];
-                if interior_row {
-                    let first = (y - r) * 3 * w;
-                    let all = rows.as_slice().expect("a freshly allocated array is contiguous");
-                    window_sum_into(&mut acc, |d| &all[first + d * 3 * w..], 2 * r + 1);
-                }
-                for x in 0..w {
-                    out[x * frames + v] = if interior_row && span.contains(&x) {
-                        zncc_cost(
-                            n,
-                            acc[x],
-                            acc[w + x],
-                            acc[2 * w + x],
-                            si[[y, x]],
-                            sii[[y, x]],
-                            p.min_variance,
-                        )
-                    } else {
-                        f64::INFINITY
-                    };
-                }
-            });
+            let all = rows.as_slice().expect("a freshly allocated array is contiguous");
+            par_chunks_with(
+                &mut costs,
+                w * frames,
+                || vec![0.0; 3 * w],
+                |acc, y, out| {
+                    let interior_row = y >= r && y + r < h;
+                    if interior_row {
+                        let first = (y - r) * 3 * w;
+                        window_sum_into(acc, |d| &all[first + d * 3 * w..], 2 * r + 1);
+                    }
+                    for x in 0..w {
+                        out[x * frames + v] = if interior_row && span.contains(&x) {
+                            zncc_cost(
+                                n,
+                                acc[x],
+                                acc[w + x],
+                                acc[2 * w + x],
+                                si[[y, x]],
+                                sii[[y, x]],
+                                p.min_variance,
+                            )
+                        } else {
+                            f64::INFINITY
+                        };
+                    }
+                },
+            );
         }
         let costs = &costs;
-        par_rows(&mut tracks, |y, row| {
-            let mut buf = vec![0.0; frames];
-            for (x, t) in row.iter_mut().enumerate() {
-                let at = (y * w + x) * frames;
-                buf.copy_from_slice(&costs[at..at + frames]);
-                t.push(a, best_mean(&mut buf, frames, p.best_fraction));
-            }
-        });
+        par_rows_with(
+            &mut tracks,
+            || vec![0.0; frames],
+            |buf, y, row| {
+                for (x, t) in row.iter_mut().enumerate() {
+                    let at = (y * w + x) * frames;
+                    buf.copy_from_slice(&costs[at..at + frames]);
+                    t.push(a, best_mean(buf, frames, p.best_fraction));
+                }
+            },
+        );
     }
     Zip::from(&mut out).and(&tracks).and(&rho0).for_each(|o, t, &r0| *o = t.finish(r0, step, p));
     Ok(out)
@@ -446,17 +452,32 @@ fn window_sum_into<'t>(out: &mut [f64], terms: impl Fn(usize) -> &'t [f64], taps
     }
 }
 
-/// `f(i, chunk)` for the consecutive `len`-element chunks of `a`, in parallel (each chunk's values
-/// depend on that chunk's work alone, so the result is the same for any thread count).
-fn par_chunks<T: Send>(a: &mut [T], len: usize, f: impl Fn(usize, &mut [T]) + Sync) {
-    a.par_chunks_mut(len.max(1)).enumerate().for_each(|(i, chunk)| f(i, chunk));
+/// `f(scratch, i, chunk)` for the consecutive `len`-element chunks of `a`, in parallel, with a
+/// scratch buffer from `init` per worker task rather than per chunk (each chunk's values depend on
+/// that chunk's work alone and `f` overwrites what it reads of the scratch, so the result is the
+/// same for any thread count).
+fn par_chunks_with<T: Send, S>(
+    a: &mut [T],
+    len: usize,
+    init: impl Fn() -> S + Sync + Send,
+    f: impl Fn(&mut S, usize, &mut [T]) + Sync + Send,
+) {
+    a.par_chunks_mut(len.max(1)).enumerate().for_each_init(init, |s, (i, chunk)| f(s, i, chunk));
 }
 
-/// `f(y, row)` for every row of a standard-layout array, rows in parallel (each row's values depend
-/// on that row's work alone, so the result is the same for any thread count).
-fn par_rows<T: Send>(a: &mut Array2<T>, f: impl Fn(usize, &mut [T]) + Sync) {
+/// [`par_chunks_with`] over the rows of a standard-layout array.
+fn par_rows_with<T: Send, S>(
+    a: &mut Array2<T>,
+    init: impl Fn() -> S + Sync + Send,
+    f: impl Fn(&mut S, usize, &mut [T]) + Sync + Send,
+) {
     let w = a.ncols();
-    par_chunks(a.as_slice_mut().expect("a freshly allocated array is contiguous"), w, f);
+    par_chunks_with(a.as_slice_mut().expect("a freshly allocated array is contiguous"), w, init, f);
+}
+
+/// `f(y, row)` for every row of a standard-layout array, rows in parallel.
+fn par_rows<T: Send>(a: &mut Array2<T>, f: impl Fn(usize, &mut [T]) + Sync + Send) {
+    par_rows_with(a, || (), |_, y, row| f(y, row));
 }
 
 /// Whether the window of `(y, x)` lies inside an `h x w` image.

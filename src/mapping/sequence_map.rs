@@ -403,8 +403,7 @@ pub fn map_sequence(
     progress(n, n, "fusion");
     let t = Instant::now();
     let mut maps = load_keyframes(seq, cfg, &plan, out)?;
-    // Depth that agrees with its neighbours (SPEC.md §16.10): confidence first (as before), then
-    // the multi-view check against the nearest keyframes and the discontinuity rule.
+    // How much parallax each keyframe's confident depth had (SPEC.md §16.11), before the filter.
     let triangulation_deg: Vec<Option<f64>> = plan
         .keyframes
         .iter()
@@ -417,6 +416,8 @@ pub fn map_sequence(
             Ok(super::parallax::median_triangulation_angle(&confident, &m.camera, &m.pose, &centres))
         })
         .collect::<Result<_>>()?;
+    // Depth that agrees with its neighbours (SPEC.md §16.10): confidence first (as before), then
+    // the multi-view check against the nearest keyframes and the discontinuity rule.
     let fused_pixels_before: usize = maps.iter().map(|m| valid_confident(m, cfg.min_confidence)).sum();
     let views: Vec<ViewDepth<'_>> = maps.iter().map(view_of).collect();
     let filtered = filter_keyframes(cfg, &views);
@@ -569,7 +570,7 @@ fn view_of(m: &KeyframeMaps) -> ViewDepth<'_> {
 fn confident_depth(m: &KeyframeMaps, min: f32) -> DepthMap {
     let mut d = m.depth.clone();
     ndarray::Zip::from(&mut d).and(&m.confidence).for_each(|z, &c| {
-        if !(is_valid_depth(*z) && c >= min) {
+        if !fusable(*z, c, min) {
             *z = 0.0;
         }
     });
@@ -578,7 +579,13 @@ fn confident_depth(m: &KeyframeMaps, min: f32) -> DepthMap {
 
 /// Pixels of a keyframe with valid depth and confidence at least `min` (what fusion integrates).
 fn valid_confident(m: &KeyframeMaps, min: f32) -> usize {
-    m.depth.iter().zip(m.confidence.iter()).filter(|(&d, &c)| is_valid_depth(d) && c >= min).count()
+    m.depth.iter().zip(m.confidence.iter()).filter(|(&d, &c)| fusable(d, c, min)).count()
+}
+
+/// Whether a keyframe pixel of depth `z` and confidence `c` is fused at `--min-confidence` `min`.
+#[inline]
+fn fusable(z: f32, c: f32, min: f32) -> bool {
+    is_valid_depth(z) && c >= min
 }
 
 /// One keyframe read back for fusion.

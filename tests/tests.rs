@@ -12,6 +12,7 @@ mod costvolume;
 mod dsift;
 mod dtam;
 mod dtam_normals;
+mod dtam_tgv;
 mod feature_baselines;
 mod features_cli;
 mod fusion;

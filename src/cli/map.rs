@@ -28,8 +28,9 @@ pub struct MapArgs {
     /// of the network alone), `dsift` (dense SIFT) or `patch7` (affine-warped 7x7 patches), SPEC.md §9a.
     #[arg(long, default_value = "learned")]
     pub features: FeatureKind,
-    /// `tv` (DTAM), `normals` (DTAM with the surface-normal prior, SPEC.md §10.2, with `--normals`'
-    /// or the built-in predictor's normals) or `none` (winner-take-all). Unlike `reconstruct`, `tv`
+    /// `tv` (DTAM), `tgv` (DTAM with second-order TGV, SPEC.md §10.4), `normals` (DTAM with the
+    /// surface-normal prior, SPEC.md §10.2, with `--normals`' or the built-in predictor's normals)
+    /// or `none` (winner-take-all). Unlike `reconstruct`, `tv`
     /// for every feature type: chosen by mesh F-score on validation (docs/map/results.md).
     #[arg(long, default_value = "tv")]
     pub regularizer: Regularizer,

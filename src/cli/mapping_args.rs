@@ -77,6 +77,11 @@ pub struct MappingArgs {
     /// (SPEC.md §10.3). Needs the refinement on. [default: 9, chosen on validation meshes]
     #[arg(long, value_parser = parse_non_negative)]
     pub refine_min_variance: Option<f64>,
+    /// TGV's `β` (`--regularizer tgv`, SPEC.md §10.4): in pixels at 640 px width, the length over
+    /// which a change of slope costs what a jump of the same size does (large: Huber-TV).
+    /// [default: 4, chosen on validation meshes]
+    #[arg(long)]
+    pub tgv_beta: Option<f64>,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1);
     /// default: per feature type, chosen on validation (SPEC §10.1a: rgb 300, learned 30, others 100;
     /// the normal prior's solve: rgb 300, learned 100; `map`'s learned features 10, §16.9).
@@ -272,6 +277,15 @@ impl MappingArgs {
         features: FeatureKind,
         regularizer: Regularizer,
     ) -> Result<KeyframeConfig> {
+        if self.tgv_beta.is_some() && regularizer != Regularizer::Tgv {
+            return Err(Error::invalid_argument(
+                "--tgv-beta",
+                "sets TGV's second-order weight: it needs --regularizer tgv",
+            ));
+        }
+        if let Some(b) = self.tgv_beta {
+            densefeat::dtam::tgv::check_beta(b)?;
+        }
         let depth_range = resolve_depth_range(self.depth_range, seq, keyframe)?;
         let (lambda, lambda_normals) = (features.default_lambda(), features.default_lambda_normals());
         Ok(KeyframeConfig {
@@ -297,6 +311,7 @@ impl MappingArgs {
                 tolerance: self.tolerance,
             },
             lambda_normals: self.lambda.unwrap_or(lambda_normals),
+            tgv_beta: self.tgv_beta.unwrap_or(densefeat::dtam::tgv::DEFAULT_BETA),
             max_memory_mb: self.max_memory_mb,
             level: self.level.unwrap_or(0),
             min_evidence: self.min_evidence,

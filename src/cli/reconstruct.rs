@@ -25,7 +25,8 @@ pub struct ReconstructArgs {
     /// of the network alone), `dsift` (dense SIFT) or `patch7` (affine-warped 7x7 patches), SPEC.md §9a.
     #[arg(long, default_value = "rgb")]
     pub features: FeatureKind,
-    /// `none` (winner-take-all), `tv` (DTAM, initialised by winner-take-all) or `normals` (DTAM with
+    /// `none` (winner-take-all), `tv` (DTAM, initialised by winner-take-all), `tgv` (DTAM with
+    /// second-order TGV in place of Huber-TV, SPEC.md §10.4) or `normals` (DTAM with
     /// the surface-normal prior, SPEC.md §10.2, with `--normals`' or the built-in predictor's
     /// normals). [default: per feature type, chosen on validation (SPEC.md §10.1a): `normals` for
     /// the learned features, `tv` for the others]
@@ -62,7 +63,7 @@ pub fn run(args: ReconstructArgs) -> Result<()> {
         println!("metrics (level-{} ground truth):", result.level);
         println!("  wta: {}", metrics_line(&result.metrics(&result.wta)?));
         if let Some(tv) = &result.tv {
-            println!("  tv:  {}", metrics_line(&result.metrics(tv)?));
+            println!("  {}:  {}", result.tv_name(), metrics_line(&result.metrics(tv)?));
         }
         if let Some(n) = &result.normals {
             println!("  normals: {}", metrics_line(&result.metrics(n)?));
@@ -78,7 +79,7 @@ pub fn run(args: ReconstructArgs) -> Result<()> {
             println!("metrics at confidence >= {c}:");
             println!("  wta: {}", metrics_line(&result.metrics_at(&result.wta, c)?));
             if let Some(tv) = &result.tv {
-                println!("  tv:  {}", metrics_line(&result.metrics_at(tv, c)?));
+                println!("  {}:  {}", result.tv_name(), metrics_line(&result.metrics_at(tv, c)?));
             }
             if let Some(n) = &result.normals {
                 println!("  normals: {}", metrics_line(&result.metrics_at(n, c)?));

@@ -49,6 +49,8 @@ struct Row<'a> {
     g: &'a [f32],
     /// The normal prior's slope rows (`q_x`, `q_y`), if it is on.
     slope: Option<(&'a [f32], &'a [f32])>,
+    /// TGV²'s rows and `β`, if it is on.
+    tgv: Option<(super::tgv::Rows<'a>, f64)>,
     eps: f64,
 }
 
@@ -104,6 +106,7 @@ pub fn search_with_energy(
                 below: (y + 1 < h).then(|| &d[(y + 1) * w..][..w]),
                 g: &g[y * w..][..w],
                 slope: tv.slope_rows(y),
+                tgv: tv.tgv_rows(y),
                 eps,
             };
             fused_row(&row, &p, a_row, avx512)
@@ -150,9 +153,10 @@ fn fused_row_any<const AVX512: bool>(row: &Row, p: &SearchParams, a: &mut [f32])
     let Terms { a, coupling, data, .. } = sink;
     // `rms_gap`'s row sum.
     let gap = d.iter().zip(a.iter()).map(|(&d, &a)| (f64::from(d) - f64::from(a)).powi(2)).sum();
-    let regulariser = match row.slope {
-        Some((sx, sy)) => slope_regulariser_row(d, row.below, row.g, sx, sy, row.eps),
-        None => regulariser_row(d, row.below, row.g, row.eps),
+    let regulariser = match (row.slope, row.tgv) {
+        (_, Some((rows, beta))) => super::tgv::regulariser_row(rows, beta, row.eps),
+        (Some((sx, sy)), None) => slope_regulariser_row(d, row.below, row.g, sx, sy, row.eps),
+        (None, None) => regulariser_row(d, row.below, row.g, row.eps),
     };
     RowSums { regulariser, coupling, data, gap }
 }

@@ -32,9 +32,12 @@ use crate::runtime::CpuFeatureLevel;
 
 #[path = "normal_steps.rs"]
 mod normal_steps;
+#[path = "tgv_steps.rs"]
+mod tgv_steps;
 
 pub(crate) use normal_steps::slope_regulariser_row;
 use normal_steps::Slope;
+use tgv_steps::SecondOrder;
 
 /// Primal and dual step size `σ = τ = 1/√8`.
 pub const STEP: f64 = 0.353_553_390_593_273_8;
@@ -143,6 +146,9 @@ pub struct HuberTv {
     a_term: Vec<f64>,
     /// The normal prior's slope field (SPEC.md §10.2): `Some` replaces `∇` by `K_n = ∇ − q`.
     slope: Option<Slope>,
+    /// TGV²'s slope field and dual (SPEC.md §10.4): `Some` replaces `‖g∇d‖_ε` by
+    /// `‖g(∇d − v/β)‖_ε + ‖∇v‖`.
+    second: Option<SecondOrder>,
 }
 
 impl HuberTv {
@@ -162,6 +168,7 @@ impl HuberTv {
             eps,
             a_term: Vec::new(),
             slope: None,
+            second: None,
         }
     }
 
@@ -175,6 +182,26 @@ impl HuberTv {
         let mut tv = Self::new(d0, g, eps);
         tv.slope = Some(Slope { sx: q.qx.clone(), sy: q.qy.clone(), step: step_size(q.max_norm) });
         tv
+    }
+
+    /// [`HuberTv::new`] with TGV² (SPEC.md §10.4): the regulariser becomes
+    /// `Σ ‖g (∇d − v/β)‖_ε + ‖∇v‖` over `d` and a slope field `v` (starting at 0), stepped with
+    /// `σ = τ = tgv::step_size(β)`.
+    ///
+    /// # Panics
+    /// If `g` differs in shape from `d0` (callers validate shapes).
+    pub fn with_second_order(d0: Array2<f32>, g: Array2<f32>, eps: f64, beta: f64) -> Self {
+        let mut tv = Self::new(d0, g, eps);
+        tv.second = Some(SecondOrder::new(tv.d.dim(), beta));
+        tv
+    }
+
+    /// TGV²'s slope field `w = v/β` (inverse depth per pixel, `x` and `y`), if it is on.
+    pub fn slope_field(&self) -> Option<(Array2<f32>, Array2<f32>)> {
+        self.second.as_ref().map(|s| {
+            let b = s.beta as f32;
+            (s.vx.mapv(|v| v / b), s.vy.mapv(|v| v / b))
+        })
     }
 
     /// The slope field's rows `y` (`q_x`, `q_y`), if the normal prior is on.
@@ -232,6 +259,11 @@ impl HuberTv {
         if self.slope.is_some() {
             // The normal prior has one build (portable, row-parallel): `level` changes nothing.
             self.slope_steps(a, theta, n);
+            return;
+        }
+        if self.second.is_some() {
+            // So has TGV².
+            self.tgv_steps(a, theta, n);
             return;
         }
         let avx512 = level.avx512f();
@@ -293,9 +325,14 @@ impl HuberTv {
     /// `normal_prior::Reference`, within a stated budget, not bit for bit).
     pub fn step_reference(&mut self, a: ArrayView2<f32>, theta: f64) {
         assert_eq!(a.dim(), self.d.dim(), "a must match d");
-        if self.slope.is_some() {
+        if self.slope.is_some() || self.second.is_some() {
             let a = a.as_standard_layout();
-            self.slope_steps(a.as_slice().expect("standard layout is contiguous"), theta, 1);
+            let a = a.as_slice().expect("standard layout is contiguous");
+            if self.slope.is_some() {
+                self.slope_steps(a, theta, 1);
+            } else {
+                self.tgv_steps(a, theta, 1);
+            }
             return;
         }
         let (s, eps) = (STEP, self.eps);
@@ -346,11 +383,21 @@ impl HuberTv {
         self.qx.iter().zip(self.qy.iter()).map(|(x, y)| (x * x + y * y).sqrt()).fold(0.0, f32::max)
     }
 
-    /// `Σ ‖g ∇d‖_ε` (with the normal prior `Σ ‖g (∇d − d q)‖_ε`), summed per row in f64, rows in
-    /// order.
+    /// `Σ ‖g ∇d‖_ε` (with the normal prior `Σ ‖g (∇d − d q)‖_ε`, with TGV²
+    /// `Σ ‖g (∇d − v/β)‖_ε + ‖∇v‖`), summed per row in f64, rows in order.
     pub fn regulariser_energy(&self) -> f64 {
         let d = self.d.view();
         let (h, w) = d.dim();
+        if self.second.is_some() {
+            let rows: Vec<f64> = (0..h)
+                .into_par_iter()
+                .map(|y| {
+                    let (rows, beta) = self.tgv_rows(y).expect("second order is on");
+                    super::tgv::regulariser_row(rows, beta, self.eps)
+                })
+                .collect();
+            return rows.iter().sum();
+        }
         if self.slope.is_some() {
             let (ds, g) = (self.d.as_slice().expect("contiguous"), self.g.as_slice().expect("contiguous"));
             let rows: Vec<f64> = (0..h)
@@ -378,7 +425,9 @@ impl HuberTv {
         rows.iter().sum()
     }
 
-    /// Primal and dual objectives for the sub-problem with this `a` and `θ`.
+    /// Primal and dual objectives for the sub-problem with this `a` and `θ`. Defined for Huber-TV
+    /// and the normal prior; with TGV² the dual objective is not formed and is NaN (the primal is
+    /// TGV²'s).
     pub fn gap(&self, a: ArrayView2<f32>, theta: f64) -> HuberTvReport {
         let (h, w) = self.d.dim();
         let gqx = &self.qx * &self.g;
@@ -398,10 +447,9 @@ impl HuberTv {
                 q2 += qx * qx + qy * qy;
             }
         }
-        HuberTvReport {
-            primal: self.regulariser_energy() + coupling,
-            dual: lin - theta / 2.0 * kt2 - self.eps / 2.0 * q2,
-        }
+        let dual =
+            if self.second.is_some() { f64::NAN } else { lin - theta / 2.0 * kt2 - self.eps / 2.0 * q2 };
+        HuberTvReport { primal: self.regulariser_energy() + coupling, dual }
     }
 }
 

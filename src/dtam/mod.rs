@@ -34,6 +34,7 @@ pub mod huber_tv;
 mod lanes;
 pub mod normal_prior;
 pub mod search;
+pub mod tgv;
 
 use std::time::Instant;
 
@@ -248,6 +249,9 @@ pub struct DtamProblem<'a, C = ArrayView3<'a, f32>> {
     pub params: &'a DtamParams,
     /// `None`: Huber-TV (`g ‖∇d‖_ε`); `Some(q)`: the normal prior (`g ‖∇d − d q‖_ε`).
     pub slope: Option<&'a SlopeField>,
+    /// `Some(β)`: TGV² (`g ‖∇d − v/β‖_ε + ‖∇v‖`, SPEC.md §10.4), `β` in pixels of this grid
+    /// ([`tgv::normalised_beta`]); not with a slope field.
+    pub second_order: Option<f64>,
 }
 
 /// The costs of a [`DtamProblem`] that a backend keeps where it computes (a resident volume,
@@ -264,7 +268,7 @@ impl<'a> DtamProblem<'a> {
         init: ArrayView2<'a, f32>,
         params: &'a DtamParams,
     ) -> Self {
-        Self { costs, bins, grey, init, params, slope: None }
+        Self { costs, bins, grey, init, params, slope: None, second_order: None }
     }
 
     /// Valid parameters, and sizes that agree: costs `[H, W, K]` with `K` hypotheses, image,
@@ -285,7 +289,7 @@ impl<'a> DtamProblem<'a, Resident> {
         init: ArrayView2<'a, f32>,
         params: &'a DtamParams,
     ) -> Self {
-        Self { costs: Resident, bins, grey, init, params, slope: None }
+        Self { costs: Resident, bins, grey, init, params, slope: None, second_order: None }
     }
 }
 
@@ -295,13 +299,18 @@ impl<'a, C> DtamProblem<'a, C> {
         Self { slope: Some(slope), ..self }
     }
 
+    /// The same problem with TGV² of weight `beta` (pixels of this grid; SPEC.md §10.4).
+    pub fn with_second_order(self, beta: f64) -> Self {
+        Self { second_order: Some(beta), ..self }
+    }
+
     /// The same problem on other costs (a resident volume hands its host copy to the CPU solver so).
     pub fn with_costs<'b, D>(self, costs: D) -> DtamProblem<'b, D>
     where
         'a: 'b,
     {
-        let Self { bins, grey, init, params, slope, .. } = self;
-        DtamProblem { costs, bins, grey, init, params, slope }
+        let Self { bins, grey, init, params, slope, second_order, .. } = self;
+        DtamProblem { costs, bins, grey, init, params, slope, second_order }
     }
 
     /// [`DtamProblem::check`] for costs of shape `(h, w, k)`.
@@ -321,6 +330,15 @@ impl<'a, C> DtamProblem<'a, C> {
                     self.init.dim()
                 ),
             ));
+        }
+        if let Some(beta) = self.second_order {
+            tgv::check_beta(beta)?;
+            if self.slope.is_some() {
+                return Err(Error::invalid_argument(
+                    "--regularizer",
+                    "TGV and the surface-normal prior are two regularisers: choose one",
+                ));
+            }
         }
         if let Some(q) = self.slope {
             if q.dim() != (h, w) {
@@ -393,9 +411,10 @@ fn iterate(
     let params = problem.params;
     let g = edge_weights(problem.grey, params.alpha, params.beta);
     let init = problem.init;
-    let mut tv = match problem.slope {
-        Some(q) => HuberTv::with_slope(init.to_owned(), g, params.epsilon, q),
-        None => HuberTv::new(init.to_owned(), g, params.epsilon),
+    let mut tv = match (problem.slope, problem.second_order) {
+        (Some(q), _) => HuberTv::with_slope(init.to_owned(), g, params.epsilon, q),
+        (None, Some(beta)) => HuberTv::with_second_order(init.to_owned(), g, params.epsilon, beta),
+        (None, None) => HuberTv::new(init.to_owned(), g, params.epsilon),
     };
     let mut a = init.to_owned();
     let mut history = History::new(params);

@@ -44,12 +44,15 @@ pub enum Regularizer {
     /// Both solves on the same volume (what `eval` runs for `-tv` and `-normals` methods of one
     /// feature kind; not a `--regularizer` value).
     TvAndNormals,
+    /// Winner-take-all, then DTAM with second-order TGV in place of Huber-TV (SPEC.md §10.4), of
+    /// weight [`KeyframeConfig::tgv_beta`]; its result takes Huber-TV's place.
+    Tgv,
 }
 
 impl Regularizer {
-    /// Whether the Huber-TV solve runs.
+    /// Whether the Huber-TV solve runs (with [`Regularizer::Tgv`], TGV in its place).
     pub fn tv(self) -> bool {
-        matches!(self, Regularizer::Tv | Regularizer::TvAndNormals)
+        matches!(self, Regularizer::Tv | Regularizer::TvAndNormals | Regularizer::Tgv)
     }
 
     /// Whether the normal-prior solve runs.
@@ -72,15 +75,17 @@ impl Regularizer {
 impl std::str::FromStr for Regularizer {
     type Err = Error;
 
-    /// `none`, `tv` or `normals`.
+    /// `none`, `tv`, `normals` or `tgv`.
     fn from_str(s: &str) -> Result<Self> {
         match s {
             "none" => Ok(Regularizer::None),
             "tv" => Ok(Regularizer::Tv),
             "normals" => Ok(Regularizer::Normals),
-            _ => {
-                Err(Error::invalid_argument("--regularizer", format!("{s:?}: expected none, tv or normals")))
-            }
+            "tgv" => Ok(Regularizer::Tgv),
+            _ => Err(Error::invalid_argument(
+                "--regularizer",
+                format!("{s:?}: expected none, tv, normals or tgv"),
+            )),
         }
     }
 }
@@ -173,6 +178,8 @@ pub struct KeyframeConfig {
     /// `λ` of the normal prior's solve ([`Regularizer::Normals`]), which wants its own (SPEC.md
     /// §10.1a): every other DTAM parameter is [`KeyframeConfig::dtam`]'s.
     pub lambda_normals: f64,
+    /// TGV's `β` ([`Regularizer::Tgv`], SPEC.md §10.4), in pixels at [`crate::dtam::REFERENCE_WIDTH`].
+    pub tgv_beta: f64,
     /// Refuse to start when [`memory_estimate`] exceeds this many MiB.
     pub max_memory_mb: usize,
     /// Pyramid level of the output grid (0 = the input resolution).
@@ -224,6 +231,7 @@ impl KeyframeConfig {
             normals: None,
             dtam: crate::dtam::MAPPING_DEFAULTS,
             lambda_normals: crate::dtam::MAPPING_DEFAULTS.lambda,
+            tgv_beta: crate::dtam::tgv::DEFAULT_BETA,
             max_memory_mb: DEFAULT_MAX_MEMORY_MB,
             level: 0,
             min_evidence: DEFAULT_MIN_EVIDENCE,
@@ -281,6 +289,9 @@ impl KeyframeConfig {
         }
         if self.regularizer.normals() {
             DtamParams { lambda: self.lambda_normals, ..self.dtam }.validate()?;
+        }
+        if self.regularizer == Regularizer::Tgv {
+            crate::dtam::tgv::check_beta(self.tgv_beta)?;
         }
         if self.regularizer.normals() && self.normals.is_none() {
             return Err(Error::invalid_argument(
@@ -411,8 +422,11 @@ pub struct KeyframeResult {
     pub valid: Array2<bool>,
     /// Winner-take-all.
     pub wta: DepthEstimate,
-    /// DTAM's Huber-TV result, with [`Regularizer::Tv`] (or `TvAndNormals`).
+    /// DTAM's Huber-TV result, with [`Regularizer::Tv`] (or `TvAndNormals`); TGV's with
+    /// [`Regularizer::Tgv`] ([`KeyframeResult::tgv`]).
     pub tv: Option<DepthEstimate>,
+    /// Whether [`KeyframeResult::tv`] is TGV's result (SPEC.md §10.4).
+    pub tgv: bool,
     /// DTAM's result with the normal prior, with [`Regularizer::Normals`] (or `TvAndNormals`).
     pub normals: Option<DepthEstimate>,
     /// Ground truth at level `L` (level-0 depth at pixels `2^L j`), if the keyframe has depth.
@@ -445,6 +459,15 @@ pub struct KeyframeResult {
 }
 
 impl KeyframeResult {
+    /// The name of [`KeyframeResult::tv`]'s estimate in file names and reports: `tv` or `tgv`.
+    pub fn tv_name(&self) -> &'static str {
+        if self.tgv {
+            "tgv"
+        } else {
+            "tv"
+        }
+    }
+
     /// The regularised estimate if there is one, else winner-take-all.
     pub fn best(&self) -> &DepthEstimate {
         self.regularised().unwrap_or(&self.wta)
@@ -730,7 +753,10 @@ pub fn reconstruct_cached(
         progress(Stage::Tv, 0, total);
         let t = Instant::now();
         let grey = to_gray(&colour);
-        // One solve at `lambda`: Huber-TV, or the normal prior with `slope`.
+        // One solve at `lambda`: Huber-TV (TGV with `Regularizer::Tgv`), or the normal prior with
+        // `slope`.
+        let second_order = (cfg.regularizer == Regularizer::Tgv)
+            .then(|| crate::dtam::tgv::normalised_beta(cfg.tgv_beta, camera.width));
         let run = |lambda: f64, slope: Option<&SlopeField>| -> Result<(DepthEstimate, DtamReport)> {
             let params = DtamParams { lambda, ..cfg.dtam }.normalised(
                 scale,
@@ -739,6 +765,7 @@ pub fn reconstruct_cached(
             );
             let problem = DtamProblem {
                 slope,
+                second_order: second_order.filter(|_| slope.is_none()),
                 ..DtamProblem::resident(&bins, grey.view(), w.inverse_depth.view(), &params)
             };
             let (res, report) = volume.dtam_solve(&problem)?;
@@ -802,6 +829,7 @@ pub fn reconstruct_cached(
         valid: w.valid,
         wta,
         tv,
+        tgv: cfg.regularizer == Regularizer::Tgv,
         normals: normals_estimate,
         gt_depth,
         timings,

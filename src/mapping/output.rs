@@ -48,7 +48,7 @@ pub fn write_outputs_with(result: &KeyframeResult, dir: &Path, min_confidence: f
     let (near, far) = colour_range(result);
     let mut full: Vec<(&str, &DepthEstimate)> = vec![("wta", &result.wta)];
     if let Some(tv) = &result.tv {
-        full.push(("tv", tv));
+        full.push((result.tv_name(), tv));
     }
     if let Some(n) = &result.normals {
         full.push(("normals", n));

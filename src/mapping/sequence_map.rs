@@ -311,6 +311,11 @@ impl MapConfig {
             c.backend.name()
         ) + &if taper > 0.0 { format!(" border_taper={taper}") } else { String::new() }
             + &c.refine.map_or(String::new(), |p| format!(" refine={p:?}"))
+            + &if c.regularizer == Regularizer::Tgv {
+                format!(" tgv_beta={}", c.tgv_beta)
+            } else {
+                String::new()
+            }
     }
 }
 
@@ -323,6 +328,7 @@ pub fn keyframe_dir(out: &Path, index: usize) -> PathBuf {
 fn depth_file(cfg: &MapConfig) -> &'static str {
     match cfg.keyframe.regularizer {
         Regularizer::Tv => "depth_tv.pfm",
+        Regularizer::Tgv => "depth_tgv.pfm",
         Regularizer::Normals | Regularizer::TvAndNormals => "depth_normals.pfm",
         Regularizer::None => "depth_wta.pfm",
     }
@@ -679,6 +685,7 @@ fn map_json(
             "features": format!("{:?}", cfg.keyframe.features),
             "regularizer": cfg.keyframe.regularizer,
             "lambda": cfg.keyframe.dtam.lambda,
+            "tgv_beta": (cfg.keyframe.regularizer == Regularizer::Tgv).then_some(cfg.keyframe.tgv_beta),
             "border_taper_px": cfg.keyframe.border_taper_px(),
             "bins": cfg.keyframe.bins,
             "depth_range_m": [cfg.keyframe.near, cfg.keyframe.far],

@@ -125,6 +125,9 @@ pub(super) fn solve_on<C>(
             "the surface-normal prior (--regularizer normals) runs on the CPU only; use --backend cpu",
         ));
     }
+    if problem.second_order.is_some() {
+        return Err(super::unsupported("TGV (--regularizer tgv) runs on the CPU only; use --backend cpu"));
+    }
     let DtamProblem { bins, grey, init, params, .. } = *problem;
     gpu.require_f64("dtam_solve", "the solver's per-pixel arithmetic is the CPU's f64")?;
     let start = Instant::now();

@@ -46,25 +46,131 @@ fn slice(a: &Array2<f32>) -> &[f32] {
     a.as_slice().expect("owned arrays are contiguous")
 }
 
-/// `−div (a, b)` at column `x` of row `y`: `a` the row's `x` component, `b` the row's `y` component,
-/// `b_up` the previous row's (`None` on the first row); `last_row` drops `b` (zero difference).
+/// One row of the dual update: `p ← Π((p + σ g (∇d̄ − M v̄/β)) s_p)`, `r ← Π(r + σ ∇v̄)`.
+/// `BELOW`: whether the next row exists (else the `y` differences are 0).
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn neg_div(a: &[f32], b: &[f32], b_up: Option<&[f32]>, last_row: bool, x: usize) -> f64 {
-    let w = a.len();
-    let mut div = 0.0;
-    if x + 1 < w {
-        div += a[x] as f64;
+fn dual_row<const BELOW: bool>(
+    (px, py): (&mut [f32], &mut [f32]),
+    r: [&mut [f32]; 4],
+    (c, vx, vy): (&[f32], &[f32], &[f32]),
+    (bd, bx, by): (&[f32], &[f32], &[f32]),
+    g: &[f32],
+    k: &Constants,
+) {
+    let w = c.len();
+    let [r0, r1, r2, r3] = r;
+    let pixel = |x: usize, right: bool, px: &mut f32, py: &mut f32, q: [&mut f32; 4]| {
+        let cv = c[x] as f64;
+        let (vxv, vyv) = (vx[x] as f64, vy[x] as f64);
+        let (kx, jxx, jyx) = if right {
+            (c[x + 1] as f64 - cv - vxv * k.inv_beta, vx[x + 1] as f64 - vxv, vy[x + 1] as f64 - vyv)
+        } else {
+            (0.0, 0.0, 0.0)
+        };
+        let (ky, jxy, jyy) = if BELOW {
+            (bd[x] as f64 - cv - vyv * k.inv_beta, bx[x] as f64 - vxv, by[x] as f64 - vyv)
+        } else {
+            (0.0, 0.0, 0.0)
+        };
+        let gv = g[x] as f64;
+        let nx = (*px as f64 + k.s * gv * kx) * k.dual_scale;
+        let ny = (*py as f64 + k.s * gv * ky) * k.dual_scale;
+        let shrink = 1.0 / (nx * nx + ny * ny).sqrt().max(1.0);
+        *px = (nx * shrink) as f32;
+        *py = (ny * shrink) as f32;
+        let [q0, q1, q2, q3] = q;
+        let m =
+            [*q0 as f64 + k.s * jxx, *q1 as f64 + k.s * jxy, *q2 as f64 + k.s * jyx, *q3 as f64 + k.s * jyy];
+        let shrink = 1.0 / (m[0] * m[0] + m[1] * m[1] + m[2] * m[2] + m[3] * m[3]).sqrt().max(1.0);
+        *q0 = (m[0] * shrink) as f32;
+        *q1 = (m[1] * shrink) as f32;
+        *q2 = (m[2] * shrink) as f32;
+        *q3 = (m[3] * shrink) as f32;
+    };
+    if w == 0 {
+        return;
     }
-    if x > 0 {
-        div -= a[x - 1] as f64;
+    for x in 0..w - 1 {
+        pixel(x, true, &mut px[x], &mut py[x], [&mut r0[x], &mut r1[x], &mut r2[x], &mut r3[x]]);
     }
-    if !last_row {
-        div += b[x] as f64;
+    let x = w - 1;
+    pixel(x, false, &mut px[x], &mut py[x], [&mut r0[x], &mut r1[x], &mut r2[x], &mut r3[x]]);
+}
+
+/// The rows the primal update of row `y` reads.
+struct PrimalIn<'a> {
+    px: &'a [f32],
+    py: &'a [f32],
+    g: &'a [f32],
+    /// Row `y − 1`'s `p_y` and `g` (`None` on the first row).
+    up: Option<(&'a [f32], &'a [f32])>,
+    /// `r` of row `y`, and `r_xy`, `r_yy` of row `y − 1`.
+    r: [&'a [f32]; 4],
+    r_up: Option<(&'a [f32], &'a [f32])>,
+    a_term: &'a [f64],
+}
+
+/// One row of the primal update: `d' = (d − τ(−div(g p)) + τa/θ) s_d`,
+/// `v' = v − τ(−M g p/β − div r)`, and the extrapolations. `BELOW`: whether the next row exists.
+#[inline(always)]
+fn primal_row<const BELOW: bool>(
+    (d, d_bar): (&mut [f32], &mut [f32]),
+    (vx, vxb, vy, vyb): (&mut [f32], &mut [f32], &mut [f32], &mut [f32]),
+    i: &PrimalIn,
+    k: &Constants,
+) {
+    let w = d.len();
+    // `g p` in f32, as the Huber-TV step's `q * g`.
+    let gpx = |x: usize| i.px[x] * i.g[x];
+    let gpy = |x: usize| i.py[x] * i.g[x];
+    for x in 0..w {
+        let (left, right) = (x > 0, x + 1 < w);
+        let mut div_d = 0.0;
+        let (mut div_x, mut div_y) = (0.0, 0.0);
+        if right {
+            div_d += gpx(x) as f64;
+            div_x += i.r[0][x] as f64;
+            div_y += i.r[2][x] as f64;
+        }
+        if left {
+            div_d -= gpx(x - 1) as f64;
+            div_x -= i.r[0][x - 1] as f64;
+            div_y -= i.r[2][x - 1] as f64;
+        }
+        if BELOW {
+            div_d += gpy(x) as f64;
+            div_x += i.r[1][x] as f64;
+            div_y += i.r[3][x] as f64;
+        }
+        if let Some((py_up, g_up)) = i.up {
+            div_d -= (py_up[x] * g_up[x]) as f64;
+        }
+        if let Some((r1_up, r3_up)) = i.r_up {
+            div_x -= r1_up[x] as f64;
+            div_y -= r3_up[x] as f64;
+        }
+        let old = d[x];
+        let new = ((old as f64 + k.s * div_d + i.a_term[x]) * k.primal_scale) as f32;
+        d[x] = new;
+        d_bar[x] = 2.0 * new - old;
+        let mx = if right { gpx(x) as f64 * k.inv_beta } else { 0.0 };
+        let my = if BELOW { gpy(x) as f64 * k.inv_beta } else { 0.0 };
+        let (ox, oy) = (vx[x], vy[x]);
+        let (nx, ny) = ((ox as f64 + k.s * (mx + div_x)) as f32, (oy as f64 + k.s * (my + div_y)) as f32);
+        vx[x] = nx;
+        vy[x] = ny;
+        vxb[x] = 2.0 * nx - ox;
+        vyb[x] = 2.0 * ny - oy;
     }
-    if let Some(up) = b_up {
-        div -= up[x] as f64;
-    }
-    -div
+}
+
+/// Per-step constants, each evaluated once.
+struct Constants {
+    s: f64,
+    inv_beta: f64,
+    dual_scale: f64,
+    primal_scale: f64,
 }
 
 impl HuberTv {
@@ -72,9 +178,13 @@ impl HuberTv {
     pub(super) fn tgv_steps(&mut self, a: &[f32], theta: f64, n: usize) {
         let mut so = self.second.take().expect("TGV steps need the second-order state");
         let (h, w) = self.d.dim();
-        let (s, beta) = (so.step, so.beta);
-        let dual_scale = 1.0 / (1.0 + s * self.eps);
-        let primal_scale = 1.0 / (1.0 + s / theta);
+        let s = so.step;
+        let k = Constants {
+            s,
+            inv_beta: 1.0 / so.beta,
+            dual_scale: 1.0 / (1.0 + s * self.eps),
+            primal_scale: 1.0 / (1.0 + s / theta),
+        };
         let a_term: Vec<f64> = a.iter().map(|&a| s * a as f64 / theta).collect();
         for _ in 0..n {
             // Dual: p from g (∇d̄ − M v̄/β), r from ∇v̄.
@@ -93,43 +203,13 @@ impl HuberTv {
                     .zip(r3.as_slice_mut().expect("contiguous").par_chunks_mut(w));
                 px.par_chunks_mut(w).zip(py.par_chunks_mut(w)).zip(rs).enumerate().for_each(
                     |(y, ((rx, ry), (((q0, q1), q2), q3)))| {
-                        let (c, gw, vx, vy) =
-                            (row(d_bar, y, w), row(g, y, w), row(vxb, y, w), row(vyb, y, w));
-                        let below = (y + 1 < h)
-                            .then(|| (row(d_bar, y + 1, w), row(vxb, y + 1, w), row(vyb, y + 1, w)));
-                        for x in 0..w {
-                            let cv = c[x] as f64;
-                            let (vxv, vyv) = (vx[x] as f64, vy[x] as f64);
-                            let kx = if x + 1 < w { c[x + 1] as f64 - cv - vxv / beta } else { 0.0 };
-                            let (ky, jxy, jyy) = match below {
-                                Some((bd, bx, by)) => {
-                                    (bd[x] as f64 - cv - vyv / beta, bx[x] as f64 - vxv, by[x] as f64 - vyv)
-                                }
-                                None => (0.0, 0.0, 0.0),
-                            };
-                            let (jxx, jyx) = if x + 1 < w {
-                                (vx[x + 1] as f64 - vxv, vy[x + 1] as f64 - vyv)
-                            } else {
-                                (0.0, 0.0)
-                            };
-                            let gv = gw[x] as f64;
-                            let nx = (rx[x] as f64 + s * gv * kx) * dual_scale;
-                            let ny = (ry[x] as f64 + s * gv * ky) * dual_scale;
-                            let shrink = 1.0 / (nx * nx + ny * ny).sqrt().max(1.0);
-                            rx[x] = (nx * shrink) as f32;
-                            ry[x] = (ny * shrink) as f32;
-                            let m = [
-                                q0[x] as f64 + s * jxx,
-                                q1[x] as f64 + s * jxy,
-                                q2[x] as f64 + s * jyx,
-                                q3[x] as f64 + s * jyy,
-                            ];
-                            let shrink =
-                                1.0 / (m[0] * m[0] + m[1] * m[1] + m[2] * m[2] + m[3] * m[3]).sqrt().max(1.0);
-                            q0[x] = (m[0] * shrink) as f32;
-                            q1[x] = (m[1] * shrink) as f32;
-                            q2[x] = (m[2] * shrink) as f32;
-                            q3[x] = (m[3] * shrink) as f32;
+                        let here = (row(d_bar, y, w), row(vxb, y, w), row(vyb, y, w));
+                        let (p, r, g) = ((rx, ry), [q0, q1, q2, q3], row(g, y, w));
+                        if y + 1 < h {
+                            let below = (row(d_bar, y + 1, w), row(vxb, y + 1, w), row(vyb, y + 1, w));
+                            dual_row::<true>(p, r, here, below, g, &k);
+                        } else {
+                            dual_row::<false>(p, r, here, here, g, &k);
                         }
                     },
                 );
@@ -149,33 +229,22 @@ impl HuberTv {
                 .zip(so.vx_bar.as_slice_mut().expect("contiguous").par_chunks_mut(w))
                 .zip(so.vy.as_slice_mut().expect("contiguous").par_chunks_mut(w))
                 .zip(so.vy_bar.as_slice_mut().expect("contiguous").par_chunks_mut(w));
+            let a_term = &a_term;
             d.par_chunks_mut(w).zip(d_bar.par_chunks_mut(w)).zip(vs).enumerate().for_each(
                 |(y, ((rd, rb), (((vx, vxb), vy), vyb)))| {
-                    let last_row = y + 1 >= h;
-                    // `g p` in f32, as the Huber-TV step's `q * g`.
-                    let gpx: Vec<f32> = (0..w).map(|x| row(px, y, w)[x] * row(g, y, w)[x]).collect();
-                    let gpy: Vec<f32> = (0..w).map(|x| row(py, y, w)[x] * row(g, y, w)[x]).collect();
-                    let gpy_up: Option<Vec<f32>> =
-                        (y > 0).then(|| (0..w).map(|x| row(py, y - 1, w)[x] * row(g, y - 1, w)[x]).collect());
-                    let (r1_up, r3_up) =
-                        ((y > 0).then(|| row(r1, y - 1, w)), (y > 0).then(|| row(r3, y - 1, w)));
-                    let (q0, q1, q2, q3) = (row(r0, y, w), row(r1, y, w), row(r2, y, w), row(r3, y, w));
-                    for x in 0..w {
-                        let kt_d = neg_div(&gpx, &gpy, gpy_up.as_deref(), last_row, x);
-                        let old = rd[x];
-                        let new = ((old as f64 - s * kt_d + a_term[y * w + x]) * primal_scale) as f32;
-                        rd[x] = new;
-                        rb[x] = 2.0 * new - old;
-                        let mx = if x + 1 < w { gpx[x] as f64 / beta } else { 0.0 };
-                        let kt_x = -mx + neg_div(q0, q1, r1_up, last_row, x);
-                        let my = if !last_row { gpy[x] as f64 / beta } else { 0.0 };
-                        let kt_y = -my + neg_div(q2, q3, r3_up, last_row, x);
-                        let (ox, oy) = (vx[x], vy[x]);
-                        let (nx, ny) = ((ox as f64 - s * kt_x) as f32, (oy as f64 - s * kt_y) as f32);
-                        vx[x] = nx;
-                        vy[x] = ny;
-                        vxb[x] = 2.0 * nx - ox;
-                        vyb[x] = 2.0 * ny - oy;
+                    let i = PrimalIn {
+                        px: row(px, y, w),
+                        py: row(py, y, w),
+                        g: row(g, y, w),
+                        up: (y > 0).then(|| (row(py, y - 1, w), row(g, y - 1, w))),
+                        r: [row(r0, y, w), row(r1, y, w), row(r2, y, w), row(r3, y, w)],
+                        r_up: (y > 0).then(|| (row(r1, y - 1, w), row(r3, y - 1, w))),
+                        a_term: row(a_term, y, w),
+                    };
+                    if y + 1 < h {
+                        primal_row::<true>((rd, rb), (vx, vxb, vy, vyb), &i, &k);
+                    } else {
+                        primal_row::<false>((rd, rb), (vx, vxb, vy, vyb), &i, &k);
                     }
                 },
             );

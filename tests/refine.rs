@@ -216,8 +216,9 @@ fn refinement_is_independent_of_thread_count() {
 #[test]
 fn level1_estimate_moves_by_the_tent_mean_of_its_pixels() {
     let s = Scene::new(48, 40, &CENTRES);
-    let bins = InverseDepthBins::new(0.1, 2.5, 61).unwrap(); // Δρ = 0.04
-    let step = 0.04;
+    // The refinement's step is the range over 128 bins whatever the volume's count (Δρ ≈ 0.04).
+    let bins = InverseDepthBins::new(0.1, 0.1 + 0.04 * 127.0, 61).unwrap();
+    let step = (bins.rho_max - bins.rho_min) / 127.0;
     let at1 = s.cam.at_level(1);
     // A level-1 estimate off by 0.7 bin, one pixel without an estimate.
     let mut inv = Array2::from_shape_fn((at1.height, at1.width), |(j, i)| {
@@ -266,6 +267,15 @@ fn level1_estimate_moves_by_the_tent_mean_of_its_pixels() {
         e
     };
     assert!(err(&new_inv) < 0.25 * err(&inv), "{} vs {}", err(&new_inv), err(&inv));
+    // The volume's bin count does not change the refinement: the same range over 128 or 256 bins
+    // refines bit for bit alike.
+    for k in [128, 256] {
+        let other = InverseDepthBins::new(bins.rho_min, bins.rho_max, k).unwrap();
+        let (inv_k, _, _) =
+            refine_estimate(inv.view(), depth.view(), 1, s.key.view(), &s.cam, &views, &other, &REFINE_DEFAULTS)
+                .unwrap();
+        assert!(inv_k.iter().zip(new_inv.iter()).all(|(a, b)| a.to_bits() == b.to_bits()), "{k} bins");
+    }
 }
 
 #[test]

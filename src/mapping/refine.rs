@@ -25,7 +25,8 @@ use crate::geometry::{InverseDepthBins, PinholeCamera, Pose};
 /// validation scenes by mesh F-score, docs/map/results.md).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct RefineParams {
-    /// Half-width of the search, in bin steps `Δρ = (ρ_max − ρ_min)/(K − 1)`.
+    /// Half-width of the search, in steps `Δρ = (ρ_max − ρ_min)/(K₀ − 1)`, `K₀` =
+    /// [`REFERENCE_BINS`] whatever the volume's `K` (SPEC.md §10.3).
     pub radius_bins: f64,
     /// Hypotheses over `[−radius, radius]`, evenly spaced, odd (the estimate itself is one).
     pub samples: usize,
@@ -51,6 +52,11 @@ pub const REFINE_DEFAULTS: RefineParams = RefineParams {
     min_variance: 9.0,
     min_curvature: 0.002,
 };
+
+/// The refinement's step `Δρ` is the range over this many bins, whatever `--bins` is: its radius and
+/// curvature floor were chosen at the default 128 bins, and keep their meaning in inverse depth
+/// when the volume is finer or coarser (SPEC.md §10.3).
+pub const REFERENCE_BINS: usize = 128;
 
 /// Variance floor inside the correlation's square root (levels²).
 const VARIANCE_FLOOR: f64 = 1e-6;
@@ -631,7 +637,7 @@ pub fn refine_estimate(
         .map_collect(|&r, &d| r.is_finite() && r > 0.0 && d.is_finite() && d > 0.0);
     let (h0, w0) = (camera.height, camera.width);
     let rho0 = upsample(inverse_depth, valid.view(), level, h0, w0);
-    let step = bins.step();
+    let step = (bins.rho_max - bins.rho_min) / (REFERENCE_BINS - 1) as f64;
     let refined = refine_level0(&Level0 { key, camera, rho0: rho0.view(), views, step }, p)?;
     let r = p.half_window;
     let report = RefineReport {

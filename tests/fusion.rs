@@ -584,6 +584,22 @@ fn map_writes_mesh_metrics_and_resumes() {
             "{err}"
         );
     }
+    // TGV (SPEC.md §10.4): its β is recorded and part of the fingerprint; each keyframe's estimate
+    // is `depth_tgv.pfm`.
+    for (beta, computed) in [("4", true), ("4", false), ("8", true)] {
+        let run = map_cmd(&out, &["--min-evidence", "0.3", "--regularizer", "tgv", "--tgv-beta", beta]);
+        let text = String::from_utf8_lossy(&run.stdout).to_string();
+        let all = format!("{} computed", keys.len());
+        assert!(run.status.success() && text.contains(&all) == computed, "β {beta}: {text}");
+        let doc: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("map.json")).unwrap()).unwrap();
+        assert_eq!(doc["mapping"]["tgv_beta"], beta.parse::<f64>().unwrap(), "{doc}");
+    }
+    assert!(std::fs::read_dir(out.join("keyframes")).unwrap().all(|k| k
+        .unwrap()
+        .path()
+        .join("depth_tgv.pfm")
+        .exists()));
 }
 
 #[test]

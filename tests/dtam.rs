@@ -10,22 +10,15 @@ use densefeat::dtam::{
     search_with_energy, solve, solve_reference, solve_with, total_energy, CostRange, DtamParams, DtamProblem,
     HuberTv,
 };
-use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
+use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera};
 use densefeat::image::to_gray;
 use densefeat::runtime::CpuFeatureLevel;
-use densefeat::synth::{Quad, Scene, Shape, Surface, Texture};
-use nalgebra::{Translation3, UnitQuaternion, Vector3};
+use densefeat::synth::Quad;
+use nalgebra::Vector3;
 use ndarray::{Array2, Array3, ArrayView2};
 use proptest::prelude::*;
 
-/// A deterministic pseudo-random stream from a seed (tests only).
-fn stream(seed: u64) -> impl FnMut() -> f64 {
-    let mut s = seed ^ 0x9E37_79B9_7F4A_7C15;
-    move || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
+use crate::common::dtam_cases::{fingerprint, stream, with_threads};
 
 fn random_volume(h: usize, w: usize, k: usize, seed: u64, unseen: f64) -> Array3<f32> {
     let mut r = stream(seed);
@@ -200,20 +193,6 @@ fn odd_volume(h: usize, w: usize, k: usize, seed: u64, unseen: f64, odd: f64) ->
         }
     }
     costs
-}
-
-/// The bits of a solve's result and report (all but the wall time).
-type Fingerprint = (Vec<u32>, Vec<u32>, Vec<u64>, Vec<u64>, usize, bool);
-
-fn fingerprint((res, rep): (densefeat::dtam::DtamResult, densefeat::dtam::DtamReport)) -> Fingerprint {
-    (
-        res.inverse_depth.iter().map(|v| v.to_bits()).collect(),
-        res.auxiliary.iter().map(|v| v.to_bits()).collect(),
-        rep.energy.iter().map(|v| v.to_bits()).collect(),
-        rep.gap.iter().map(|v| v.to_bits()).collect(),
-        rep.iterations,
-        rep.converged,
-    )
 }
 
 #[test]
@@ -460,10 +439,10 @@ fn solve_is_independent_of_thread_count() {
     let init = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
     let params = DtamParams { iterations: 40, ..DtamParams::default() };
     let run = |n: usize| {
-        rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| {
-            let (res, rep) =
-                solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)).unwrap();
-            (res.inverse_depth.mapv(f32::to_bits), rep.energy.iter().map(|e| e.to_bits()).collect::<Vec<_>>())
+        with_threads(n, || {
+            fingerprint(
+                solve(&DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)).unwrap(),
+            )
         })
     };
     let one = run(1);
@@ -493,17 +472,8 @@ fn bad_parameters_are_rejected() {
 /// Render a weakly textured plane from five cameras on a horizontal line, build the RGB cost
 /// volume of the middle one, and return (WTA, TV, ground-truth) inverse depth over the interior.
 fn plane_case(plane: Quad) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-    let cam = PinholeCamera::new(128.0, 128.0, 79.5, 59.5, 160, 120).unwrap();
-    // Faint, low-contrast texture: winner-take-all is noisy here, as on real walls.
-    let texture =
-        Texture::Noise { a: [0.45, 0.45, 0.45], b: [0.55, 0.55, 0.55], scale: 0.05, octaves: 2, key: 3 };
-    let poses: Vec<Pose> = (0..5)
-        .map(|i| {
-            Pose::from_parts(Translation3::new(0.1 * (i as f64 - 2.0), 0.0, 0.0), UnitQuaternion::identity())
-        })
-        .collect();
-    let scene = Scene::new(cam, poses.clone(), vec![Surface { shape: Shape::Quad(plane), texture }]);
-    let frames: Vec<_> = (0..5).map(|i| scene.render(i).unwrap()).collect();
+    let cam = crate::common::dtam_cases::plane_camera();
+    let (poses, frames) = crate::common::dtam_cases::render_plane(plane);
     let bins = InverseDepthBins::new(0.2, 1.0, 64).unwrap();
     let mut cv = CostVolume::new(frames[2].rgb.clone(), cam, bins).unwrap();
     for i in [0, 1, 3, 4] {

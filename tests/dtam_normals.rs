@@ -2,26 +2,17 @@
 //! on a rendered plane, the row-parallel f32 steps against the naive f64 reference, thread-count
 //! determinism, recovery of a steep plane where Huber-TV bends it, and the normals sources.
 
-use densefeat::costvolume::CostVolume;
 use densefeat::dtam::normal_prior::{adjoint, apply, slope, Reference};
 use densefeat::dtam::{solve, DtamParams, DtamProblem, HuberTv, SlopeField};
-use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
-use densefeat::image::to_gray;
 use densefeat::io::write_npy_f32;
 use densefeat::mapping::normals::{normals_at_level, normals_from_depth, read_normals};
-use densefeat::synth::{Quad, Scene, Shape, Surface, Texture};
-use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{s, Array2, Array3};
 use proptest::prelude::*;
 
-/// A deterministic pseudo-random stream from a seed (tests only).
-fn stream(seed: u64) -> impl FnMut() -> f64 {
-    let mut s = seed ^ 0x9E37_79B9_7F4A_7C15;
-    move || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
+use crate::common::dtam_cases::{
+    fingerprint, plane_camera as camera, plane_frames, plane_volume, random_solve_inputs, rms, stream,
+    with_threads, PlaneVolume,
+};
 
 /// A random slope field of magnitude up to `scale` per component, zero in the last column (x)
 /// and row (y) as `SlopeField::new` makes it, and zero at a fifth of the pixels (fallback).
@@ -82,20 +73,6 @@ proptest! {
     }
 }
 
-/// Random DTAM inputs `[h, w, k]` from `seed`: costs in [0, 50), bins over [0.1, 2] 1/m, grey levels
-/// in [0, 255), initial inverse depth in [0.1, 2].
-fn random_solve_inputs(
-    (h, w, k): (usize, usize, usize),
-    seed: u64,
-) -> (Array3<f32>, InverseDepthBins, Array2<f32>, Array2<f32>) {
-    let mut r = stream(seed);
-    let costs = Array3::from_shape_fn((h, w, k), |_| (r() * 50.0) as f32);
-    let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
-    let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
-    let init = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
-    (costs, bins, grey, init)
-}
-
 #[test]
 fn a_normal_problem_solves_the_same_on_every_path_and_a_wrong_slope_is_refused() {
     // One `DtamProblem` (issue 33 item 2): `dtam::solve`, the unfused `solve_reference` and the CPU
@@ -130,16 +107,12 @@ fn normal_solve_is_independent_of_thread_count() {
     let params =
         DtamParams { iterations: 20, max_iterations: 30, steps_per_search: 3, ..DtamParams::default() };
     let run = |n: usize| {
-        rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| {
-            let (res, rep) = solve(
-                &DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params).with_slope(&q),
-            )
-            .unwrap();
-            (
-                res.inverse_depth.mapv(f32::to_bits),
-                res.auxiliary.mapv(f32::to_bits),
-                rep.energy.iter().map(|e| e.to_bits()).collect::<Vec<_>>(),
-                rep.gap.iter().map(|e| e.to_bits()).collect::<Vec<_>>(),
+        with_threads(n, || {
+            fingerprint(
+                solve(
+                    &DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params).with_slope(&q),
+                )
+                .unwrap(),
             )
         })
     };
@@ -162,31 +135,6 @@ fn normal_energy_is_the_reference_regulariser() {
     let oracle = Reference::new(d0.view(), g.view(), 1e-3, q);
     let (a, b) = (tv.regulariser_energy(), oracle.regulariser_energy());
     assert!((a - b).abs() <= 1e-12 * b.abs(), "{a} vs {b}");
-}
-
-const PLANE_CAMERA: (f64, f64, f64, f64, usize, usize) = (128.0, 128.0, 79.5, 59.5, 160, 120);
-
-fn camera() -> PinholeCamera {
-    let (fx, fy, cx, cy, w, h) = PLANE_CAMERA;
-    PinholeCamera::new(fx, fy, cx, cy, w, h).unwrap()
-}
-
-/// A plane through `(0, 0, 2)` turned `degrees` about the vertical axis (normal `(−sin, 0, cos)`
-/// up to sign), rendered from 5 cameras on a horizontal line, with faint texture.
-fn plane_frames(degrees: f64) -> (Vec<Pose>, Vec<densefeat::synth::SynthFrame>) {
-    let (s, c) = degrees.to_radians().sin_cos();
-    let axis_u = Vector3::new(c, 0.0, s);
-    let plane = Quad::new(Vector3::new(0.0, -10.0, 2.0) - axis_u * 6.0, axis_u, Vector3::y(), [12.0, 20.0]);
-    let texture =
-        Texture::Noise { a: [0.45, 0.45, 0.45], b: [0.55, 0.55, 0.55], scale: 0.05, octaves: 2, key: 3 };
-    let poses: Vec<Pose> = (0..5)
-        .map(|i| {
-            Pose::from_parts(Translation3::new(0.1 * (i as f64 - 2.0), 0.0, 0.0), UnitQuaternion::identity())
-        })
-        .collect();
-    let scene = Scene::new(camera(), poses.clone(), vec![Surface { shape: Shape::Quad(plane), texture }]);
-    let frames = (0..5).map(|i| scene.render(i).unwrap()).collect();
-    (poses, frames)
 }
 
 #[test]
@@ -233,39 +181,16 @@ fn normal_prior_annihilates_a_rendered_plane() {
     assert_eq!((sx, sy), (truth[0] / cam.fx / den, truth[1] / cam.fy / den));
 }
 
-/// (WTA, TV, normal prior, ground truth) over the interior of a rendered plane seen by 5 cameras
-/// (faint RGB texture), the mapping's normalised schedule at `lambda`.
+/// (WTA, TV, normal prior with the rendered depth's normals, ground truth) over the interior of
+/// [`plane_volume`]`(degrees)` at `lambda`.
 fn rgb_plane_case(degrees: f64, lambda: f64) -> [Vec<f64>; 4] {
-    let (poses, frames) = plane_frames(degrees);
+    let v = plane_volume(degrees, lambda);
     let cam = camera();
-    let bins = InverseDepthBins::new(0.1, 1.0, 64).unwrap();
-    let mut cv = CostVolume::new(frames[2].rgb.clone(), cam, bins).unwrap();
-    for i in [0, 1, 3, 4] {
-        cv.add_frame(frames[i].rgb.view(), &relative_pose(&poses[2], &poses[i])).unwrap();
-    }
-    let wta = cv.winner_take_all();
-    let costs = cv.costs();
-    let grey = to_gray(&frames[2].rgb);
-    let params = DtamParams { lambda, ..densefeat::dtam::MAPPING_DEFAULTS }.normalised(
-        densefeat::costvolume::cost_scale(costs.view()),
-        cam.width,
-        bins.rho_max - bins.rho_min,
-    );
-    let (tv, _) =
-        solve(&DtamProblem::new(costs.view(), &bins, grey.view(), wta.inverse_depth.view(), &params))
-            .unwrap();
-    let q = SlopeField::new(normals_from_depth(&frames[2].depth, &cam).view(), &cam).unwrap();
-    let (nm, _) = solve(
-        &DtamProblem::new(costs.view(), &bins, grey.view(), wta.inverse_depth.view(), &params).with_slope(&q),
-    )
-    .unwrap();
-    let gt = frames[2].depth.mapv(|z| 1.0 / z);
-    let pick = |m: &Array2<f32>| m.slice(s![10..110, 10..110]).iter().map(|&v| v as f64).collect::<Vec<_>>();
-    [pick(&wta.inverse_depth), pick(&tv.inverse_depth), pick(&nm.inverse_depth), pick(&gt)]
-}
-
-fn rms(a: &[f64], b: &[f64]) -> f64 {
-    (a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>() / a.len() as f64).sqrt()
+    let (tv, _) = solve(&v.problem()).unwrap();
+    let q = SlopeField::new(normals_from_depth(&v.depth, &cam).view(), &cam).unwrap();
+    let (nm, _) = solve(&v.problem().with_slope(&q)).unwrap();
+    let pick = PlaneVolume::interior;
+    [pick(&v.wta), pick(&tv.inverse_depth), pick(&nm.inverse_depth), v.truth()]
 }
 
 #[test]

@@ -3,24 +3,14 @@
 //! the energy, thread-count determinism, one problem on every path, and a slanted plane that TGV
 //! keeps where Huber-TV bends it.
 
-use densefeat::costvolume::CostVolume;
 use densefeat::dtam::tgv::{adjoint, apply, normalised_beta, step_size, Dual, Primal, Reference};
 use densefeat::dtam::{solve, DtamParams, DtamProblem, HuberTv};
-use densefeat::geometry::{relative_pose, InverseDepthBins, PinholeCamera, Pose};
-use densefeat::image::to_gray;
-use densefeat::synth::{Quad, Scene, Shape, Surface, Texture};
-use nalgebra::{Translation3, UnitQuaternion, Vector3};
-use ndarray::{s, Array2, Array3};
+use ndarray::Array2;
 use proptest::prelude::*;
 
-/// A deterministic pseudo-random stream from a seed (tests only).
-fn stream(seed: u64) -> impl FnMut() -> f64 {
-    let mut s = seed ^ 0x9E37_79B9_7F4A_7C15;
-    move || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
+use crate::common::dtam_cases::{
+    fingerprint, plane_camera, plane_volume, random_solve_inputs, rms, stream, with_threads, PlaneVolume,
+};
 
 fn field(h: usize, w: usize, r: &mut impl FnMut() -> f64) -> Array2<f64> {
     Array2::from_shape_fn((h, w), |_| r() * 2.0 - 1.0)
@@ -98,20 +88,6 @@ proptest! {
     }
 }
 
-/// Random DTAM inputs `[h, w, k]` from `seed`: costs in [0, 50), bins over [0.1, 2] 1/m, grey levels
-/// in [0, 255), initial inverse depth in [0.1, 2].
-fn random_solve_inputs(
-    (h, w, k): (usize, usize, usize),
-    seed: u64,
-) -> (Array3<f32>, InverseDepthBins, Array2<f32>, Array2<f32>) {
-    let mut r = stream(seed);
-    let costs = Array3::from_shape_fn((h, w, k), |_| (r() * 50.0) as f32);
-    let bins = InverseDepthBins::new(0.1, 2.0, k).unwrap();
-    let grey = Array2::from_shape_fn((h, w), |_| (r() * 255.0) as f32);
-    let init = Array2::from_shape_fn((h, w), |_| (0.1 + 1.9 * r()) as f32);
-    (costs, bins, grey, init)
-}
-
 #[test]
 fn tgv_energy_is_the_reference_regulariser() {
     // After some steps (v no longer 0), the solver's regulariser (row sums of the f32 state)
@@ -148,13 +124,7 @@ fn a_tgv_problem_solves_the_same_on_every_path() {
         DtamParams { iterations: 12, max_iterations: 16, steps_per_search: 2, ..DtamParams::default() };
     let problem =
         DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params).with_second_order(1.5);
-    let bits = |(res, rep): (densefeat::dtam::DtamResult, densefeat::dtam::DtamReport)| {
-        (
-            res.inverse_depth.mapv(f32::to_bits),
-            res.auxiliary.mapv(f32::to_bits),
-            rep.energy.iter().map(|e| e.to_bits()).collect::<Vec<_>>(),
-        )
-    };
+    let bits = fingerprint;
     let fused = bits(solve(&problem).unwrap());
     assert!(bits(solve_reference(&problem).unwrap()) == fused, "the unfused definition differs");
     assert!(bits(CpuBackend::default().dtam_solve(&problem).unwrap()) == fused, "the backend differs");
@@ -176,18 +146,9 @@ fn tgv_solve_is_independent_of_thread_count() {
     let params =
         DtamParams { iterations: 20, max_iterations: 30, steps_per_search: 3, ..DtamParams::default() };
     let run = |n: usize| {
-        rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| {
-            let (res, rep) = solve(
-                &DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params)
-                    .with_second_order(2.0),
-            )
-            .unwrap();
-            (
-                res.inverse_depth.mapv(f32::to_bits),
-                res.auxiliary.mapv(f32::to_bits),
-                rep.energy.iter().map(|e| e.to_bits()).collect::<Vec<_>>(),
-                rep.gap.iter().map(|e| e.to_bits()).collect::<Vec<_>>(),
-            )
+        with_threads(n, || {
+            let problem = DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params);
+            fingerprint(solve(&problem.with_second_order(2.0)).unwrap())
         })
     };
     let one = run(1);
@@ -217,53 +178,15 @@ fn tgv_leaves_a_plane_and_its_slope_alone() {
     }
 }
 
-const PLANE_CAMERA: (f64, f64, f64, f64, usize, usize) = (128.0, 128.0, 79.5, 59.5, 160, 120);
-
-fn camera() -> PinholeCamera {
-    let (fx, fy, cx, cy, w, h) = PLANE_CAMERA;
-    PinholeCamera::new(fx, fy, cx, cy, w, h).unwrap()
-}
-
-/// (WTA, TV, TGV, ground truth) inverse depth over the interior of a plane through `(0, 0, 2)`
-/// turned `degrees` about the vertical axis, seen by 5 cameras on a horizontal line (faint
-/// texture), the mapping's normalised schedule at `lambda`, TGV at `beta` (pixels at 640 px).
+/// (WTA, TV, TGV, ground truth) inverse depth over the interior of [`plane_volume`]`(degrees)`
+/// at `lambda`, TGV at `beta` (pixels at 640 px).
 fn plane_case(degrees: f64, lambda: f64, beta: f64) -> [Vec<f64>; 4] {
-    let (s, c) = degrees.to_radians().sin_cos();
-    let axis_u = Vector3::new(c, 0.0, s);
-    let plane = Quad::new(Vector3::new(0.0, -10.0, 2.0) - axis_u * 6.0, axis_u, Vector3::y(), [12.0, 20.0]);
-    let texture =
-        Texture::Noise { a: [0.45, 0.45, 0.45], b: [0.55, 0.55, 0.55], scale: 0.05, octaves: 2, key: 3 };
-    let poses: Vec<Pose> = (0..5)
-        .map(|i| {
-            Pose::from_parts(Translation3::new(0.1 * (i as f64 - 2.0), 0.0, 0.0), UnitQuaternion::identity())
-        })
-        .collect();
-    let scene = Scene::new(camera(), poses.clone(), vec![Surface { shape: Shape::Quad(plane), texture }]);
-    let frames: Vec<_> = (0..5).map(|i| scene.render(i).unwrap()).collect();
-    let cam = camera();
-    let bins = InverseDepthBins::new(0.1, 1.0, 64).unwrap();
-    let mut cv = CostVolume::new(frames[2].rgb.clone(), cam, bins).unwrap();
-    for i in [0, 1, 3, 4] {
-        cv.add_frame(frames[i].rgb.view(), &relative_pose(&poses[2], &poses[i])).unwrap();
-    }
-    let wta = cv.winner_take_all();
-    let costs = cv.costs();
-    let grey = to_gray(&frames[2].rgb);
-    let params = DtamParams { lambda, ..densefeat::dtam::MAPPING_DEFAULTS }.normalised(
-        densefeat::costvolume::cost_scale(costs.view()),
-        cam.width,
-        bins.rho_max - bins.rho_min,
-    );
-    let problem = DtamProblem::new(costs.view(), &bins, grey.view(), wta.inverse_depth.view(), &params);
-    let (tv, _) = solve(&problem).unwrap();
-    let (tgv, _) = solve(&problem.with_second_order(normalised_beta(beta, cam.width))).unwrap();
-    let gt = frames[2].depth.mapv(|z| 1.0 / z);
-    let pick = |m: &Array2<f32>| m.slice(s![10..110, 10..110]).iter().map(|&v| v as f64).collect::<Vec<_>>();
-    [pick(&wta.inverse_depth), pick(&tv.inverse_depth), pick(&tgv.inverse_depth), pick(&gt)]
-}
-
-fn rms(a: &[f64], b: &[f64]) -> f64 {
-    (a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>() / a.len() as f64).sqrt()
+    let v = plane_volume(degrees, lambda);
+    let (tv, _) = solve(&v.problem()).unwrap();
+    let (tgv, _) =
+        solve(&v.problem().with_second_order(normalised_beta(beta, plane_camera().width))).unwrap();
+    let pick = PlaneVolume::interior;
+    [pick(&v.wta), pick(&tv.inverse_depth), pick(&tgv.inverse_depth), v.truth()]
 }
 
 #[test]

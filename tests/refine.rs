@@ -271,9 +271,17 @@ fn level1_estimate_moves_by_the_tent_mean_of_its_pixels() {
     // refines bit for bit alike.
     for k in [128, 256] {
         let other = InverseDepthBins::new(bins.rho_min, bins.rho_max, k).unwrap();
-        let (inv_k, _, _) =
-            refine_estimate(inv.view(), depth.view(), 1, s.key.view(), &s.cam, &views, &other, &REFINE_DEFAULTS)
-                .unwrap();
+        let (inv_k, _, _) = refine_estimate(
+            inv.view(),
+            depth.view(),
+            1,
+            s.key.view(),
+            &s.cam,
+            &views,
+            &other,
+            &REFINE_DEFAULTS,
+        )
+        .unwrap();
         assert!(inv_k.iter().zip(new_inv.iter()).all(|(a, b)| a.to_bits() == b.to_bits()), "{k} bins");
     }
 }

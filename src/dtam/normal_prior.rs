@@ -134,22 +134,9 @@ pub fn apply(d: ArrayView2<f64>, q: &SlopeField) -> (Array2<f64>, Array2<f64>) {
 /// `K_nᵀ p = −div p − q·p` in f64 (the definition; `−div` the exact adjoint of the forward
 /// differences).
 pub fn adjoint(px: ArrayView2<f64>, py: ArrayView2<f64>, q: &SlopeField) -> Array2<f64> {
-    let (h, w) = px.dim();
-    Array2::from_shape_fn((h, w), |(y, x)| {
-        let mut div = 0.0;
-        if x + 1 < w {
-            div += px[[y, x]];
-        }
-        if x > 0 {
-            div -= px[[y, x - 1]];
-        }
-        if y + 1 < h {
-            div += py[[y, x]];
-        }
-        if y > 0 {
-            div -= py[[y - 1, x]];
-        }
-        -div - (q.qx[[y, x]] as f64 * px[[y, x]] + q.qy[[y, x]] as f64 * py[[y, x]])
+    Array2::from_shape_fn(px.dim(), |(y, x)| {
+        super::tgv::neg_div(&px, &py, y, x)
+            - (q.qx[[y, x]] as f64 * px[[y, x]] + q.qy[[y, x]] as f64 * py[[y, x]])
     })
 }
 

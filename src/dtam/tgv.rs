@@ -99,8 +99,8 @@ fn dy(a: &ArrayView2<f64>, y: usize, x: usize) -> f64 {
     }
 }
 
-/// `−div (px, py)` at `(y, x)`: the adjoint of the forward differences.
-fn neg_div(px: &ArrayView2<f64>, py: &ArrayView2<f64>, y: usize, x: usize) -> f64 {
+/// `−div (px, py)` at `(y, x)`: the adjoint of the forward differences (also the normal prior's).
+pub(crate) fn neg_div(px: &ArrayView2<f64>, py: &ArrayView2<f64>, y: usize, x: usize) -> f64 {
     let (h, w) = px.dim();
     let mut div = 0.0;
     if x + 1 < w {

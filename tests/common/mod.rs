@@ -1,6 +1,7 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+pub mod dtam_cases;
 pub mod record3d;
 
 use std::path::{Path, PathBuf};

@@ -66,6 +66,19 @@ fn bench_tv_prints_iteration_and_solve_times() {
         .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--schedule"));
+    // `--tgv-beta` times TGV (SPEC.md §10.4) and refuses a β that is not positive.
+    let bench = |beta: &str| {
+        Command::new(env!("CARGO_BIN_EXE_densefeat"))
+            .args(["bench", "tv", "--size", "40x30", "--bins", "8", "--runs", "5", "--tgv-beta", beta])
+            .output()
+            .unwrap()
+    };
+    let out = bench("4");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("dtam with TGV (β 4 at 640 px)") && text.contains("full solve"), "{text}");
+    let out = bench("0");
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--tgv-beta"));
 }
 
 fn densefeat() -> Command {

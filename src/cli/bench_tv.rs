@@ -1,5 +1,5 @@
-//! `densefeat bench tv`: time the DTAM Huber-TV solver (SPEC.md §10, §12.2) on a synthetic cost
-//! volume: one iteration (median, with its parts: the primal-dual step and the fused a-search with
+//! `densefeat bench tv`: time the DTAM Huber-TV solver (SPEC.md §10, §12.2; `--tgv-beta B`: TGV,
+//! §10.4) on a synthetic cost volume: one iteration (median, with its parts: the primal-dual step and the fused a-search with
 //! the energy and gap, plus the a-search alone for scale), the same iteration in the unfused
 //! reference formulation, and a full solve (`--schedule mapping`: the pipeline's normalised
 //! defaults; `raw`: [`DtamParams::default`]).
@@ -43,6 +43,10 @@ pub struct BenchTvArgs {
     /// (`DtamParams::default()`, the solver's own defaults, §10).
     #[arg(long, default_value = "mapping", value_parser = ["mapping", "raw"])]
     pub schedule: String,
+    /// Time second-order TGV (SPEC.md §10.4) with this β (pixels at 640 px width) instead of
+    /// Huber-TV; CPU only.
+    #[arg(long)]
+    pub tgv_beta: Option<f64>,
 }
 
 /// The DTAM parameters `--schedule` names, for this volume.
@@ -76,9 +80,20 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
     if args.runs < 5 {
         return Err(Error::invalid_argument("--runs", format!("{}: must be at least 5", args.runs)));
     }
+    if let Some(b) = args.tgv_beta {
+        densefeat::dtam::tgv::check_beta(b)?;
+    }
     if args.backend.resolve()?.name() != "cpu" {
+        if args.tgv_beta.is_some() {
+            return Err(Error::invalid_argument("--tgv-beta", "TGV runs on the CPU only: use --backend cpu"));
+        }
         return device(args, width, height);
     }
+    let second_order = args.tgv_beta.map(|b| densefeat::dtam::tgv::normalised_beta(b, width));
+    let state = |init: &ndarray::Array2<f32>, g: &ndarray::Array2<f32>, eps: f64| match second_order {
+        Some(b) => HuberTv::with_second_order(init.clone(), g.clone(), eps, b),
+        None => HuberTv::new(init.clone(), g.clone(), eps),
+    };
     let pool = super::bench::pool(args.threads)?;
     let inputs = tv_inputs(width, height, args.bins)?;
     let params = schedule_params(&args.schedule, &inputs);
@@ -92,7 +107,7 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
         let range = CostRange::new(costs.view());
         // Iterations at θ_start: the widest pruned search, the slowest iteration of a solve.
         let theta = params.theta_start;
-        let mut tv = HuberTv::new(init.clone(), g.clone(), params.epsilon);
+        let mut tv = state(&init, &g, params.epsilon);
         let mut a = init.clone();
         for run in 0..args.runs + 2 {
             let t0 = Instant::now();
@@ -120,7 +135,7 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
             }
         }
         // The same iterations in the unfused reference formulation (`dtam::solve_reference`).
-        let mut tv = HuberTv::new(init.clone(), g, params.epsilon);
+        let mut tv = state(&init, &g, params.epsilon);
         let mut a = init.clone();
         for run in 0..args.runs + 2 {
             let t0 = Instant::now();
@@ -140,21 +155,21 @@ pub fn run(args: &BenchTvArgs) -> Result<()> {
         }
         for _ in 0..3 {
             let t = Instant::now();
-            let (_, report) = std::hint::black_box(solve(&DtamProblem::new(
-                costs.view(),
-                &bins,
-                grey.view(),
-                init.view(),
-                &params,
-            ))?);
+            let problem = DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params);
+            let problem = DtamProblem { second_order, ..problem };
+            let (_, report) = std::hint::black_box(solve(&problem)?);
             solves.push(t.elapsed().as_secs_f64());
             solve_iterations = report.iterations;
         }
         Ok(())
     })?;
     let solve_ms = median_ms(solves);
+    let what = match args.tgv_beta {
+        Some(b) => format!("dtam with TGV (β {b} at 640 px)"),
+        None => "dtam".to_string(),
+    };
     println!(
-        "dtam {width}x{height}, K={}, {} thread(s): one iteration (θ = θ_start) median {:.2} ms \
+        "{what} {width}x{height}, K={}, {} thread(s): one iteration (θ = θ_start) median {:.2} ms \
          = primal-dual step {:.2} + a-search with energy and gap {:.2} ms (a-search alone {:.2} ms; \
          {} runs)",
         args.bins,

@@ -81,7 +81,7 @@ proptest! {
         let worst = fast.primal().iter().zip(oracle.x.d.iter())
             .map(|(&f, &o)| (f as f64 - o).abs()).fold(0.0, f64::max);
         prop_assert!(worst <= budget, "max |d_fast - d_f64| = {worst:e} > budget {budget:e}");
-        let (wx, _) = fast.slope_field().unwrap();
+        let (wx, _) = fast.tgv_slope().unwrap();
         let worst_w = wx.iter().zip(oracle.x.vx.iter())
             .map(|(&f, &o)| (f as f64 - o / beta).abs()).fold(0.0, f64::max);
         prop_assert!(worst_w <= budget * 4.0 / beta.min(1.0), "max |w_fast - w_f64| = {worst_w:e}");
@@ -102,7 +102,7 @@ fn tgv_energy_is_the_reference_regulariser() {
     for _ in 0..7 {
         tv.step(a.view(), 0.05);
     }
-    let (wx, wy) = tv.slope_field().unwrap();
+    let (wx, wy) = tv.tgv_slope().unwrap();
     let mut oracle = Reference::new(tv.primal(), g.view(), 1e-3, beta);
     // The oracle's v is β w of the fast state (w = v/β is what the fast state reports).
     oracle.x.vx = wx.mapv(|v| v as f64 * beta);

@@ -197,7 +197,7 @@ impl HuberTv {
     }
 
     /// TGV²'s slope field `w = v/β` (inverse depth per pixel, `x` and `y`), if it is on.
-    pub fn slope_field(&self) -> Option<(Array2<f32>, Array2<f32>)> {
+    pub fn tgv_slope(&self) -> Option<(Array2<f32>, Array2<f32>)> {
         self.second.as_ref().map(|s| {
             let b = s.beta as f32;
             (s.vx.mapv(|v| v / b), s.vy.mapv(|v| v / b))

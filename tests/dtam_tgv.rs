@@ -192,10 +192,9 @@ fn plane_case(degrees: f64, lambda: f64, beta: f64) -> [Vec<f64>; 4] {
 #[test]
 fn tgv_recovers_a_steep_plane_that_tv_bends() {
     // The case of tests/dtam_normals.rs's normal-prior test, without normals: at λ = 1000 (a data
-    // term 10x weaker than the mapping default) TV bends the slanted plane, TGV (β = 4, the
-    // default) keeps it. One hypothesis spacing is 0.9/63 = 0.0143 1/m.
+    // term 10x weaker than the mapping default) TV bends the slanted plane, TGV (β = 4) keeps it. One hypothesis spacing is 0.9/63 = 0.0143 1/m.
     for degrees in [45.0, 55.0] {
-        let [wta, tv, tgv, gt] = plane_case(degrees, 1000.0, densefeat::dtam::tgv::DEFAULT_BETA);
+        let [wta, tv, tgv, gt] = plane_case(degrees, 1000.0, 4.0);
         let (e_wta, e_tv, e_tgv) = (rms(&wta, &gt), rms(&tv, &gt), rms(&tgv, &gt));
         eprintln!(
             "plane at {degrees}°, λ 1000: inverse-depth rms WTA {e_wta:.5}, TV {e_tv:.5}, TGV {e_tgv:.5} 1/m"

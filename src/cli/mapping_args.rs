@@ -79,7 +79,7 @@ pub struct MappingArgs {
     pub refine_min_variance: Option<f64>,
     /// TGV's `β` (`--regularizer tgv`, SPEC.md §10.4): in pixels at 640 px width, the length over
     /// which a change of slope costs what a jump of the same size does (large: Huber-TV).
-    /// [default: 4, chosen on validation meshes]
+    /// [default: 16, the better of 4 and 16 on validation depth and meshes; no command defaults to TGV]
     #[arg(long)]
     pub tgv_beta: Option<f64>,
     /// DTAM `λ` on the normalised cost at 640 px width (data term weighted by 1/(λ s), SPEC §10.1);

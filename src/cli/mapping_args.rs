@@ -280,7 +280,8 @@ impl MappingArgs {
         if self.tgv_beta.is_some() && regularizer != Regularizer::Tgv {
             return Err(Error::invalid_argument(
                 "--tgv-beta",
-                "sets TGV's second-order weight: it needs --regularizer tgv",
+                "sets TGV's second-order weight: it needs --regularizer tgv (reconstruct, map; eval and demo \
+                 have no TGV rows)",
             ));
         }
         if let Some(b) = self.tgv_beta {

@@ -46,9 +46,14 @@ fn slice(a: &Array2<f32>) -> &[f32] {
     a.as_slice().expect("owned arrays are contiguous")
 }
 
+/// The rows of an owned array, for a row-parallel pass.
+fn rows_mut(a: &mut Array2<f32>) -> rayon::slice::ChunksMut<'_, f32> {
+    let w = a.ncols().max(1);
+    a.as_slice_mut().expect("owned arrays are contiguous").par_chunks_mut(w)
+}
+
 /// One row of the dual update: `p ← Π((p + σ g (∇d̄ − M v̄/β)) s_p)`, `r ← Π(r + σ ∇v̄)`.
 /// `BELOW`: whether the next row exists (else the `y` differences are 0).
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn dual_row<const BELOW: bool>(
     (px, py): (&mut [f32], &mut [f32]),
@@ -176,7 +181,7 @@ struct Constants {
 impl HuberTv {
     /// `n` steps of the TGV² solve for fixed `a`, `θ` (`HuberTv::steps_with` with the second order).
     pub(super) fn tgv_steps(&mut self, a: &[f32], theta: f64, n: usize) {
-        let mut so = self.second.take().expect("TGV steps need the second-order state");
+        let so = self.second.as_mut().expect("TGV steps need the second-order state");
         let (h, w) = self.d.dim();
         let s = so.step;
         let k = Constants {
@@ -185,52 +190,38 @@ impl HuberTv {
             dual_scale: 1.0 / (1.0 + s * self.eps),
             primal_scale: 1.0 / (1.0 + s / theta),
         };
-        let a_term: Vec<f64> = a.iter().map(|&a| s * a as f64 / theta).collect();
+        // `(τ a) / θ` in the Huber-TV step's scratch, formed once per call.
+        self.a_term.clear();
+        self.a_term.extend(a.iter().map(|&a| s * a as f64 / theta));
+        let a_term = &self.a_term;
         for _ in 0..n {
             // Dual: p from g (∇d̄ − M v̄/β), r from ∇v̄.
-            {
-                let (d_bar, g) = (slice(&self.d_bar), slice(&self.g));
-                let (vxb, vyb) = (slice(&so.vx_bar), slice(&so.vy_bar));
-                let px = self.qx.as_slice_mut().expect("owned arrays are contiguous");
-                let py = self.qy.as_slice_mut().expect("owned arrays are contiguous");
-                let [r0, r1, r2, r3] = &mut so.r;
-                let rs = r0
-                    .as_slice_mut()
-                    .expect("contiguous")
-                    .par_chunks_mut(w)
-                    .zip(r1.as_slice_mut().expect("contiguous").par_chunks_mut(w))
-                    .zip(r2.as_slice_mut().expect("contiguous").par_chunks_mut(w))
-                    .zip(r3.as_slice_mut().expect("contiguous").par_chunks_mut(w));
-                px.par_chunks_mut(w).zip(py.par_chunks_mut(w)).zip(rs).enumerate().for_each(
-                    |(y, ((rx, ry), (((q0, q1), q2), q3)))| {
-                        let here = (row(d_bar, y, w), row(vxb, y, w), row(vyb, y, w));
-                        let (p, r, g) = ((rx, ry), [q0, q1, q2, q3], row(g, y, w));
-                        if y + 1 < h {
-                            let below = (row(d_bar, y + 1, w), row(vxb, y + 1, w), row(vyb, y + 1, w));
-                            dual_row::<true>(p, r, here, below, g, &k);
-                        } else {
-                            dual_row::<false>(p, r, here, here, g, &k);
-                        }
-                    },
-                );
-            }
+            let (d_bar, g) = (slice(&self.d_bar), slice(&self.g));
+            let (vxb, vyb) = (slice(&so.vx_bar), slice(&so.vy_bar));
+            let [r0, r1, r2, r3] = &mut so.r;
+            let rs = rows_mut(r0).zip(rows_mut(r1)).zip(rows_mut(r2)).zip(rows_mut(r3));
+            rows_mut(&mut self.qx).zip(rows_mut(&mut self.qy)).zip(rs).enumerate().for_each(
+                |(y, ((rx, ry), (((q0, q1), q2), q3)))| {
+                    let here = (row(d_bar, y, w), row(vxb, y, w), row(vyb, y, w));
+                    let (p, r, g) = ((rx, ry), [q0, q1, q2, q3], row(g, y, w));
+                    if y + 1 < h {
+                        let below = (row(d_bar, y + 1, w), row(vxb, y + 1, w), row(vyb, y + 1, w));
+                        dual_row::<true>(p, r, here, below, g, &k);
+                    } else {
+                        dual_row::<false>(p, r, here, here, g, &k);
+                    }
+                },
+            );
             // Primal: d from −div(g p) and the coupling, v from −M g p/β − div r; then the
             // extrapolations.
             let (px, py, g) = (slice(&self.qx), slice(&self.qy), slice(&self.g));
             let [r0, r1, r2, r3] = &so.r;
             let (r0, r1, r2, r3) = (slice(r0), slice(r1), slice(r2), slice(r3));
-            let d = self.d.as_slice_mut().expect("owned arrays are contiguous");
-            let d_bar = self.d_bar.as_slice_mut().expect("owned arrays are contiguous");
-            let vs = so
-                .vx
-                .as_slice_mut()
-                .expect("contiguous")
-                .par_chunks_mut(w)
-                .zip(so.vx_bar.as_slice_mut().expect("contiguous").par_chunks_mut(w))
-                .zip(so.vy.as_slice_mut().expect("contiguous").par_chunks_mut(w))
-                .zip(so.vy_bar.as_slice_mut().expect("contiguous").par_chunks_mut(w));
-            let a_term = &a_term;
-            d.par_chunks_mut(w).zip(d_bar.par_chunks_mut(w)).zip(vs).enumerate().for_each(
+            let vs = rows_mut(&mut so.vx)
+                .zip(rows_mut(&mut so.vx_bar))
+                .zip(rows_mut(&mut so.vy))
+                .zip(rows_mut(&mut so.vy_bar));
+            rows_mut(&mut self.d).zip(rows_mut(&mut self.d_bar)).zip(vs).enumerate().for_each(
                 |(y, ((rd, rb), (((vx, vxb), vy), vyb)))| {
                     let i = PrimalIn {
                         px: row(px, y, w),
@@ -249,7 +240,6 @@ impl HuberTv {
                 },
             );
         }
-        self.second = Some(so);
     }
 
     /// Row `y` of the TGV² state for [`tgv::regulariser_row`], with `β` (`None` without the

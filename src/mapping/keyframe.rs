@@ -754,7 +754,7 @@ pub fn reconstruct_cached(
         let t = Instant::now();
         let grey = to_gray(&colour);
         // One solve at `lambda`: Huber-TV (TGV with `Regularizer::Tgv`), or the normal prior with
-        // `slope`.
+        // `slope` (which only `Regularizer::Normals` / `TvAndNormals` pass, never with TGV).
         let second_order = (cfg.regularizer == Regularizer::Tgv)
             .then(|| crate::dtam::tgv::normalised_beta(cfg.tgv_beta, camera.width));
         let run = |lambda: f64, slope: Option<&SlopeField>| -> Result<(DepthEstimate, DtamReport)> {
@@ -765,7 +765,7 @@ pub fn reconstruct_cached(
             );
             let problem = DtamProblem {
                 slope,
-                second_order: second_order.filter(|_| slope.is_none()),
+                second_order,
                 ..DtamProblem::resident(&bins, grey.view(), w.inverse_depth.view(), &params)
             };
             let (res, report) = volume.dtam_solve(&problem)?;

@@ -9,6 +9,7 @@ mod cli;
 mod cli_defaults;
 mod costcurve;
 mod costvolume;
+mod depth_normals;
 mod dsift;
 mod dtam;
 mod dtam_normals;

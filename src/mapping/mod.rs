@@ -4,6 +4,7 @@
 //! keyframe selection and the whole-sequence map (§16.8).
 
 pub mod costcurve;
+pub mod depth_normals;
 pub mod evaluate;
 pub mod feature_cache;
 pub mod features;

@@ -9,13 +9,12 @@ use ndarray::{Array3, ArrayView3};
 
 use crate::error::{Error, Result};
 use crate::geometry::PinholeCamera;
-use crate::image::{is_valid_depth, DepthMap};
+use crate::image::DepthMap;
 use crate::normals_net::predict::{angular_errors, mean_and_median};
 use crate::normals_net::{NormalNet, NormalNetWeights, SHIPPED_NORMAL_WEIGHTS, SHIPPED_NORMAL_WEIGHTS_NAME};
 use crate::sequence::Sequence;
 
-/// Half-width of the central differences of [`normals_from_depth`], level-0 pixels.
-pub const GT_STENCIL: usize = 2;
+pub use super::depth_normals::{fit_radius, normals_from_depth, FIT_DEPTH_GATE, FIT_RADIUS_PER_256PX};
 
 /// How far a stored normal's norm may be from 1.
 pub const NORM_TOLERANCE: f32 = 1e-2;
@@ -54,53 +53,6 @@ impl std::str::FromStr for NormalsSource {
         }
         Ok(Self::Dir(p))
     }
-}
-
-/// Camera-frame normals from a depth map (metres, `[H, W]`) seen by `camera`: back-project
-/// `X = z K⁻¹ũ`, take central differences of `X` over ±[`GT_STENCIL`] pixels along `x` and `y`
-/// (one-sided, from the pixel itself, where one neighbour is missing or outside), `n = ∂X/∂x ×
-/// ∂X/∂y` normalised and oriented towards the camera (`nᵀX < 0`). NaN where the pixel or both
-/// neighbours along an axis have no valid depth.
-pub fn normals_from_depth(depth: &DepthMap, camera: &PinholeCamera) -> Array3<f32> {
-    let (h, w) = depth.dim();
-    let point = |y: usize, x: usize| -> Option<[f64; 3]> {
-        let z = depth[[y, x]];
-        is_valid_depth(z).then(|| {
-            let z = z as f64;
-            [(x as f64 - camera.cx) / camera.fx * z, (y as f64 - camera.cy) / camera.fy * z, z]
-        })
-    };
-    let r = GT_STENCIL;
-    let mut out = Array3::from_elem((h, w, 3), f32::NAN);
-    for y in 0..h {
-        for x in 0..w {
-            let Some(c) = point(y, x) else { continue };
-            let diff = |a: Option<[f64; 3]>, b: Option<[f64; 3]>| match (a, b) {
-                (Some(a), Some(b)) => Some([a[0] - b[0], a[1] - b[1], a[2] - b[2]]),
-                (Some(a), None) => Some([a[0] - c[0], a[1] - c[1], a[2] - c[2]]),
-                (None, Some(b)) => Some([c[0] - b[0], c[1] - b[1], c[2] - b[2]]),
-                (None, None) => None,
-            };
-            let right = (x + r < w).then(|| point(y, x + r)).flatten();
-            let left = (x >= r).then(|| point(y, x - r)).flatten();
-            let down = (y + r < h).then(|| point(y + r, x)).flatten();
-            let up = (y >= r).then(|| point(y - r, x)).flatten();
-            let (Some(tx), Some(ty)) = (diff(right, left), diff(down, up)) else { continue };
-            let mut n =
-                [tx[1] * ty[2] - tx[2] * ty[1], tx[2] * ty[0] - tx[0] * ty[2], tx[0] * ty[1] - tx[1] * ty[0]];
-            let norm = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if !(norm > 0.0 && norm.is_finite()) {
-                continue;
-            }
-            if n[0] * c[0] + n[1] * c[1] + n[2] * c[2] > 0.0 {
-                n = [-n[0], -n[1], -n[2]];
-            }
-            for k in 0..3 {
-                out[[y, x, k]] = (n[k] / norm) as f32;
-            }
-        }
-    }
-    out
 }
 
 /// Level-`level` normals: level-0 pixel `2^level j` (nearest, SPEC.md §2.6).

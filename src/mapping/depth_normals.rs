@@ -1,0 +1,132 @@
+//! Normals from a depth map (SPEC.md §10.2, `--normals gt`): a least-squares plane, affine in
+//! inverse depth, through a window around each pixel, the pixel's own surface only.
+
+use nalgebra::{Matrix3, Vector3};
+use ndarray::Array3;
+use rayon::prelude::*;
+
+use crate::geometry::PinholeCamera;
+use crate::image::{is_valid_depth, DepthMap};
+
+/// Window half-width per 256 px of focal length (the renders' `f`): the window spans the same angle
+/// at any resolution (`fit_radius`).
+pub const FIT_RADIUS_PER_256PX: f64 = 3.0;
+
+/// A neighbour joins a pixel's plane only if its depth is within this fraction of the pixel's own
+/// (`|z_n − z| ≤ 0.05 z`): the window stops at an occlusion edge.
+pub const FIT_DEPTH_GATE: f64 = 0.05;
+
+/// Half-width of the window for a camera: `max(1, round(3 · min(|f_x|, |f_y|) / 256))` pixels
+/// (3 at the renders' `f` = 256, 7 at SUN3D's 570).
+pub fn fit_radius(camera: &PinholeCamera) -> usize {
+    let f = camera.fx.abs().min(camera.fy.abs());
+    ((FIT_RADIUS_PER_256PX * f / 256.0).round() as usize).max(1)
+}
+
+/// Camera-frame normals from a depth map (metres, `[H, W]`) seen by `camera`.
+///
+/// A plane `nᵀX + δ = 0` has an inverse depth affine in the pixel, `ρ(u, v) = −nᵀK⁻¹ũ / δ`, so its
+/// normal is `n ∝ ±(f_x ∂ρ/∂u, f_y ∂ρ/∂v, ρ(c_x, c_y))`. Each valid pixel `(x, y)` fits
+/// `ρ ≈ a + b (u − x) + c (v − y)` by least squares over its support: the pixels of the `(2r+1)²`
+/// window around it ([`fit_radius`]), clipped to the image, with valid depth `z_n` and
+/// `|z_n − z| ≤` [`FIT_DEPTH_GATE`]` · z` (its own surface). The normal is
+/// `(f_x b, f_y c, a + b (c_x − x) + c (c_y − y))` normalised and oriented towards the camera
+/// (`nᵀX < 0`). The fit is in the variable a sensor's noise is in (along the ray), so it is unbiased,
+/// where a total-least-squares plane through the 3D points tilts towards the rays. NaN where the pixel
+/// has no depth, the support has fewer than `max(6, ⌈(2r+1)²/4⌉)` pixels, or their pixel positions
+/// are collinear. Sums in f64, row-major over the window; every pixel depends on its window only,
+/// so rows run in parallel and the result is the same for any thread count.
+pub fn normals_from_depth(depth: &DepthMap, camera: &PinholeCamera) -> Array3<f32> {
+    let (h, w) = depth.dim();
+    let r = fit_radius(camera);
+    let min_support = 6usize.max(((2 * r + 1) * (2 * r + 1)).div_ceil(4));
+    let rows: Vec<Vec<[f32; 3]>> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            let mut row = vec![[f32::NAN; 3]; w];
+            for (x, cell) in row.iter_mut().enumerate() {
+                let zc = depth[[y, x]];
+                if !is_valid_depth(zc) {
+                    continue;
+                }
+                let zc = zc as f64;
+                let mut fit = AffineFit::default();
+                for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                    for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                        let z = depth[[yy, xx]];
+                        if is_valid_depth(z) && (z as f64 - zc).abs() <= FIT_DEPTH_GATE * zc {
+                            fit.add(xx as f64 - x as f64, yy as f64 - y as f64, 1.0 / z as f64);
+                        }
+                    }
+                }
+                if fit.n < min_support as f64 {
+                    continue;
+                }
+                if let Some(n) = fit.normal(camera, x as f64, y as f64) {
+                    *cell = n;
+                }
+            }
+            row
+        })
+        .collect();
+    let mut out = Array3::from_elem((h, w, 3), f32::NAN);
+    for (y, row) in rows.into_iter().enumerate() {
+        for (x, n) in row.into_iter().enumerate() {
+            for k in 0..3 {
+                out[[y, x, k]] = n[k];
+            }
+        }
+    }
+    out
+}
+
+/// The sums of a least-squares fit `ρ ≈ a + b du + c dv` (offsets from the pixel).
+#[derive(Default)]
+struct AffineFit {
+    n: f64,
+    u: f64,
+    v: f64,
+    uu: f64,
+    uv: f64,
+    vv: f64,
+    r: f64,
+    ur: f64,
+    vr: f64,
+}
+
+impl AffineFit {
+    fn add(&mut self, du: f64, dv: f64, rho: f64) {
+        self.n += 1.0;
+        self.u += du;
+        self.v += dv;
+        self.uu += du * du;
+        self.uv += du * dv;
+        self.vv += dv * dv;
+        self.r += rho;
+        self.ur += du * rho;
+        self.vr += dv * rho;
+    }
+
+    /// The oriented unit normal of the fitted plane at pixel `(x, y)`; `None` when the offsets are
+    /// collinear (the normal equations' determinant, an integer, is 0).
+    fn normal(&self, camera: &PinholeCamera, x: f64, y: f64) -> Option<[f32; 3]> {
+        let m = Matrix3::new(self.n, self.u, self.v, self.u, self.uu, self.uv, self.v, self.uv, self.vv);
+        if m.determinant() < 0.5 {
+            return None;
+        }
+        let p = m.cholesky()?.solve(&Vector3::new(self.r, self.ur, self.vr));
+        let (a, b, c) = (p[0], p[1], p[2]);
+        let mut n = [camera.fx * b, camera.fy * c, a + b * (camera.cx - x) + c * (camera.cy - y)];
+        let norm = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        if !(norm > 0.0 && norm.is_finite()) {
+            return None;
+        }
+        // Towards the camera: nᵀK⁻¹ũ < 0 at the pixel itself (the sign of nᵀX, z > 0).
+        let ray = [(x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0];
+        let s = if n[0] * ray[0] + n[1] * ray[1] + n[2] * ray[2] > 0.0 { -1.0 } else { 1.0 };
+        for v in &mut n {
+            *v *= s / norm;
+        }
+        Some([n[0] as f32, n[1] as f32, n[2] as f32])
+    }
+}

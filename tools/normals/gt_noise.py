@@ -7,7 +7,10 @@ inverse-depth plane fit `gt` uses now (window radius round(3 f / 256), 5 % depth
 the mean and median angle between the two. On exact rendered depth both are exact on planes and
 differ only at edges and creases; on a real sensor's depth the difference is the stencil's noise.
 
-    python3 tools/normals/gt_noise.py SEQ [SEQ ...] [--frames 0,25,49] [--depth-scale 1000]
+    python3 tools/normals/gt_noise.py SEQ [SEQ ...] [--frames 0,25,49] [--depth-scale 1000] [--plot OUT.png]
+
+With --plot, OUT.png shows each sequence's first listed frame: the image, the old rule's normals and
+the fit's (camera-frame normals as colours, (n + 1)/2 in RGB; black: none).
 """
 import argparse
 import os
@@ -78,7 +81,9 @@ def main():
     ap.add_argument("seqs", nargs="+")
     ap.add_argument("--frames", default="0,25,49")
     ap.add_argument("--depth-scale", type=float, default=1000.0)
+    ap.add_argument("--plot")
     args = ap.parse_args()
+    panels = []
     print("| sequence | frames | window | mean / median angle, central ±2 px vs fit |")
     print("|---|---|---|---|")
     for seq in args.seqs:
@@ -95,9 +100,41 @@ def main():
             d = np.degrees(np.arccos(c))
             angles.append(d[np.isfinite(d)])
             used.append(names[f])
+            if args.plot and len(used) == 1:
+                image = sorted(os.listdir(os.path.join(seq, "images")))[f]
+                rgb = np.asarray(Image.open(os.path.join(seq, "images", image)).convert("RGB"))
+                panels.append((os.path.basename(os.path.normpath(seq)), names[f], rgb, nc, nf, r))
         a = np.concatenate(angles)
         print(f"| {os.path.basename(os.path.normpath(seq))} | {', '.join(used)} | {2 * r + 1}x{2 * r + 1} | "
               f"{a.mean():.1f}° / {np.median(a):.1f}° |")
+    if args.plot:
+        plot(panels, args.plot)
+
+
+def colour(n):
+    c = (np.nan_to_num(n, nan=-1.0) + 1) / 2
+    return np.clip(c, 0, 1)
+
+
+def plot(panels, out):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(len(panels), 3, figsize=(12, 3.2 * len(panels)), squeeze=False)
+    for row, (name, frame, rgb, nc, nf, r) in zip(axes, panels):
+        d = np.degrees(np.arccos(np.clip((nc * nf).sum(-1), -1, 1)))
+        d = d[np.isfinite(d)]
+        row[0].imshow(rgb)
+        row[0].set_title(f"{name} {frame}", fontsize=9)
+        row[1].imshow(colour(nc))
+        row[1].set_title("central differences, ±2 px (before)", fontsize=9)
+        row[2].imshow(colour(nf))
+        row[2].set_title(f"inverse-depth plane fit, {2 * r + 1}x{2 * r + 1} (now); "
+                         f"{d.mean():.1f}° apart (mean)", fontsize=9)
+        for ax in row:
+            ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(out, dpi=60)
 
 
 if __name__ == "__main__":

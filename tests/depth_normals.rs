@@ -1,8 +1,10 @@
 //! Normals from a depth map (SPEC.md §10.2, `--normals gt`): the plane fit recovers planes to the
 //! image border, does not bridge an occlusion edge, averages a sensor's noise out, gives no normal
-//! where the support is too thin, and is the same for any thread count.
+//! where the support is too thin, is the same for any thread count, and its fast path gives the
+//! reference's bits.
 
 use densefeat::geometry::PinholeCamera;
+use densefeat::mapping::depth_normals::normals_from_depth_reference;
 use densefeat::mapping::normals::{fit_radius, normals_from_depth};
 use ndarray::{Array2, Array3};
 
@@ -173,5 +175,34 @@ fn the_fit_is_independent_of_thread_count() {
     let one = run(1);
     for n in [2, 3, 8] {
         assert!(run(n) == one, "threads = {n}");
+    }
+}
+
+#[test]
+fn the_fast_path_gives_the_reference_bits() {
+    // Random scenes: two slanted planes with a step between them, holes, a noisy patch, sizes down
+    // to smaller than the window, focal lengths giving r = 1..6; every value bit for bit.
+    for seed in 0..40u64 {
+        let mut r = stream(seed);
+        let (w, h) = (1 + (r() * 60.0) as usize, 1 + (r() * 45.0) as usize);
+        let f = 40.0 + r() * 480.0;
+        let cam =
+            PinholeCamera::new(f, if seed % 2 == 0 { f } else { -f }, w as f64 / 2.0, h as f64 / 2.0, w, h)
+                .unwrap();
+        let (a, b, step, hole, noise) =
+            (r() - 0.5, r() - 0.5, (w as f64 * r()) as usize, 0.3 * r(), 0.02 * r());
+        let depth = Array2::from_shape_fn((h, w), |(y, x)| {
+            let z = 2.0 + 0.01 * (a * x as f64 + b * y as f64) + if x > step { 0.4 } else { 0.0 };
+            let z = z * (1.0 + noise * (r() - 0.5));
+            if r() < hole {
+                0.0
+            } else {
+                z as f32
+            }
+        });
+        let bits = |n: Array3<f32>| n.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        let (fast, reference) =
+            (normals_from_depth(&depth, &cam), normals_from_depth_reference(&depth, &cam));
+        assert!(bits(fast) == bits(reference), "seed {seed}: {w}x{h}, r {}", fit_radius(&cam));
     }
 }

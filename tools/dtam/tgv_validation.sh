@@ -19,17 +19,10 @@ bin=${BIN:-target/release/densefeat}
 [ -x "$bin" ] || cargo build --release
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
+. tools/train_chain/val_scenes.sh
+val_scenes "$bin"
 cases=()
-for seed in 200000 200001 200002 200003 200004 200005; do
-  d=runs/val/s$seed
-  [ -f "$d/.done" ] || { nice -n 19 "$bin" synth --seed $seed --frames 40 --size 320x240 --out "$d" --quiet && touch "$d/.done"; }
-  cases+=("$d:20")
-done
-for seed in 200050 200051 200052; do
-  d=runs/val/r$seed
-  [ -f "$d/.done" ] || { nice -n 19 "$bin" synth --seed $seed --frames 40 --size 320x240 --style real --out "$d" --quiet && touch "$d/.done"; }
-  cases+=("$d:20")
-done
+for d in "${VAL_SCENES[@]}"; do cases+=("$d:20"); done
 for k in 15 25 35; do cases+=("../shared/data/sun3d_studyroom_f0935:$k"); done
 echo "scene,keyframe,features,regularizer,beta,rms,delta_1.1,delta_1.25" > "$out"
 row() { # features regularizer beta dir

@@ -1,11 +1,22 @@
 #!/usr/bin/env bash
-# Usage: tools/paper/gt_bound_validation.sh (from the project root; the scenes of tools/train_chain/validate.sh in runs/val/).
-# Writes runs/gtfit/SCENE/ (eval's outputs) and docs/table1/gt_bound/fit_validation.csv (their table.csv rows).
-# The ground-truth-normal bound on the ten validation scenes of validate.sh, every flag at its default.
+# The ground-truth-normal bound on the ten validation scenes of validate.sh, every flag at its default
+# (docs/table1/README.md).
+#
+#   tools/paper/gt_bound_validation.sh
+#
+# Renders the scenes into runs/val/ when missing; writes runs/gtfit/SCENE/ (eval's outputs) and
+# docs/table1/gt_bound/fit_validation.csv (their table.csv rows).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-bin=target/release/densefeat
-for sk in runs/val/r200050:20:10:20 runs/val/r200051:20:10:20 runs/val/r200052:20:10:20 runs/val/s200000:20:10:20 runs/val/s200001:20:10:20 runs/val/s200002:20:10:20 runs/val/s200003:20:10:20 runs/val/s200004:20:10:20 runs/val/s200005:20:10:20 ../shared/data/sun3d_studyroom_f0935:15:10:35; do
+bin=${BIN:-target/release/densefeat}
+[ -x "$bin" ] || cargo build --release
+mkdir -p runs/gtfit
+. tools/train_chain/val_scenes.sh
+val_scenes "$bin"
+scenes=()
+for d in "${VAL_SCENES[@]}"; do scenes+=("$d:20:10:20"); done
+scenes+=("../shared/data/sun3d_studyroom_f0935:15:10:35")
+for sk in "${scenes[@]}"; do
   seq=${sk%%:*}; kfs=${sk#*:}; scene=$(basename $seq)
   nice $bin eval --sequence $seq --keyframes $kfs --methods rgb-tv,rgb-normals,learned-tv,learned-normals --normals gt --out runs/gtfit/$scene > runs/gtfit/$scene.log 2>&1
 done

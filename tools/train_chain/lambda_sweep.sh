@@ -19,9 +19,10 @@ bin=${BIN:-target/release/densefeat}
 [ -x "$bin" ] || cargo build --release
 root=runs/val/sweep_${name}_${METHODS:-all}
 mkdir -p "$root"
+. tools/train_chain/val_scenes.sh
+val_scenes "$bin"
 scenes=()
-for seed in 200000 200001 200002 200003 200004 200005; do scenes+=("runs/val/s$seed:20:10:20"); done
-for seed in 200050 200051 200052; do scenes+=("runs/val/r$seed:20:10:20"); done
+for d in "${VAL_SCENES[@]}"; do scenes+=("$d:20:10:20"); done
 scenes+=("../shared/data/sun3d_studyroom_f0935:15:10:35")
 all=$root/all.csv
 echo "scene,method,lambda,rms,delta_1.25,abs_rel,coverage" > "$all"

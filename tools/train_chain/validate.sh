@@ -31,17 +31,10 @@ cp "$weights" "$snap"
 step=$(grep -a -o 'densefeat train: step [0-9]*' "$snap" | head -1 | awk '{print $4}')
 step=${step:-0}
 
+. tools/train_chain/val_scenes.sh
+val_scenes "$bin"
 scenes=()
-for seed in 200000 200001 200002 200003 200004 200005; do
-  d=runs/val/s$seed
-  [ -f "$d/.done" ] || { nice -n 19 "$bin" synth --seed $seed --frames 40 --size 320x240 --out "$d" --quiet && touch "$d/.done"; }
-  scenes+=("$d:20")
-done
-for seed in 200050 200051 200052; do
-  d=runs/val/r$seed
-  [ -f "$d/.done" ] || { nice -n 19 "$bin" synth --seed $seed --frames 40 --size 320x240 --style real --out "$d" --quiet && touch "$d/.done"; }
-  scenes+=("$d:20")
-done
+for d in "${VAL_SCENES[@]}"; do scenes+=("$d:20"); done
 scenes+=("../shared/data/sun3d_studyroom_f0935:15:10:35")
 
 csv=$kept/validation.csv

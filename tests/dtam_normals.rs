@@ -281,3 +281,51 @@ fn normal_prior_without_normals_is_refused_naming_the_missing_predictor() {
     let e = reconstruct(&seq, &cfg, |_, _, _| ()).unwrap_err().to_string();
     assert!(e.contains("00002.npy"), "{e}");
 }
+
+/// SPEC.md §10.2, "Confidence weighting": `q ← clamp(conf / c₀, 0, 1) q` per pixel, the product in
+/// f64 rounded to f32 once; `c₀ = 0` is off (the same bits); `Q` recomputed, `fallback` kept; a bad
+/// `c₀` or a confidence map on another grid is refused naming the flag.
+#[test]
+fn confidence_weighting_scales_the_slope_where_the_volume_is_unsure() {
+    let (h, w) = (7, 9);
+    let mut q = random_field(h, w, 0.02, 5);
+    q.fallback = 11;
+    let mut conf = Array2::<f32>::zeros((h, w));
+    let mut r = stream(9);
+    conf.iter_mut().for_each(|c| *c = r() as f32);
+    conf[[0, 0]] = 0.0;
+    conf[[1, 1]] = 1.0;
+    let off = q.weighted_by_confidence(conf.view(), 0.0).unwrap();
+    assert_eq!(
+        (off.qx.clone(), off.qy.clone(), off.max_norm, off.fallback),
+        (q.qx.clone(), q.qy.clone(), q.max_norm, 11)
+    );
+    let c0 = 0.4;
+    let got = q.weighted_by_confidence(conf.view(), c0).unwrap();
+    for y in 0..h {
+        for x in 0..w {
+            let wt = (f64::from(conf[[y, x]]) / c0).clamp(0.0, 1.0);
+            assert_eq!(got.qx[[y, x]], (f64::from(q.qx[[y, x]]) * wt) as f32, "({y}, {x})");
+            assert_eq!(got.qy[[y, x]], (f64::from(q.qy[[y, x]]) * wt) as f32, "({y}, {x})");
+            if conf[[y, x]] as f64 >= c0 {
+                assert_eq!(
+                    (got.qx[[y, x]], got.qy[[y, x]]),
+                    (q.qx[[y, x]], q.qy[[y, x]]),
+                    "confident: unchanged"
+                );
+            }
+        }
+    }
+    assert_eq!((got.qx[[0, 0]], got.qy[[0, 0]]), (0.0, 0.0), "no confidence: plain TV");
+    let want_q =
+        got.qx.iter().zip(got.qy.iter()).map(|(&a, &b)| (a as f64).hypot(b as f64)).fold(0.0, f64::max);
+    assert_eq!(got.max_norm, want_q);
+    assert!(got.max_norm <= q.max_norm);
+    assert_eq!(got.fallback, 11);
+    for bad in [-0.1, f64::NAN, f64::INFINITY] {
+        let e = q.weighted_by_confidence(conf.view(), bad).unwrap_err().to_string();
+        assert!(e.contains("prior-confidence"), "{bad}: {e}");
+    }
+    let e = q.weighted_by_confidence(conf.slice(s![..3, ..]), c0).unwrap_err().to_string();
+    assert!(e.contains("prior-confidence"), "{e}");
+}

@@ -676,3 +676,33 @@ fn cli_reconstruct_runs_tgv_and_checks_its_weight() {
         assert!(!d.path().join("o").exists(), "{bad:?}: nothing is written");
     }
 }
+
+/// SPEC.md §10.2, "Confidence weighting" in the mapper: it changes the normal prior's estimate and
+/// nothing else (WTA, the TV solve), `None` resolves to the kind's default, and a bad `c₀` is refused
+/// naming the flag before any work.
+#[test]
+fn prior_confidence_weights_only_the_normal_prior() {
+    use densefeat::mapping::features::PRIOR_CONFIDENCE_RGB;
+    use densefeat::mapping::normals::NormalsSource;
+    assert_eq!(FeatureKind::Rgb.default_prior_confidence(), PRIOR_CONFIDENCE_RGB);
+    for k in [FeatureKind::Learned(None), FeatureKind::B1(None), FeatureKind::Dsift, FeatureKind::Patch7] {
+        assert_eq!(k.default_prior_confidence(), 0.0, "{k:?}");
+    }
+    let seq = fixture();
+    let mut cfg = eval_config();
+    cfg.regularizer = Regularizer::TvAndNormals;
+    cfg.normals = Some(NormalsSource::GroundTruth);
+    assert_eq!(cfg.prior_confidence_c0(), PRIOR_CONFIDENCE_RGB);
+    cfg.prior_confidence = Some(0.0);
+    let off = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    cfg.prior_confidence = Some(0.5);
+    let on = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    assert_eq!(off.wta.inverse_depth, on.wta.inverse_depth);
+    assert_eq!(off.tv.as_ref().unwrap().inverse_depth, on.tv.as_ref().unwrap().inverse_depth);
+    assert_ne!(off.normals.as_ref().unwrap().inverse_depth, on.normals.as_ref().unwrap().inverse_depth);
+    for bad in [-1.0, f64::NAN] {
+        cfg.prior_confidence = Some(bad);
+        let (name, what) = invalid_argument(reconstruct(&seq, &cfg, |_, _, _| {}).unwrap_err());
+        assert_eq!(name, "prior-confidence", "{what}");
+    }
+}

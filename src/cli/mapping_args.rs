@@ -68,6 +68,12 @@ pub struct MappingArgs {
     /// others 0).
     #[arg(long)]
     pub border_taper: Option<f64>,
+    /// The normal prior's confidence weighting (`--regularizer normals`, SPEC.md §10.2): each
+    /// pixel's predicted slope is scaled by clamp(confidence / C0, 0, 1), so where the cost volume
+    /// cannot anchor the depth the prior is plain smoothness. 0: off (the paper's form); default:
+    /// per feature type, chosen on validation.
+    #[arg(long)]
+    pub prior_confidence: Option<f64>,
     /// Photometric sub-bin refinement of the regularised depth (SPEC.md §10.3): `on` or `off`
     /// [default: off; `map`: on, chosen on validation meshes, §16.9]
     #[arg(long, value_parser = parse_on_off)]
@@ -318,6 +324,7 @@ impl MappingArgs {
             min_evidence: self.min_evidence,
             lambda_sweep: Vec::new(),
             border_taper: self.border_taper,
+            prior_confidence: self.prior_confidence,
             refine: self.refine_params()?,
             backend: self.backend.resolve()?,
             photometric: self.photometric,

@@ -95,6 +95,52 @@ impl SlopeField {
     pub fn dim(&self) -> (usize, usize) {
         self.qx.dim()
     }
+
+    /// The field with each pixel's slope scaled by the data term's confidence (SPEC.md §10.2,
+    /// "Confidence weighting"): `q ← w q`, `w = clamp(conf / c₀, 0, 1)` in f64, the product rounded
+    /// to f32 once. `c₀ = 0` returns the field unchanged (bit for bit). Where the cost volume cannot
+    /// anchor the depth (`conf` low), the prior becomes plain TV, so it does not carry a plane's slope
+    /// across a region only its neighbours decide. `w ≤ 1`, so `Q` (and the step size) can only
+    /// shrink; `fallback` is kept (it counts the pixels without a usable normal).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (`prior-confidence`) if `c₀` is negative or not finite, or
+    /// `confidence` is not on the field's `[H, W]` grid.
+    pub fn weighted_by_confidence(&self, confidence: ArrayView2<f32>, c0: f64) -> Result<Self> {
+        check_prior_confidence(c0)?;
+        if confidence.dim() != self.dim() {
+            return Err(Error::invalid_argument(
+                "prior-confidence",
+                format!("a {:?} confidence map for a {:?} slope field", confidence.dim(), self.dim()),
+            ));
+        }
+        if c0 == 0.0 {
+            return Ok(self.clone());
+        }
+        let weight = |c: f32| (f64::from(c) / c0).clamp(0.0, 1.0);
+        let scale = |q: &Array2<f32>| {
+            ndarray::Zip::from(q).and(&confidence).map_collect(|&q, &c| (f64::from(q) * weight(c)) as f32)
+        };
+        let (qx, qy) = (scale(&self.qx), scale(&self.qy));
+        let max_norm =
+            qx.iter().zip(qy.iter()).map(|(&a, &b)| (a as f64).hypot(b as f64)).fold(0.0, f64::max);
+        Ok(Self { qx, qy, max_norm, fallback: self.fallback })
+    }
+}
+
+/// Checks `--prior-confidence`'s `c₀` (SPEC.md §10.2): finite and `>= 0` (0: off).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] (`prior-confidence`) otherwise.
+pub fn check_prior_confidence(c0: f64) -> Result<()> {
+    if c0 >= 0.0 && c0.is_finite() {
+        Ok(())
+    } else {
+        Err(Error::invalid_argument(
+            "prior-confidence",
+            format!("{c0}: must be a finite number >= 0 (0: off)"),
+        ))
+    }
 }
 
 /// `q(u)` for the normal `n` at pixel `(u, v)`, `None` where the prior falls back (module docs).

@@ -201,6 +201,10 @@ pub struct KeyframeConfig {
     /// keyframe's border from the interior. 0: off; `None` (the default): the feature kind's
     /// [`FeatureKind::default_border_taper`].
     pub border_taper: Option<f64>,
+    /// `c₀` of the normal prior's confidence weighting (SPEC.md §10.2): each pixel's slope is
+    /// scaled by `clamp(conf / c₀, 0, 1)`. 0: off; `None` (the default): the feature kind's
+    /// [`FeatureKind::default_prior_confidence`].
+    pub prior_confidence: Option<f64>,
     /// Photometric sub-bin refinement of the regularised estimates (SPEC.md §10.3); `None`: off
     /// (the default; `map` turns it on, §16.9).
     pub refine: Option<RefineParams>,
@@ -240,6 +244,7 @@ impl KeyframeConfig {
             photometric: PhotometricMode::None,
             truncation: Truncation::DEFAULT,
             border_taper: None,
+            prior_confidence: None,
             refine: None,
         }
     }
@@ -277,6 +282,12 @@ impl KeyframeConfig {
         self.border_taper.unwrap_or_else(|| self.features.default_border_taper())
     }
 
+    /// The normal prior's confidence weighting `c₀` in effect (SPEC.md §10.2):
+    /// [`KeyframeConfig::prior_confidence`], else the feature kind's default.
+    pub fn prior_confidence_c0(&self) -> f64 {
+        self.prior_confidence.unwrap_or_else(|| self.features.default_prior_confidence())
+    }
+
     fn validate(&self) -> Result<InverseDepthBins> {
         if self.bins < 2 {
             return Err(Error::invalid_argument("bins", format!("{}: need at least 2", self.bins)));
@@ -309,6 +320,9 @@ impl KeyframeConfig {
                 "border-taper",
                 format!("{r}: must be a finite number of pixels >= 0"),
             ));
+        }
+        if let Some(c0) = self.prior_confidence {
+            crate::dtam::normal_prior::check_prior_confidence(c0)?;
         }
         check_truncation("truncate-rgb", self.truncation.rgb)?;
         check_truncation("truncate-learned", self.truncation.learned)?;
@@ -744,6 +758,11 @@ pub fn reconstruct_cached(
     timings.wta = t.elapsed().as_secs_f64();
     progress(Stage::Wta, 1, 1);
     let wta = DepthEstimate { inverse_depth: w.inverse_depth.clone(), depth: w.depth.clone() };
+    // The normal prior's confidence weighting (SPEC.md §10.2): the slope where the volume anchors it.
+    let slope = match slope {
+        Some(q) => Some(q.weighted_by_confidence(conf.view(), cfg.prior_confidence_c0())?),
+        None => None,
+    };
 
     let (mut tv, mut dtam, mut sweep) = (None, None, Vec::new());
     let (mut normals_estimate, mut normals_dtam) = (None, None);

@@ -310,6 +310,10 @@ impl MapConfig {
             self.min_confidence,
             c.backend.name()
         ) + &if taper > 0.0 { format!(" border_taper={taper}") } else { String::new() }
+            + &match c.prior_confidence_c0() {
+                c0 if c0 > 0.0 && c.regularizer.normals() => format!(" prior_confidence={c0}"),
+                _ => String::new(),
+            }
             + &c.refine.map_or(String::new(), |p| format!(" refine={p:?}"))
             + &if c.regularizer == Regularizer::Tgv {
                 format!(" tgv_beta={}", c.tgv_beta)
@@ -687,6 +691,7 @@ fn map_json(
             "lambda": cfg.keyframe.dtam.lambda,
             "tgv_beta": (cfg.keyframe.regularizer == Regularizer::Tgv).then_some(cfg.keyframe.tgv_beta),
             "border_taper_px": cfg.keyframe.border_taper_px(),
+            "prior_confidence": cfg.keyframe.regularizer.normals().then_some(cfg.keyframe.prior_confidence_c0()),
             "bins": cfg.keyframe.bins,
             "depth_range_m": [cfg.keyframe.near, cfg.keyframe.far],
             "depth_range_auto": cfg.auto_depth_range,

@@ -759,10 +759,8 @@ pub fn reconstruct_cached(
     progress(Stage::Wta, 1, 1);
     let wta = DepthEstimate { inverse_depth: w.inverse_depth.clone(), depth: w.depth.clone() };
     // The normal prior's confidence weighting (SPEC.md §10.2): the slope where the volume anchors it.
-    let slope = match slope {
-        Some(q) => Some(q.weighted_by_confidence(conf.view(), cfg.prior_confidence_c0())?),
-        None => None,
-    };
+    let slope =
+        slope.map(|q| q.weighted_by_confidence(conf.view(), cfg.prior_confidence_c0())).transpose()?;
 
     let (mut tv, mut dtam, mut sweep) = (None, None, Vec::new());
     let (mut normals_estimate, mut normals_dtam) = (None, None);

@@ -71,7 +71,7 @@ pub struct MappingArgs {
     /// The normal prior's confidence weighting (`--regularizer normals`, SPEC.md §10.2): each
     /// pixel's predicted slope is scaled by clamp(confidence / C0, 0, 1), so where the cost volume
     /// cannot anchor the depth the prior is plain smoothness. 0: off (the paper's form); default:
-    /// per feature type, chosen on validation.
+    /// per feature type, chosen on validation (RGB 1.2, the others 0).
     #[arg(long)]
     pub prior_confidence: Option<f64>,
     /// Photometric sub-bin refinement of the regularised depth (SPEC.md §10.3): `on` or `off`

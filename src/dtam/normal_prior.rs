@@ -81,8 +81,7 @@ impl SlopeField {
                 }
             }
         }
-        let max_norm =
-            qx.iter().zip(qy.iter()).map(|(&a, &b)| (a as f64).hypot(b as f64)).fold(0.0, f64::max);
+        let max_norm = largest_norm(&qx, &qy);
         Ok(Self { qx, qy, max_norm, fallback })
     }
 
@@ -122,10 +121,14 @@ impl SlopeField {
             ndarray::Zip::from(q).and(&confidence).map_collect(|&q, &c| (f64::from(q) * weight(c)) as f32)
         };
         let (qx, qy) = (scale(&self.qx), scale(&self.qy));
-        let max_norm =
-            qx.iter().zip(qy.iter()).map(|(&a, &b)| (a as f64).hypot(b as f64)).fold(0.0, f64::max);
+        let max_norm = largest_norm(&qx, &qy);
         Ok(Self { qx, qy, max_norm, fallback: self.fallback })
     }
+}
+
+/// `Q = max_u |q(u)|` from the stored f32 values, in f64.
+fn largest_norm(qx: &Array2<f32>, qy: &Array2<f32>) -> f64 {
+    qx.iter().zip(qy.iter()).map(|(&a, &b)| (a as f64).hypot(b as f64)).fold(0.0, f64::max)
 }
 
 /// Checks `--prior-confidence`'s `c₀` (SPEC.md §10.2): finite and `>= 0` (0: off).

@@ -177,15 +177,8 @@ fn window_fit(depth: &DepthMap, x: usize, y: usize, r: usize) -> AffineFit {
 }
 
 fn to_array(rows: Vec<Vec<[f32; 3]>>, h: usize, w: usize) -> Array3<f32> {
-    let mut out = Array3::from_elem((h, w, 3), f32::NAN);
-    for (y, row) in rows.into_iter().enumerate() {
-        for (x, n) in row.into_iter().enumerate() {
-            for k in 0..3 {
-                out[[y, x, k]] = n[k];
-            }
-        }
-    }
-    out
+    let flat: Vec<f32> = rows.into_iter().flatten().flatten().collect();
+    Array3::from_shape_vec((h, w, 3), flat).expect("h rows of w normals")
 }
 
 /// The sums of a least-squares fit `ρ ≈ a + b du + c dv` (offsets from the pixel): the offsets'

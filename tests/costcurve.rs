@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::Command;
 
 use densefeat::geometry::InverseDepthBins;
-use densefeat::mapping::costcurve::{cost_curves, frame_order, grid_pixel, normalise};
+use densefeat::mapping::costcurve::{colour_of, cost_curves, frame_order, grid_pixel, normalise};
 use densefeat::mapping::features::FeatureKind;
 use densefeat::plot::PANEL_SIZE;
 
@@ -39,6 +39,18 @@ fn normalise_maps_seen_costs_to_unit_interval() {
     assert_eq!((n[2], n[3], n[4]), (0.0, 0.5, 0.0));
     assert!(normalise(&[None, None]).is_none());
     assert_eq!(normalise(&[Some(4.0), Some(4.0)]).unwrap().1, vec![0.0, 0.0]);
+}
+
+#[test]
+fn every_feature_kind_has_its_own_colour() {
+    let kinds = ["rgb", "learned", "b1", "dsift", "patch7"];
+    for (i, a) in kinds.iter().enumerate() {
+        let name = a.parse::<FeatureKind>().unwrap().name();
+        assert_eq!(&name, a, "the plot is keyed by the kind's name");
+        for b in &kinds[i + 1..] {
+            assert_ne!(colour_of(a), colour_of(b), "{a} and {b} share a colour");
+        }
+    }
 }
 
 #[test]

@@ -40,6 +40,9 @@ pub struct Curve {
 /// Colours of the feature kinds (RGB blue, learned orange) and of the ground truth (green).
 const RGB_COLOUR: (u8, u8, u8) = (31, 119, 180);
 const LEARNED_COLOUR: (u8, u8, u8) = (230, 120, 10);
+const B1_COLOUR: (u8, u8, u8) = (148, 103, 189);
+const DSIFT_COLOUR: (u8, u8, u8) = (140, 86, 75);
+const PATCH7_COLOUR: (u8, u8, u8) = (227, 119, 194);
 const GT_COLOUR: (u8, u8, u8) = (20, 160, 40);
 
 /// The live frames of `keyframe` in a sequence of `len` frames, nearest first, alternating future
@@ -158,11 +161,14 @@ pub fn normalise(costs: &[Option<f32>]) -> Option<(usize, Vec<f64>)> {
     Some((kmin, norm))
 }
 
-fn colour_of(feature: &str) -> (u8, u8, u8) {
-    if feature == "rgb" {
-        RGB_COLOUR
-    } else {
-        LEARNED_COLOUR
+/// One colour per feature kind, so that every kind `--features` accepts is told apart in a panel.
+pub fn colour_of(feature: &str) -> (u8, u8, u8) {
+    match feature {
+        "rgb" => RGB_COLOUR,
+        "b1" => B1_COLOUR,
+        "dsift" => DSIFT_COLOUR,
+        "patch7" => PATCH7_COLOUR,
+        _ => LEARNED_COLOUR,
     }
 }
 

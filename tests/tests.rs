@@ -45,5 +45,6 @@ mod synth_real;
 mod train_backprop;
 mod train_loop;
 mod train_loss;
+mod train_occlusion;
 mod warp;
 mod weights;

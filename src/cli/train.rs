@@ -131,6 +131,11 @@ pub struct TrainArgs {
     /// coordinates, as the mapper compares full frames)
     #[arg(long, default_value = "flow")]
     pub live_crop: String,
+    /// Occlusion masking of the loss (SPEC.md §13.1c): leave out a reference pixel whose true
+    /// match, in any live frame, lies behind that frame's depth by more than this fraction of its
+    /// depth (a point hidden by a nearer surface, whose "match" is the occluder). 0: off (the paper)
+    #[arg(long, default_value_t = 0.0)]
+    pub occlusion_mask: f64,
     /// Loss pixel sampling (SPEC.md §13.1a): evaluate one pixel per SxS block at the finest
     /// supervised level (S/2 one level coarser, ...), weighted S²: unbiased; 1 evaluates every
     /// pixel (the paper).
@@ -205,6 +210,7 @@ impl TrainArgs {
                 val_fraction: self.val_fraction,
                 live_frames: self.live_frames,
                 live_crop: self.live_crop.parse()?,
+                occlusion_tolerance: self.occlusion_mask,
                 ..DataConfig::default()
             },
             val_every: self.val_every,

@@ -18,6 +18,7 @@ use crate::image::is_valid_depth;
 use crate::sequence::{open, Sequence};
 use crate::synth::{Scene, SceneConfig, Style};
 use crate::train::frame_cache::{Frame, FrameCache, FrameKey};
+use crate::train::occlusion::mask_occluded;
 use crate::train::step::{ExtraLive, TrainingPair};
 use crate::util::rng::{hash64, SplitMix64};
 
@@ -88,6 +89,10 @@ pub struct DataConfig {
     /// Where each live crop is cut (SPEC.md §13.5): at the reference window shifted by the mean
     /// flow, or at the reference window itself, as the mapper sees full frames.
     pub live_crop: LiveCrop,
+    /// Occlusion masking of the loss (`--occlusion-mask`, SPEC.md §13.1c): a reference pixel whose
+    /// true match is hidden behind a nearer surface in any live frame, by more than this fraction
+    /// of its depth, is left out of the loss. 0: off (the paper, every run before 2026-12-06).
+    pub occlusion_tolerance: f64,
 }
 
 /// Where the live crops are cut (`--live-crop flow | same`, SPEC.md §13.5).
@@ -148,6 +153,7 @@ impl Default for DataConfig {
             val_fraction: 0.2,
             live_frames: 1,
             live_crop: LiveCrop::Flow,
+            occlusion_tolerance: 0.0,
         }
     }
 }
@@ -350,6 +356,12 @@ impl DataSet {
             return Err(Error::invalid_argument(
                 "--live-frames",
                 format!("{}: must be between 1 and 8", cfg.live_frames),
+            ));
+        }
+        if !(0.0..1.0).contains(&cfg.occlusion_tolerance) {
+            return Err(Error::invalid_argument(
+                "--occlusion-mask",
+                format!("{}: must be a fraction in [0, 1) (0: off)", cfg.occlusion_tolerance),
             ));
         }
         if !(0.0..1.0).contains(&cfg.val_fraction) || !(0.0..=1.0).contains(&cfg.synthetic_fraction) {
@@ -616,10 +628,18 @@ impl DataSet {
                 })
             })
             .collect::<Result<_>>()?;
+        let mut ref_depth = r.depth.slice(s![y0..y0 + ch, x0..x0 + cw]).to_owned();
+        if self.cfg.occlusion_tolerance > 0.0 {
+            let lives: Vec<(Warp, ndarray::ArrayView2<'_, f32>)> = lives
+                .iter()
+                .map(|f| (Warp::new(cam, &f.camera, &relative_pose(&r.pose, &f.pose)), f.depth.view()))
+                .collect();
+            mask_occluded(&mut ref_depth, (x0, y0), &lives, self.cfg.occlusion_tolerance);
+        }
         Ok(TrainingPair {
             ref_rgb: r.rgb_window(x0, y0, cw, ch),
             live_rgb: l.rgb_window(lx, ly, cw, ch),
-            ref_depth: r.depth.slice(s![y0..y0 + ch, x0..x0 + cw]).to_owned(),
+            ref_depth,
             ref_camera: crop_cam(cam, x0, y0)?,
             live_camera: crop_cam(&l.camera, lx, ly)?,
             t_lr,

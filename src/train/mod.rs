@@ -8,6 +8,7 @@ pub mod data;
 pub(crate) mod frame_cache;
 pub mod loss;
 pub mod normals;
+pub mod occlusion;
 pub mod optim;
 pub mod step;
 pub mod trainer;

@@ -61,7 +61,10 @@ impl TrainConfig {
         // written only when it is not 1, so the fingerprints of pair runs stay what they were and
         // their checkpoints remain resumable.
         // `live_crop` (2026-12-05) likewise only when it is not `Flow`.
+        // `occlusion_tolerance` (2026-12-06) likewise only when it is not 0.
         let data = format!("{:?}", self.data);
+        let data =
+            data.strip_suffix(", occlusion_tolerance: 0.0 }").map_or(data.clone(), |d| format!("{d} }}"));
         let data = data.strip_suffix(", live_crop: Flow }").map_or(data.clone(), |d| format!("{d} }}"));
         let data = data.strip_suffix(", live_frames: 1 }").map_or(data.clone(), |d| format!("{d} }}"));
         let mut f = format!(

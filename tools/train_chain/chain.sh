@@ -143,6 +143,14 @@ derive args_mf4sr args_mf4sc --init-weights docs/training/chain_mf4sc2/weights.s
 # every keyframe: not a default candidate unless the real room recovers.
 derive args_mf4sc4 args_mf4sc3 --init-weights docs/training/chain_mf4sc3/weights.safetensors --seed 9
 
+# Occlusion masking (2026-12-06, SPEC.md §13.1c): the loss took a reference pixel hidden behind a
+# nearer surface in a live frame as matching the occluder's feature there, teaching wall pixels beside
+# a box to look like the box (the learned features' blank-wall failure of issue 32, s200001 / s2).
+# 4-5 % of the chain's reference pixels are hidden in at least one of the 4 live frames (τ 0.02-0.1
+# gives 5.0-4.0 %). mf4so is mf4sc (mf4l's final weights, 5 000 steps, data seed 4, same-window
+# crops) with --occlusion-mask 0.05, so mf4so - mf4sc is the mask's effect alone.
+args_mf4so=("${args_mf4sc[@]}" --occlusion-mask 0.05)
+
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were
 # about 2 px off, docs/training/README.md): does cleaner real supervision help the real room, where

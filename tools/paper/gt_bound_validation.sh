@@ -3,6 +3,7 @@
 # (docs/table1/README.md).
 #
 #   tools/paper/gt_bound_validation.sh            # or: TAG=NAME tools/paper/gt_bound_validation.sh
+#   TAG=NAME WEIGHTS=FILE tools/paper/gt_bound_validation.sh   # other feature weights (a chain's)
 #
 # Renders the scenes into runs/val/ when missing; writes runs/gtfit/SCENE/ (eval's outputs) and
 # docs/table1/gt_bound/fit_validation.csv (their table.csv rows); with TAG=NAME runs/gtfit_NAME/ and
@@ -20,7 +21,7 @@ for d in "${VAL_SCENES[@]}"; do scenes+=("$d:20:10:20"); done
 scenes+=("../shared/data/sun3d_studyroom_f0935:15:10:35")
 for sk in "${scenes[@]}"; do
   seq=${sk%%:*}; kfs=${sk#*:}; scene=$(basename $seq)
-  nice $bin eval --sequence $seq --keyframes $kfs --methods rgb-tv,rgb-normals,learned-tv,learned-normals --normals gt --out $runs/$scene > $runs/$scene.log 2>&1
+  nice $bin eval --sequence $seq --keyframes $kfs --methods rgb-tv,rgb-normals,learned-tv,learned-normals --normals gt ${WEIGHTS:+--weights $WEIGHTS} --out $runs/$scene > $runs/$scene.log 2>&1
 done
 touch $runs/.done
 out=docs/table1/gt_bound/fit_validation${TAG:+_$TAG}.csv

@@ -268,12 +268,29 @@ fn shipped_chain_end(name: &str, b1_stride: usize, steps: usize) -> Vec<u8> {
 
 #[test]
 fn shipped_trained_weights_load_and_are_the_built_in_default() {
-    // Chain mf4sc: 5 000 steps x 4 tuples of the multi-frame loss with same-window live crops,
-    // fine-tuning chain mf4l's end (SPEC.md §13.8).
-    let bytes = shipped_chain_end("featurenet_trained_mf4sc.safetensors", 2, 5000);
+    // Chain mf4so: chain mf4sc's 5 000 steps x 4 tuples (the multi-frame loss, same-window live
+    // crops, from chain mf4l's end, the same data draws) with occlusion masking (SPEC.md §13.1c,
+    // §13.8).
+    let bytes = shipped_chain_end("featurenet_trained_mf4so.safetensors", 2, 5000);
     assert_eq!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
+    let w = NetworkWeights::from_safetensors_bytes(&bytes, Path::new("mf4so")).unwrap();
+    assert!(
+        w.provenance.contains("live_frames: 4, live_crop: Same, occlusion_tolerance: 0.05"),
+        "{}",
+        w.provenance
+    );
+    assert!(w.provenance.contains("seed=4 "), "{}", w.provenance);
+    assert!(w.provenance.contains("init_weights=docs/training/chain_mf4l/best_weights.safetensors"));
+}
+
+#[test]
+fn shipped_unmasked_weights_load_and_are_the_end_of_their_chain() {
+    // Chain mf4sc: the same fine-tune without occlusion masking; the default from 2026-12-05 to
+    // 2026-12-06 and mf4so's control.
+    let bytes = shipped_chain_end("featurenet_trained_mf4sc.safetensors", 2, 5000);
+    assert_ne!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
     let w = NetworkWeights::from_safetensors_bytes(&bytes, Path::new("mf4sc")).unwrap();
-    assert!(w.provenance.contains("live_frames: 4, live_crop: Same"), "{}", w.provenance);
+    assert!(w.provenance.contains("live_frames: 4, live_crop: Same }"), "{}", w.provenance);
     assert!(w.provenance.contains("init_weights=docs/training/chain_mf4l/best_weights.safetensors"));
 }
 

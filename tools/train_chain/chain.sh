@@ -151,6 +151,14 @@ derive args_mf4sc4 args_mf4sc3 --init-weights docs/training/chain_mf4sc3/weights
 # crops) with --occlusion-mask 0.05, so mf4so - mf4sc is the mask's effect alone.
 args_mf4so=("${args_mf4sc[@]}" --occlusion-mask 0.05)
 
+# mf4so beat mf4sc on the 101 validation scenes (learned-normals +0.0012, learned-WTA +0.0022 on 74 of
+# 101 scenes, the real room +0.009; docs/training/README.md) and became the default. mf8so continues it
+# with 8 live frames per reference (mf8 - mf4c was +0.004 learned-TV at equal steps, with flow crops),
+# the mask kept, 5 000 steps = 20 000 tuples of 1 + 8 frames, its own data draws (--seed 10): about
+# 1.5 h, a chain over sessions.
+derive args_mf8so args_mf4so --live-frames 8 \
+  --init-weights docs/training/chain_mf4so/weights.safetensors --seed 10
+
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were
 # about 2 px off, docs/training/README.md): does cleaner real supervision help the real room, where

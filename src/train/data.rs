@@ -10,7 +10,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ndarray::{s, Array2, Array3};
+use ndarray::{s, Array2, Array3, ArrayView2};
 
 use crate::error::{Error, Result};
 use crate::geometry::{relative_pose, PinholeCamera, Pose, Warp};
@@ -630,7 +630,7 @@ impl DataSet {
             .collect::<Result<_>>()?;
         let mut ref_depth = r.depth.slice(s![y0..y0 + ch, x0..x0 + cw]).to_owned();
         if self.cfg.occlusion_tolerance > 0.0 {
-            let lives: Vec<(Warp, ndarray::ArrayView2<'_, f32>)> = lives
+            let lives: Vec<(Warp, ArrayView2<'_, f32>)> = lives
                 .iter()
                 .map(|f| (Warp::new(cam, &f.camera, &relative_pose(&r.pose, &f.pose)), f.depth.view()))
                 .collect();

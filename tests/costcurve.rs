@@ -5,7 +5,9 @@ use std::path::Path;
 use std::process::Command;
 
 use densefeat::geometry::InverseDepthBins;
-use densefeat::mapping::costcurve::{colour_of, cost_curves, frame_order, grid_pixel, normalise};
+use densefeat::mapping::costcurve::{
+    colour_of, cost_curves, curve_colour, curve_label, frame_order, grid_pixel, normalise,
+};
 use densefeat::mapping::features::FeatureKind;
 use densefeat::plot::PANEL_SIZE;
 
@@ -51,6 +53,38 @@ fn every_feature_kind_has_its_own_colour() {
             assert_ne!(colour_of(a), colour_of(b), "{a} and {b} share a colour");
         }
     }
+}
+
+#[test]
+fn repeated_kinds_get_their_own_labels_and_shades() {
+    let kinds: Vec<FeatureKind> =
+        ["rgb", "learned=a/x.safetensors", "learned=b/x.safetensors", "learned", "b1"]
+            .iter()
+            .map(|k| k.parse().unwrap())
+            .collect();
+    let labels: Vec<String> =
+        kinds.iter().enumerate().map(|(i, k)| curve_label(&kinds, i, k.name())).collect();
+    assert_eq!(labels, ["rgb", "learned=a/x", "learned=b/x", "learned=shipped", "b1"]);
+    let twice: Vec<FeatureKind> =
+        ["learned=w.safetensors", "learned=w.safetensors"].iter().map(|k| k.parse().unwrap()).collect();
+    assert_eq!(curve_label(&twice, 0, "learned"), "learned=w");
+    assert_eq!(curve_label(&twice, 1, "learned"), "learned=w#1", "a repeated label is told apart");
+
+    // Two learned weights on the fixture: distinct labels in the curves, two shades of one colour.
+    let seq = densefeat::sequence::open(FIXTURE).unwrap();
+    let bins = InverseDepthBins::from_depth_range(0.4, 10.0, 8).unwrap();
+    let w = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/weights/featurenet_trained_mf4sc.safetensors");
+    let two = [FeatureKind::Learned(None), FeatureKind::Learned(Some(w.into()))];
+    let curves =
+        cost_curves(&seq, 20, &[(200, 150)], &two, &[2], bins, &densefeat::backend::default_backend())
+            .unwrap();
+    assert_eq!(curves.len(), 2);
+    assert_eq!(curves[0].label, "learned=shipped");
+    assert_eq!(curves[1].label, "learned=weights/featurenet_trained_mf4sc");
+    assert_eq!(curve_colour(&curves[0], &curves), colour_of("learned"));
+    let (a, b) = (curve_colour(&curves[0], &curves), curve_colour(&curves[1], &curves));
+    assert_ne!(a, b, "the second learned curve is a darker shade");
+    assert!(b.0 < a.0 && b.1 < a.1);
 }
 
 #[test]

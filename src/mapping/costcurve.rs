@@ -23,8 +23,13 @@ use crate::sequence::Sequence;
 /// One recorded cost curve.
 #[derive(Clone, Debug)]
 pub struct Curve {
-    /// `rgb` or `learned`.
+    /// The feature kind's name (`rgb`, `learned`, `b1`, `dsift`, `patch7`).
     pub feature: &'static str,
+    /// What the plot and the CSV call the curve: the kind's name, or `name=WEIGHTS` (the weights
+    /// file's stem) when `kinds` holds the kind more than once, as `learned=A,learned=B` does.
+    pub label: String,
+    /// The kind's position among those asked for (tells repeated kinds' colours apart).
+    pub kind_index: usize,
     /// Frames in the volume when it was recorded.
     pub frames_added: usize,
     /// The level-0 pixel asked for.
@@ -105,8 +110,9 @@ pub fn cost_curves(
     let key = seq.load_frame(keyframe)?;
     let rgb_level = FeatureExtractor::network_level()?;
     let mut curves = Vec::new();
-    for kind in kinds {
+    for (kind_index, kind) in kinds.iter().enumerate() {
         let ex = FeatureExtractor::new(kind.clone(), rgb_level, backend.clone())?;
+        let label = curve_label(kinds, kind_index, ex.name());
         let camera = ex.camera(&seq_camera);
         let grid: Vec<_> =
             pixels.iter().map(|&p| grid_pixel(p, ex.level(), (camera.width, camera.height))).collect();
@@ -127,6 +133,8 @@ pub fn cost_curves(
                 let gt = key.depth.as_ref().and_then(|d| gt_inverse_depth(d, (gx * scale, gy * scale)));
                 curves.push(Curve {
                     feature: ex.name(),
+                    label: label.clone(),
+                    kind_index,
                     frames_added: i + 1,
                     pixel,
                     grid_pixel: (gx, gy),
@@ -137,6 +145,51 @@ pub fn cost_curves(
         }
     }
     Ok(curves)
+}
+
+/// The label of `kinds[i]` (named `name`): `name` alone when no other entry of `kinds` has that name,
+/// else `name=STEM` with the weights file's stem (`name=shipped` for the built-in weights), and
+/// `#i` appended if that still repeats an earlier label.
+pub fn curve_label(kinds: &[FeatureKind], i: usize, name: &str) -> String {
+    let same = |k: &FeatureKind| std::mem::discriminant(k) == std::mem::discriminant(&kinds[i]);
+    if kinds.iter().filter(|k| same(k)).count() < 2 {
+        return name.to_string();
+    }
+    let stem = |k: &FeatureKind| match k {
+        FeatureKind::Learned(Some(p)) | FeatureKind::B1(Some(p)) => {
+            // `docs/x/weights.safetensors` is named by its folder: `x/weights`.
+            let file = p.file_stem().map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+            match p.parent().and_then(|d| d.file_name()) {
+                Some(dir) => format!("{}/{file}", dir.to_string_lossy()),
+                None => file,
+            }
+        }
+        _ => "shipped".to_string(),
+    };
+    let label = format!("{name}={}", stem(&kinds[i]));
+    let earlier = kinds[..i].iter().filter(|k| same(k) && stem(k) == stem(&kinds[i])).count();
+    if earlier > 0 {
+        format!("{label}#{i}")
+    } else {
+        label
+    }
+}
+
+/// The colour of a curve: its kind's ([`colour_of`]), darkened by a third for each earlier entry of
+/// the same kind, so that `learned=A,learned=B` are two shades of orange.
+pub fn curve_colour(c: &Curve, curves: &[Curve]) -> (u8, u8, u8) {
+    let mut earlier: Vec<usize> = curves
+        .iter()
+        .filter(|o| o.feature == c.feature && o.kind_index < c.kind_index)
+        .map(|o| o.kind_index)
+        .collect();
+    earlier.sort_unstable();
+    earlier.dedup();
+    let (r, g, b) = colour_of(c.feature);
+    let f = 0.6f64.powi(i32::try_from(earlier.len()).unwrap_or(i32::MAX));
+    // Invariant: each channel stays in 0..=255 (a value in 0..=255 times a factor in (0, 1]).
+    let shade = |v: u8| (f64::from(v) * f).round() as u8;
+    (shade(r), shade(g), shade(b))
 }
 
 fn gt_inverse_depth(depth: &DepthMap, (x, y): (usize, usize)) -> Option<f64> {
@@ -200,16 +253,16 @@ pub fn panels(curves: &[Curve], bins: &InverseDepthBins) -> Vec<Vec<Panel>> {
                     };
                     for c in &mine {
                         let Some((kmin, norm)) = normalise(&c.costs) else { continue };
-                        let colour = colour_of(c.feature);
+                        let colour = curve_colour(c, curves);
                         panel.series.push(Series {
-                            name: c.feature.to_string(),
+                            name: c.label.clone(),
                             points: rhos.iter().copied().zip(norm).collect(),
                             colour,
                         });
                         panel.markers.push(Marker {
                             x: rhos[kmin],
                             colour,
-                            label: format!("{} min", c.feature),
+                            label: format!("{} min", c.label),
                         });
                     }
                     if let Some(gt) = mine.first().and_then(|c| c.gt_inverse_depth) {
@@ -241,7 +294,7 @@ pub fn curves_csv(curves: &[Curve], bins: &InverseDepthBins) -> String {
             let _ = writeln!(
                 out,
                 "{},{},{},{},{},{},{gt},{k},{},{cost_text},{n}",
-                c.feature,
+                c.label,
                 c.frames_added,
                 c.pixel.0,
                 c.pixel.1,

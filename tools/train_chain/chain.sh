@@ -158,7 +158,8 @@ args_mf4so=("${args_mf4sc[@]}" --occlusion-mask 0.05)
 # 1.5 h, a chain over sessions.
 derive args_mf8so args_mf4so --live-frames 8 \
   --init-weights docs/training/chain_mf4so/weights.safetensors --seed 10
-# (mf8so was started on 2026-12-06 and stopped before its first step, for mxso below: not run yet.)
+# (mf8so was started on 2026-12-06 and stopped before its first step, for mxso below; started again
+# at 17:43 that evening, after mxso.)
 
 # mxso is mf4so (mf4l's final weights, 5 000 steps, data seed 4, same-window crops, the mask) with both
 # renderer styles (--synthetic-style mixed: even seeds classic, odd seeds realistic; SPEC.md §13.5), so
@@ -166,6 +167,8 @@ derive args_mf8so args_mf4so --live-frames 8 \
 # (issue 32's s200001 / s2); mx4 tried the mix before the mask and the same-window crops, with no gain
 # on the classic validation renders, when occluded pixels could still teach a wall to look like the box.
 derive args_mxso args_mf4so --synthetic-style mixed
+# mxso lost to mf4so on validation (learned-WTA worse on 66 of 101 scenes, the real room -0.004
+# learned-TV; docs/training/README.md): not adopted.
 
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were

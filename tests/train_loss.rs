@@ -454,3 +454,42 @@ fn multi_frame_fast_matches_reference_and_pair_loss() {
         assert!(bits_equal(&one.d_ref, &pair.d_ref) && bits_equal(&one.d_lives[0], &pair.d_live));
     }
 }
+
+/// `--regression-weight W` (SPEC.md §13.1 step 5): `λ_ρ = 5 W`, `λ_d = W`. W = 1 is the paper's
+/// configuration field for field (so its fingerprint is unchanged); W = 0 leaves the cross-entropy
+/// sums bit for bit and makes the regression sums 0, and the gradient of that loss still matches
+/// finite differences; W = 2 doubles the regression sums; a bad W is refused naming the flag.
+#[test]
+fn the_regression_weight_scales_the_regression_term_only() {
+    assert_eq!(LossConfig::default().with_regression_weight(1.0).unwrap(), LossConfig::default());
+    for bad in [-1.0, f64::NAN, f64::INFINITY] {
+        let err = LossConfig::default().with_regression_weight(bad).unwrap_err().to_string();
+        assert!(err.contains("--regression-weight"), "{err}");
+    }
+    let base = case(11, 6, 7, 3, 12);
+    let sums = |w: f64| {
+        let cfg = base.cfg.with_regression_weight(w).unwrap();
+        scale_loss_reference(&cfg, base.f_ref.view(), base.f_live.view(), base.depth.view(), &base.warp)
+            .unwrap()
+            .sums
+    };
+    let (paper, ce_only, double) = (sums(1.0), sums(0.0), sums(2.0));
+    assert!(paper.pixels > 0 && paper.rho > 0.0 && paper.depth > 0.0);
+    assert_eq!(ce_only.ce.to_bits(), paper.ce.to_bits());
+    assert_eq!((ce_only.rho, ce_only.depth), (0.0, 0.0));
+    assert!((double.rho - 2.0 * paper.rho).abs() <= 1e-12 * paper.rho);
+    assert!((double.depth - 2.0 * paper.depth).abs() <= 1e-12 * paper.depth);
+    // The cross-entropy-only loss's analytic gradient against a central difference.
+    let c = Case { cfg: base.cfg.with_regression_weight(0.0).unwrap(), ..base };
+    let g = scale_loss_reference(&c.cfg, c.f_ref.view(), c.f_live.view(), c.depth.view(), &c.warp).unwrap();
+    let h = 1e-6;
+    for idx in [(0, 0, 0), (2, 3, 1), (5, 6, 2), (3, 1, 0)] {
+        let (mut plus, mut minus) = (c.f_ref.clone(), c.f_ref.clone());
+        plus[idx] += h;
+        minus[idx] -= h;
+        let fd = (loss_of(&c, &plus, &c.f_live) - loss_of(&c, &minus, &c.f_live)) / (2.0 * h);
+        let an = g.d_ref[idx];
+        let err = (fd - an).abs() / (1e-4 + an.abs().max(fd.abs()));
+        assert!(err < 1e-4, "{idx:?}: analytic {an}, fd {fd}");
+    }
+}

@@ -136,6 +136,10 @@ pub struct TrainArgs {
     /// depth (a point hidden by a nearer surface, whose "match" is the occluder). 0: off (the paper)
     #[arg(long, default_value_t = 0.0)]
     pub occlusion_mask: f64,
+    /// Weight of the loss's regression term against the paper's (SPEC.md §13.1 step 5):
+    /// λ_ρ = 5 W, λ_d = W. 1: the paper's loss; 0: the cross-entropy alone
+    #[arg(long, default_value_t = 1.0)]
+    pub regression_weight: f64,
     /// Loss pixel sampling (SPEC.md §13.1a): evaluate one pixel per SxS block at the finest
     /// supervised level (S/2 one level coarser, ...), weighted S²: unbiased; 1 evaluates every
     /// pixel (the paper).
@@ -191,7 +195,8 @@ impl TrainArgs {
                 bins: InverseDepthBins::new(0.0, self.rho_max, self.bins)?,
                 sample_stride: self.loss_sample_stride,
                 ..LossConfig::default()
-            },
+            }
+            .with_regression_weight(self.regression_weight)?,
             supervision: Supervision::default(),
             data: DataConfig {
                 crop: validate::size("crop", &self.crop)?,

@@ -170,6 +170,13 @@ derive args_mxso args_mf4so --synthetic-style mixed
 # mxso lost to mf4so on validation (learned-WTA worse on 66 of 101 scenes, the real room -0.004
 # learned-TV; docs/training/README.md): not adopted.
 
+# mf4soce is mf4so (mf4l's final weights, 5 000 steps, data seed 4, same-window crops, the mask) with the
+# cross-entropy alone (--regression-weight 0, SPEC.md §13.1 step 5), so mf4soce - mf4so is the
+# regression term's effect: on a blank wall beside a box the learned cost's single valley lies between
+# the wall's and the box's depths (docs/table1/README.md, "The blank wall's cost curves"), where the
+# regression term puts the expected depth under ambiguity.
+args_mf4soce=("${args_mf4so[@]}" --regression-weight 0)
+
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were
 # about 2 px off, docs/training/README.md): does cleaner real supervision help the real room, where

@@ -76,6 +76,23 @@ impl Default for LossConfig {
 }
 
 impl LossConfig {
+    /// This configuration with the regression term (SPEC.md §13.1 step 5) scaled by `w` against the
+    /// paper's weights: `λ_ρ = 5 w`, `λ_d = w` (`--regression-weight`). `w = 1` is the paper's loss
+    /// (the same fields, so the same fingerprint); `w = 0` trains with the cross-entropy alone.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `--regression-weight` unless `w` is finite and `>= 0`.
+    pub fn with_regression_weight(self, w: f64) -> Result<Self> {
+        if !(w.is_finite() && w >= 0.0) {
+            return Err(Error::invalid_argument(
+                "--regression-weight",
+                format!("{w}: must be a finite number >= 0 (1: the paper's loss, 0: cross-entropy alone)"),
+            ));
+        }
+        let paper = LossConfig::default();
+        Ok(LossConfig { lambda_rho: paper.lambda_rho * w, lambda_d: paper.lambda_d * w, ..self })
+    }
+
     /// Checks that every field is finite and in range.
     ///
     /// # Errors

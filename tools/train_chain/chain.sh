@@ -176,6 +176,8 @@ derive args_mxso args_mf4so --synthetic-style mixed
 # the wall's and the box's depths (docs/table1/README.md, "The blank wall's cost curves"), where the
 # regression term puts the expected depth under ambiguity.
 args_mf4soce=("${args_mf4so[@]}" --regression-weight 0)
+# mf4soce: learned-WTA +0.0035 on validation, the regularised rows flat, the real room -0.007: not
+# adopted, and the blank wall's minima did not move (docs/training/README.md).
 
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were

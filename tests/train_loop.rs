@@ -424,6 +424,17 @@ fn live_crops_cut_at_the_reference_window_keep_its_coordinates() {
     let err = "shift".parse::<LiveCrop>().expect_err("refused").to_string();
     assert!(err.contains("--live-crop") && err.contains("same"), "{err}");
     assert!(!tiny().fingerprint().contains("live_crop"), "{}", tiny().fingerprint());
+    // `--multi-cost` (SPEC.md §13.1d) likewise: `all` leaves the loss's text as it was.
+    let f = tiny().fingerprint();
+    assert!(!f.contains("multi_cost") && f.contains("sample_seed: 0 } supervision="), "{f}");
+    let seen = TrainConfig {
+        loss: densefeat::train::loss::LossConfig {
+            multi_cost: densefeat::train::loss::MultiCost::Seen,
+            ..tiny().loss
+        },
+        ..tiny()
+    };
+    assert!(seen.fingerprint().contains("multi_cost: Seen }"), "{}", seen.fingerprint());
     let data = |live_crop| DataConfig { crop: (128, 96), live_frames: 3, live_crop, ..tiny().data };
     let same_cfg = TrainConfig { data: data(LiveCrop::Same), ..tiny() };
     assert!(same_cfg.fingerprint().contains("live_crop: Same"), "{}", same_cfg.fingerprint());

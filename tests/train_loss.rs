@@ -6,7 +6,7 @@ use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
 use densefeat::runtime::CpuFeatureLevel;
 use densefeat::train::loss::{
     pixel_sampled, pixel_terms, scale_loss, scale_loss_multi, scale_loss_multi_reference,
-    scale_loss_reference, scale_loss_with, uses_avx512, LiveView, LossConfig,
+    scale_loss_reference, scale_loss_with, seen_threshold, uses_avx512, LiveView, LossConfig, MultiCost,
 };
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{Array2, Array3};
@@ -491,5 +491,130 @@ fn the_regression_weight_scales_the_regression_term_only() {
         let an = g.d_ref[idx];
         let err = (fd - an).abs() / (1e-4 + an.abs().max(fd.abs()));
         assert!(err < 1e-4, "{idx:?}: analytic {an}, fd {fd}");
+    }
+}
+
+/// A warp that sees nothing of the reference: the live camera turned 180° about its y axis, so
+/// every hypothesis lies behind it.
+fn blind_warp(c: &Case) -> Warp {
+    let cam = *c.warp.reference();
+    let q = UnitQuaternion::from_euler_angles(0.0, std::f64::consts::PI, 0.0);
+    Warp::new(&cam, &cam, &Pose::from_parts(Translation3::from(Vector3::zeros()), q))
+}
+
+/// SPEC.md §13.1d (`--multi-cost seen`): the rule's threshold; the flag parses and a bad value is
+/// refused naming it; the reference's gradients against central differences for the reference
+/// map and every live map, on a case where some true matches leave some frames (so the rule
+/// uses pixels that §13.1b masks).
+#[test]
+fn seen_rule_reference_gradients_match_finite_differences() {
+    assert_eq!((seen_threshold(0), seen_threshold(1), seen_threshold(4), seen_threshold(5)), (1, 1, 1, 2));
+    assert_eq!("seen".parse::<MultiCost>().unwrap(), MultiCost::Seen);
+    assert_eq!("all".parse::<MultiCost>().unwrap(), MultiCost::All);
+    let err = "some".parse::<MultiCost>().expect_err("refused").to_string();
+    assert!(err.contains("--multi-cost") && err.contains("seen"), "{err}");
+    let mut c = case(5, 5, 6, 3, 10);
+    let extra = more_lives(5, &c, 2);
+    let all = {
+        let lives = views(&c, &extra);
+        scale_loss_multi_reference(&c.cfg, c.f_ref.view(), &lives, c.depth.view()).unwrap()
+    };
+    c.cfg.multi_cost = MultiCost::Seen;
+    let lives = views(&c, &extra);
+    let out = scale_loss_multi_reference(&c.cfg, c.f_ref.view(), &lives, c.depth.view()).unwrap();
+    assert!(out.sums.pixels > all.sums.pixels, "seen {} vs all {}", out.sums.pixels, all.sums.pixels);
+    let loss = |f_ref: &Array3<f64>, lives: &[LiveView<'_, f64>]| {
+        scale_loss_multi_reference(&c.cfg, f_ref.view(), lives, c.depth.view()).unwrap().sums.mean()
+    };
+    let eps = 1e-6;
+    let check = |g: f64, fd: f64, what: &str| {
+        let err = (fd - g).abs() / (1e-4 + g.abs().max(fd.abs()));
+        assert!(err < 1e-4, "{what}: analytic {g}, fd {fd}");
+    };
+    for (idx, &g) in out.d_ref.indexed_iter() {
+        let (mut a, mut b) = (c.f_ref.clone(), c.f_ref.clone());
+        a[idx] += eps;
+        b[idx] -= eps;
+        check(g, (loss(&a, &lives) - loss(&b, &lives)) / (2.0 * eps), &format!("d_ref {idx:?}"));
+    }
+    let live_maps: Vec<Array3<f64>> = lives.iter().map(|l| l.features.to_owned()).collect();
+    for (n, d) in out.d_lives.iter().enumerate() {
+        assert!(d.iter().any(|v| *v != 0.0), "frame {n} has gradient");
+        for (idx, &g) in d.indexed_iter() {
+            let bumped = |delta: f64| {
+                let mut maps = live_maps.clone();
+                maps[n][idx] += delta;
+                let v: Vec<LiveView<'_, f64>> = maps
+                    .iter()
+                    .zip(&lives)
+                    .map(|(f, l)| LiveView { features: f.view(), warp: l.warp })
+                    .collect();
+                loss(&c.f_ref, &v)
+            };
+            check(g, (bumped(eps) - bumped(-eps)) / (2.0 * eps), &format!("d_live{n} {idx:?}"));
+        }
+    }
+}
+
+/// SPEC.md §13.1d: the fast loss under `seen` against the f64 reference (3 live frames, with and
+/// without sampling) within §13.3's budgets, bit-identical for 1, 2, 3 and 8 threads; a live frame
+/// that sees nothing changes nothing under `seen` (the same sums and reference gradient bits, a
+/// zero gradient of its own), where under `all` it masks every pixel.
+#[test]
+fn seen_rule_fast_matches_reference_and_ignores_a_frame_that_sees_nothing() {
+    for stride in [1, 2] {
+        let mut c = case(9, 12, 16, 8, 32);
+        c.cfg.sample_stride = stride;
+        c.cfg.sample_seed = 4;
+        c.cfg.multi_cost = MultiCost::Seen;
+        let extra = more_lives(9, &c, 2);
+        let lives = views(&c, &extra);
+        let rounded: Vec<Array3<f64>> =
+            lives.iter().map(|l| l.features.mapv(|v| f64::from(v as f32))).collect();
+        let rv: Vec<LiveView<'_, f64>> =
+            rounded.iter().zip(&lives).map(|(f, l)| LiveView { features: f.view(), warp: l.warp }).collect();
+        let fr64 = c.f_ref.mapv(|v| f64::from(v as f32));
+        let want = scale_loss_multi_reference(&c.cfg, fr64.view(), &rv, c.depth.view()).unwrap();
+        let fr = c.f_ref.mapv(|v| v as f32);
+        let fls: Vec<Array3<f32>> = lives.iter().map(|l| l.features.mapv(|v| v as f32)).collect();
+        let v32: Vec<LiveView<'_, f32>> =
+            fls.iter().zip(&lives).map(|(f, l)| LiveView { features: f.view(), warp: l.warp }).collect();
+        let run = |cfg: &LossConfig, v: &[LiveView<'_, f32>], threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| scale_loss_multi(cfg, fr.view(), v, c.depth.view()).unwrap())
+        };
+        let got = run(&c.cfg, &v32, 1);
+        let all = run(&LossConfig { multi_cost: MultiCost::All, ..c.cfg }, &v32, 1);
+        assert!(got.sums.pixels > all.sums.pixels, "seen {} vs all {}", got.sums.pixels, all.sums.pixels);
+        assert_eq!(got.sums.pixels, want.sums.pixels);
+        assert_eq!(got.sums.delta125_wta, want.sums.delta125_wta);
+        let (lg, lw) = (got.sums.mean(), want.sums.mean());
+        assert!((lg - lw).abs() <= 1e-5 * lw.abs().max(1.0), "loss {lg} vs {lw}");
+        for (g, w) in std::iter::once((&got.d_ref, &want.d_ref)).chain(got.d_lives.iter().zip(&want.d_lives))
+        {
+            let scale = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            assert!(scale > 0.0);
+            for (a, b) in g.iter().zip(w.iter()) {
+                assert!((f64::from(*a) - b).abs() <= 1e-4 * scale + 1e-12, "{a} vs {b} (max {scale})");
+            }
+        }
+        for n in [2, 3, 8] {
+            let o = run(&c.cfg, &v32, n);
+            assert_eq!(o.sums, got.sums, "{n} threads");
+            assert!(bits_equal(&o.d_ref, &got.d_ref), "{n} threads d_ref");
+            for (a, b) in o.d_lives.iter().zip(&got.d_lives) {
+                assert!(bits_equal(a, b), "{n} threads d_live");
+            }
+        }
+        // A fourth frame that sees nothing.
+        let blind = blind_warp(&c);
+        let mut with_blind = v32.clone();
+        with_blind.push(LiveView { features: fls[0].view(), warp: &blind });
+        let b = run(&c.cfg, &with_blind, 2);
+        assert_eq!(b.sums, got.sums);
+        assert!(bits_equal(&b.d_ref, &got.d_ref));
+        assert!(b.d_lives[3].iter().all(|v| *v == 0.0));
+        let b_all = run(&LossConfig { multi_cost: MultiCost::All, ..c.cfg }, &with_blind, 2);
+        assert_eq!(b_all.sums.pixels, 0);
     }
 }

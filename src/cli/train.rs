@@ -136,6 +136,12 @@ pub struct TrainArgs {
     /// depth (a point hidden by a nearer surface, whose "match" is the occluder). 0: off (the paper)
     #[arg(long, default_value_t = 0.0)]
     pub occlusion_mask: f64,
+    /// How the multi-frame loss treats live frames that do not all see a hypothesis (SPEC.md
+    /// §13.1d): `all` (§13.1b: every frame counts, m outside it, and a pixel only when its true
+    /// match is inside every frame) or `seen` (the mapper's rule: per hypothesis the mean over the
+    /// frames that see it, with §9.10's evidence minimum 0.25; a pixel whenever its true bin passes it)
+    #[arg(long, default_value = "all")]
+    pub multi_cost: String,
     /// Weight of the loss's regression term against the paper's (SPEC.md §13.1 step 5):
     /// λ_ρ = 5 W, λ_d = W. 1: the paper's loss; 0: the cross-entropy alone
     #[arg(long, default_value_t = 1.0)]
@@ -194,6 +200,7 @@ impl TrainArgs {
             loss: LossConfig {
                 bins: InverseDepthBins::new(0.0, self.rho_max, self.bins)?,
                 sample_stride: self.loss_sample_stride,
+                multi_cost: self.multi_cost.parse()?,
                 ..LossConfig::default()
             }
             .with_regression_weight(self.regression_weight)?,

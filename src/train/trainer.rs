@@ -67,9 +67,12 @@ impl TrainConfig {
             data.strip_suffix(", occlusion_tolerance: 0.0 }").map_or(data.clone(), |d| format!("{d} }}"));
         let data = data.strip_suffix(", live_crop: Flow }").map_or(data.clone(), |d| format!("{d} }}"));
         let data = data.strip_suffix(", live_frames: 1 }").map_or(data.clone(), |d| format!("{d} }}"));
+        // `multi_cost` (2026-12-06) joined LossConfig likewise: written only when it is not `All`.
+        let loss = format!("{:?}", self.loss);
+        let loss = loss.strip_suffix(", multi_cost: All }").map_or(loss.clone(), |l| format!("{l} }}"));
         let mut f = format!(
-            "network={:?} init_seed={} seed={} steps={} batch={} optim={:?} loss={:?} supervision={:?} data={data}",
-            self.network, self.init_seed, self.seed, self.steps, self.batch, self.optim, self.loss, self.supervision
+            "network={:?} init_seed={} seed={} steps={} batch={} optim={:?} loss={loss} supervision={:?} data={data}",
+            self.network, self.init_seed, self.seed, self.steps, self.batch, self.optim, self.supervision
         );
         // Only when set, so the fingerprints of runs from §13.4's initialisation are unchanged.
         if let Some(p) = &self.init_weights {

@@ -179,6 +179,14 @@ args_mf4soce=("${args_mf4so[@]}" --regression-weight 0)
 # mf4soce: learned-WTA +0.0035 on validation, the regularised rows flat, the real room -0.007: not
 # adopted, and the blank wall's minima did not move (docs/training/README.md).
 
+# mf4sos is mf4so (mf4l's final weights, 5 000 steps, data seed 4, same-window crops, the mask) with the
+# mapper's rule for live frames that do not all see a hypothesis (--multi-cost seen, SPEC.md §13.1d):
+# each hypothesis averaged over the frames that see it, and pixels whose true match leaves some frame
+# trained too. Those pixels, blank, are the learned features' worst at run time (δ<1.25 0.38 against
+# 0.80, docs/table1/README.md, "The blank wall on the training scenes"). mf4sos - mf4so is the rule's
+# effect.
+args_mf4sos=("${args_mf4so[@]}" --multi-cost seen)
+
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were
 # about 2 px off, docs/training/README.md): does cleaner real supervision help the real room, where

@@ -11,8 +11,10 @@ use rayon::prelude::*;
 
 use super::kernel::{self, LiveRows, Tap, TILE_PX};
 use super::taps::{self, PixelRay};
-use super::{check_inputs, check_lives, multi_target, pixel_sampled, pixel_terms_with, PixelScratch};
-use super::{LiveView, LossConfig, LossSums, MultiScaleLoss, ScaleLoss};
+use super::{
+    any_target, check_inputs, check_lives, multi_target, pixel_sampled, pixel_terms_with, PixelScratch,
+};
+use super::{seen_energies, seen_need, LiveView, LossConfig, LossSums, MultiCost, MultiScaleLoss, ScaleLoss};
 use crate::error::Result;
 use crate::geometry::Warp;
 use crate::runtime::CpuFeatureLevel;
@@ -113,10 +115,31 @@ pub fn scale_loss_multi_with(
         .map(|a| a.as_slice().unwrap_or_else(|| unreachable!("standard-layout arrays are contiguous")))
         .collect();
     let dims: Vec<(usize, usize)> = lives.iter().map(|l| (l.features.dim().0, l.features.dim().1)).collect();
-    // The pixel count first, so every gradient is scaled once, as it is made.
+    let k = cfg.bins.count;
+    let rhos: Vec<f64> = (0..k).map(|l| cfg.bins.rho(l)).collect();
+    let seen = cfg.multi_cost == MultiCost::Seen;
+    // The pixel count first, so every gradient is scaled once, as it is made. Under `Seen` a
+    // pixel counts when its true bin competes (SPEC.md §13.1d), from the same taps as below.
     let targets: Vec<Option<(f64, usize)>> = (0..h * w)
         .into_par_iter()
-        .map(|i| multi_target(cfg, lives, i % w, i / w, depth[[i / w, i % w]]))
+        .map_init(
+            || (Vec::with_capacity(k), vec![0u32; k]),
+            |(tap_buf, counts), i| {
+                let (x, y, z) = (i % w, i / w, depth[[i / w, i % w]]);
+                if !seen {
+                    return multi_target(cfg, lives, x, y, z);
+                }
+                let (rho_star, target) = any_target(cfg, lives, x, y, z)?;
+                counts.fill(0);
+                for (live, &(hl, wl)) in lives.iter().zip(&dims) {
+                    taps::hypothesis_taps(avx512, &PixelRay::new(live.warp, x, y, wl, hl, c), &rhos, tap_buf);
+                    for tap in tap_buf.iter() {
+                        counts[tap.bin as usize] += 1;
+                    }
+                }
+                (counts[target] >= seen_need(counts)).then_some((rho_star, target))
+            },
+        )
         .collect();
     let n = targets.iter().filter(|t| t.is_some()).count();
     // Under sampling (SPEC.md §13.1a) each evaluated pixel stands for m = s² pixels; each live
@@ -136,8 +159,6 @@ pub fn scale_loss_multi_with(
         pieces.push((i, piece));
         rest = tail;
     }
-    let k = cfg.bins.count;
-    let rhos: Vec<f64> = (0..k).map(|l| cfg.bins.rho(l)).collect();
     let outs: Vec<ChunkOut> = pieces
         .into_par_iter()
         .map(|(i, d_ref_rows)| {
@@ -149,6 +170,7 @@ pub fn scale_loss_multi_with(
                 .collect();
             let mut coefs = vec![0.0f32; k];
             let mut energies = vec![0.0f64; k];
+            let mut counts = vec![0u32; k];
             let mut grad = vec![0.0f64; k];
             let mut scratch = PixelScratch::default();
             let rows = rows_of(i);
@@ -165,8 +187,20 @@ pub fn scale_loss_multi_with(
                         taps::hypothesis_taps(avx512, &ray, &rhos, &mut pl.taps);
                         kernel::costs(avx512, f_u, fl, wl * c, &pl.taps, &mut pl.resid, &mut pl.e32);
                     }
-                    // E_l = (Σ_n E_l^(n)) / N, in f64, live frames in order (m outside a frame).
-                    if n_live == 1 {
+                    // E_l = (Σ_n E_l^(n)) / N, in f64, live frames in order (m outside a frame);
+                    // under `Seen` the sum over the frames that see bin l, over their count.
+                    let mut need = 0;
+                    if seen {
+                        energies.fill(0.0);
+                        counts.fill(0);
+                        for pl in &per_live {
+                            for (tap, &e) in pl.taps.iter().zip(&pl.e32) {
+                                energies[tap.bin as usize] += f64::from(e);
+                                counts[tap.bin as usize] += 1;
+                            }
+                        }
+                        need = seen_energies(cfg, &mut energies, &counts);
+                    } else if n_live == 1 {
                         energies.fill(cfg.outside_cost);
                         for (tap, &e) in per_live[0].taps.iter().zip(&per_live[0].e32) {
                             energies[tap.bin as usize] = f64::from(e);
@@ -194,7 +228,14 @@ pub fn scale_loss_multi_with(
                     let d_u = &mut d_ref_rows[((y - rows.start) * w + x) * c..][..c];
                     for (pl, dl) in per_live.iter().zip(&mut d_live) {
                         for (coef, tap) in coefs.iter_mut().zip(&pl.taps) {
-                            *coef = (2.0 * grad[tap.bin as usize] * scale * inv_live) as f32;
+                            let b = tap.bin as usize;
+                            *coef = if !seen {
+                                (2.0 * grad[b] * scale * inv_live) as f32
+                            } else if counts[b] >= need {
+                                (2.0 * grad[b] * scale / f64::from(counts[b])) as f32
+                            } else {
+                                0.0
+                            };
                         }
                         kernel::backward(avx512, &pl.taps, &coefs, &pl.resid, d_u, dl);
                     }

@@ -58,6 +58,43 @@ pub struct LossConfig {
     pub sample_stride: usize,
     /// Seed of the sampled offsets (unused when `sample_stride = 1`).
     pub sample_seed: u64,
+    /// How the multi-frame loss treats a hypothesis that leaves some live frames (SPEC.md §13.1d).
+    pub multi_cost: MultiCost,
+}
+
+/// How the multi-frame loss (SPEC.md §13.1b) combines live frames that do not all see a hypothesis
+/// (`--multi-cost`; SPEC.md §13.1d).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum MultiCost {
+    /// §13.1b: every live frame counts, `m` where a hypothesis falls outside it, and a pixel is
+    /// used only when its true match lies inside every live frame.
+    #[default]
+    All,
+    /// The mapper's rule (SPEC.md §9.10): per hypothesis the mean over the live frames that see
+    /// it; a hypothesis seen by fewer than `max(1, ⌈0.25 · c_max⌉)` frames (`c_max` the pixel's
+    /// best-seen hypothesis's count) costs `m`; a pixel is used when its true bin passes that
+    /// minimum, whether or not every frame sees it.
+    Seen,
+}
+
+impl std::str::FromStr for MultiCost {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "all" => Ok(MultiCost::All),
+            "seen" => Ok(MultiCost::Seen),
+            _ => Err(Error::invalid_argument("--multi-cost", format!("{s:?}: expected all or seen"))),
+        }
+    }
+}
+
+/// The evidence fraction of [`MultiCost::Seen`]: the mapper's default `--min-evidence` (§9.10).
+pub const SEEN_MIN_EVIDENCE: f64 = 0.25;
+
+/// Under [`MultiCost::Seen`], the least number of live frames a hypothesis must be seen by to
+/// compete, given the most any hypothesis of the pixel is seen by (`max(1, ⌈0.25 c_max⌉)`, §9.10).
+pub fn seen_threshold(c_max: usize) -> usize {
+    ((SEEN_MIN_EVIDENCE * c_max as f64).ceil() as usize).max(1)
 }
 
 impl Default for LossConfig {
@@ -71,6 +108,7 @@ impl Default for LossConfig {
             prob_floor: 1e-6,
             sample_stride: 1,
             sample_seed: 0,
+            multi_cost: MultiCost::All,
         }
     }
 }
@@ -224,6 +262,35 @@ pub(crate) fn multi_target<T>(
 ) -> Option<(f64, usize)> {
     let first = pixel_target(cfg, lives.first()?.warp, x, y, z)?;
     lives[1..].iter().all(|l| pixel_target(cfg, l.warp, x, y, z).is_some()).then_some(first)
+}
+
+/// Under [`MultiCost::Seen`]: `(ρ*, l*)` of reference pixel `(x, y)` when [`pixel_target`] holds
+/// in some live frame (the true match inside at least one; `(ρ*, l*)` does not depend on the
+/// frame). The caller then requires the true bin to compete (SPEC.md §13.1d).
+pub(crate) fn any_target<T>(
+    cfg: &LossConfig,
+    lives: &[LiveView<'_, T>],
+    x: usize,
+    y: usize,
+    z: f32,
+) -> Option<(f64, usize)> {
+    lives.iter().find_map(|l| pixel_target(cfg, l.warp, x, y, z))
+}
+
+/// Under [`MultiCost::Seen`], turns per-bin sums of the seeing frames' costs and their counts into
+/// the pixel's costs: `sum / count` where the bin competes (at least [`seen_threshold`] of the
+/// largest count), else `m`. Returns that least count.
+pub(crate) fn seen_energies(cfg: &LossConfig, energies: &mut [f64], counts: &[u32]) -> u32 {
+    let need = seen_need(counts);
+    for (e, &n) in energies.iter_mut().zip(counts) {
+        *e = if n >= need { *e / f64::from(n) } else { cfg.outside_cost };
+    }
+    need
+}
+
+/// [`seen_threshold`] of the largest of `counts`.
+pub(crate) fn seen_need(counts: &[u32]) -> u32 {
+    seen_threshold(counts.iter().copied().max().unwrap_or(0) as usize) as u32
 }
 
 /// What one unmasked pixel contributes, given its costs.

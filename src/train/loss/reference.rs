@@ -2,8 +2,13 @@
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 
-use super::{bilinear_taps, check_inputs, check_lives, hypothesis_position, multi_target, pixel_sampled};
-use super::{pixel_terms, ray_point, LiveView, LossConfig, LossSums, MultiScaleLoss, ScaleLoss};
+use super::{
+    any_target, bilinear_taps, check_inputs, check_lives, hypothesis_position, multi_target, pixel_sampled,
+};
+use super::{
+    pixel_terms, ray_point, seen_energies, LiveView, LossConfig, LossSums, MultiCost, MultiScaleLoss,
+    ScaleLoss,
+};
 use crate::error::Result;
 use crate::geometry::Warp;
 
@@ -61,14 +66,17 @@ pub fn scale_loss_multi_reference(
         let wl = live.features.dim().1;
         (0..4).map(|t| wt[t] * live.features[[idx[t] / wl, idx[t] % wl, ch]]).sum()
     };
+    let seen = cfg.multi_cost == MultiCost::Seen;
+    let mut counts = vec![0u32; k];
     for y in 0..h {
         for x in 0..w {
-            let Some((rho_star, target)) = multi_target(cfg, lives, x, y, depth[[y, x]]) else { continue };
-            unmasked += 1;
-            if !pixel_sampled(cfg, x, y) {
-                continue;
-            }
+            let z = depth[[y, x]];
+            let target =
+                if seen { any_target(cfg, lives, x, y, z) } else { multi_target(cfg, lives, x, y, z) };
+            let Some((rho_star, target)) = target else { continue };
+            // Every frame's taps (under `Seen` the pixel's use depends on them, SPEC.md §13.1d).
             energies.fill(0.0);
+            counts.fill(0);
             for (live, live_taps) in lives.iter().zip(&mut taps) {
                 let (hl, wl, _) = live.features.dim();
                 let p0 = ray_point(live.warp, x, y);
@@ -76,18 +84,35 @@ pub fn scale_loss_multi_reference(
                     live_taps[l] = hypothesis_position(live.warp, &p0, cfg.bins.rho(l))
                         .and_then(|(u, v)| bilinear_taps(u, v, wl, hl));
                     energies[l] += match &live_taps[l] {
+                        None if seen => 0.0,
                         None => cfg.outside_cost,
-                        Some((idx, wt)) => (0..c)
-                            .map(|ch| {
-                                let s = sample(live, idx, wt, ch);
-                                (f_ref[[y, x, ch]] - s) * (f_ref[[y, x, ch]] - s)
-                            })
-                            .sum(),
+                        Some((idx, wt)) => {
+                            counts[l] += 1;
+                            (0..c)
+                                .map(|ch| {
+                                    let s = sample(live, idx, wt, ch);
+                                    (f_ref[[y, x, ch]] - s) * (f_ref[[y, x, ch]] - s)
+                                })
+                                .sum()
+                        }
                     };
                 }
             }
-            for e in energies.iter_mut() {
-                *e /= n_live;
+            let need = if seen {
+                let need = seen_energies(cfg, &mut energies, &counts);
+                if counts[target] < need {
+                    continue;
+                }
+                need
+            } else {
+                for e in energies.iter_mut() {
+                    *e /= n_live;
+                }
+                0
+            };
+            unmasked += 1;
+            if !pixel_sampled(cfg, x, y) {
+                continue;
             }
             let terms = pixel_terms(cfg, &energies, target, rho_star, &mut grad);
             sums.add_pixel(cfg, &terms, rho_star, m);
@@ -95,9 +120,17 @@ pub fn scale_loss_multi_reference(
                 let wl = live.features.dim().1;
                 for l in 0..k {
                     let Some((idx, wt)) = &live_taps[l] else { continue };
+                    // ∂E_l/∂(frame n's cost): 1/N, or under `Seen` 1/c_l where bin l competes.
+                    let per_frame = if !seen {
+                        n_live
+                    } else if counts[l] >= need {
+                        f64::from(counts[l])
+                    } else {
+                        continue;
+                    };
                     for ch in 0..c {
                         let s = sample(live, idx, wt, ch);
-                        let r = 2.0 * m as f64 * grad[l] * (f_ref[[y, x, ch]] - s) / n_live;
+                        let r = 2.0 * m as f64 * grad[l] * (f_ref[[y, x, ch]] - s) / per_frame;
                         d_ref[[y, x, ch]] += r;
                         for t in 0..4 {
                             d_live[[idx[t] / wl, idx[t] % wl, ch]] -= r * wt[t];

@@ -12,9 +12,12 @@ For every keyframe folder `EVAL_DIR/kf_NNNNN_KIND/` with `depth_wta.npy`, agains
   is 3.5 and its checkerboard wall's 62);
 - beside a nearer surface: the 33x33 window around the pixel holds a depth below 0.8 of its own
   (a background pixel within 16 px of an occluding edge).
+- leaving a frame: the pixel's true match (its ground-truth depth through poses.txt, camera-to-world,
+  and K.txt) lies outside the image of some frame within 30 of the keyframe (eval's default window).
 Prints one line per keyframe and method: δ<1.25 of the WTA depth over all pixels with ground truth,
-blank pixels away from an occluder, blank pixels beside one, textured pixels (in brackets each
-category's share of the pixels with ground truth).
+blank pixels away from an occluder, blank pixels beside one, textured pixels, and blank pixels whose
+true match stays inside every frame / leaves some frame (in brackets each category's share of the
+pixels with ground truth).
 """
 import glob
 import os
@@ -37,12 +40,38 @@ def categories(seq, frame):
     texture = uniform_filter(np.hypot(sobel(grey, 0), sobel(grey, 1)), 9)
     blank = texture < BLANK_TEXTURE
     near = minimum_filter(z, size=2 * OCCLUDER_RADIUS + 1) < OCCLUDER_RATIO * z
+    leaving = leaves_a_frame(seq, int(frame), z, valid)
     return z, {
         "all": valid,
         "blank": valid & blank & ~near,
         "blank beside an occluder": valid & blank & near,
         "textured": valid & ~blank,
+        "blank, match in every frame": valid & blank & ~leaving,
+        "blank, match leaves a frame": valid & blank & leaving,
     }
+
+
+def leaves_a_frame(seq, kf, z, valid, window=30):
+    """Pixels whose true match lies outside the image (or behind the camera) of some frame within
+    `window` of keyframe `kf`."""
+    poses = np.loadtxt(f"{seq}/poses.txt").reshape(-1, 4, 4)
+    k = np.loadtxt(f"{seq}/K.txt")
+    h, w = z.shape
+    ys, xs = np.nonzero(valid)
+    rays = np.linalg.solve(k, np.stack([xs, ys, np.ones(xs.size)]).astype(float))
+    world = poses[kf][:3, :3] @ (rays * z[ys, xs]) + poses[kf][:3, 3:4]
+    out = np.zeros(xs.size, bool)
+    for n in range(max(0, kf - window), min(len(poses), kf + window + 1)):
+        if n == kf:
+            continue
+        w2c = np.linalg.inv(poses[n])
+        uvw = k @ (w2c[:3, :3] @ world + w2c[:3, 3:4])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v = uvw[0] / uvw[2], uvw[1] / uvw[2]
+        out |= ~((uvw[2] > 0) & (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1))
+    mask = np.zeros_like(valid)
+    mask[ys, xs] = out
+    return mask
 
 
 def main(argv):

@@ -7,6 +7,7 @@ use densefeat::runtime::CpuFeatureLevel;
 use densefeat::train::loss::{
     pixel_sampled, pixel_terms, scale_loss, scale_loss_multi, scale_loss_multi_reference,
     scale_loss_reference, scale_loss_with, seen_threshold, uses_avx512, LiveView, LossConfig, MultiCost,
+    MultiScaleLoss,
 };
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{Array2, Array3};
@@ -363,10 +364,15 @@ fn views<'a>(c: &'a Case, extra: &'a [(Array3<f64>, Warp)]) -> Vec<LiveView<'a, 
 fn multi_frame_reference_gradients_match_finite_differences() {
     let c = case(5, 5, 6, 3, 10);
     let extra = more_lives(5, &c, 2);
-    let lives = views(&c, &extra);
-    let out = scale_loss_multi_reference(&c.cfg, c.f_ref.view(), &lives, c.depth.view()).unwrap();
-    assert!(out.sums.pixels > 2, "a case with unmasked pixels");
+    let out = assert_multi_gradients_match_fd(&c, &views(&c, &extra));
     assert_eq!(out.d_lives.len(), 3);
+}
+
+/// The multi-frame f64 reference under `c.cfg`, with every entry of its gradients (the reference
+/// map's and each live map's) checked against a central difference of its loss.
+fn assert_multi_gradients_match_fd(c: &Case, lives: &[LiveView<'_, f64>]) -> MultiScaleLoss<f64> {
+    let out = scale_loss_multi_reference(&c.cfg, c.f_ref.view(), lives, c.depth.view()).unwrap();
+    assert!(out.sums.pixels > 2, "a case with unmasked pixels");
     let loss = |f_ref: &Array3<f64>, lives: &[LiveView<'_, f64>]| {
         scale_loss_multi_reference(&c.cfg, f_ref.view(), lives, c.depth.view()).unwrap().sums.mean()
     };
@@ -379,7 +385,7 @@ fn multi_frame_reference_gradients_match_finite_differences() {
         let (mut a, mut b) = (c.f_ref.clone(), c.f_ref.clone());
         a[idx] += eps;
         b[idx] -= eps;
-        check(g, (loss(&a, &lives) - loss(&b, &lives)) / (2.0 * eps), &format!("d_ref {idx:?}"));
+        check(g, (loss(&a, lives) - loss(&b, lives)) / (2.0 * eps), &format!("d_ref {idx:?}"));
     }
     let live_maps: Vec<Array3<f64>> = lives.iter().map(|l| l.features.to_owned()).collect();
     for (n, d) in out.d_lives.iter().enumerate() {
@@ -389,7 +395,7 @@ fn multi_frame_reference_gradients_match_finite_differences() {
                 maps[n][idx] += delta;
                 let v: Vec<LiveView<'_, f64>> = maps
                     .iter()
-                    .zip(&lives)
+                    .zip(lives)
                     .map(|(f, l)| LiveView { features: f.view(), warp: l.warp })
                     .collect();
                 loss(&c.f_ref, &v)
@@ -397,6 +403,57 @@ fn multi_frame_reference_gradients_match_finite_differences() {
             check(g, (bumped(eps) - bumped(-eps)) / (2.0 * eps), &format!("d_live{n} {idx:?}"));
         }
     }
+    out
+}
+
+/// The fast multi-frame loss under `cfg` on `fr` / `v32` (f32 copies of `c.f_ref` and `lives`) with
+/// `threads` threads.
+fn fast_multi(
+    cfg: &LossConfig,
+    c: &Case,
+    fr: &Array3<f32>,
+    v32: &[LiveView<'_, f32>],
+    threads: usize,
+) -> MultiScaleLoss<f32> {
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+    pool.install(|| scale_loss_multi(cfg, fr.view(), v32, c.depth.view()).unwrap())
+}
+
+/// The fast multi-frame loss under `c.cfg` against the f64 reference on the same f32-rounded
+/// inputs (so only the arithmetic differs) within §13.3's budgets, and bit-identical for 1, 2, 3
+/// and 8 threads. Returns the one-thread result.
+fn assert_fast_multi_matches_reference(
+    c: &Case,
+    lives: &[LiveView<'_, f64>],
+    fr: &Array3<f32>,
+    v32: &[LiveView<'_, f32>],
+) -> MultiScaleLoss<f32> {
+    let rounded: Vec<Array3<f64>> = v32.iter().map(|l| l.features.mapv(f64::from)).collect();
+    let rv: Vec<LiveView<'_, f64>> =
+        rounded.iter().zip(lives).map(|(f, l)| LiveView { features: f.view(), warp: l.warp }).collect();
+    let want = scale_loss_multi_reference(&c.cfg, fr.mapv(f64::from).view(), &rv, c.depth.view()).unwrap();
+    let got = fast_multi(&c.cfg, c, fr, v32, 1);
+    assert!(got.sums.pixels > 0);
+    assert_eq!(got.sums.pixels, want.sums.pixels);
+    assert_eq!(got.sums.delta125_wta, want.sums.delta125_wta);
+    let (lg, lw) = (got.sums.mean(), want.sums.mean());
+    assert!((lg - lw).abs() <= 1e-5 * lw.abs().max(1.0), "loss {lg} vs {lw}");
+    for (g, w) in std::iter::once((&got.d_ref, &want.d_ref)).chain(got.d_lives.iter().zip(&want.d_lives)) {
+        let scale = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(scale > 0.0);
+        for (a, b) in g.iter().zip(w.iter()) {
+            assert!((f64::from(*a) - b).abs() <= 1e-4 * scale + 1e-12, "{a} vs {b} (max {scale})");
+        }
+    }
+    for n in [2, 3, 8] {
+        let o = fast_multi(&c.cfg, c, fr, v32, n);
+        assert_eq!(o.sums, got.sums, "{n} threads");
+        assert!(bits_equal(&o.d_ref, &got.d_ref), "{n} threads d_ref");
+        for (a, b) in o.d_lives.iter().zip(&got.d_lives) {
+            assert!(bits_equal(a, b), "{n} threads d_live");
+        }
+    }
+    got
 }
 
 /// SPEC.md §13.1b: the fast multi-frame loss against the reference (3 live frames, with and
@@ -410,43 +467,11 @@ fn multi_frame_fast_matches_reference_and_pair_loss() {
         c.cfg.sample_seed = 4;
         let extra = more_lives(9, &c, 2);
         let lives = views(&c, &extra);
-        // The reference on the f32-rounded inputs, so only the arithmetic differs.
-        let rounded: Vec<Array3<f64>> =
-            lives.iter().map(|l| l.features.mapv(|v| f64::from(v as f32))).collect();
-        let rv: Vec<LiveView<'_, f64>> =
-            rounded.iter().zip(&lives).map(|(f, l)| LiveView { features: f.view(), warp: l.warp }).collect();
-        let fr64 = c.f_ref.mapv(|v| f64::from(v as f32));
-        let want = scale_loss_multi_reference(&c.cfg, fr64.view(), &rv, c.depth.view()).unwrap();
         let fr = c.f_ref.mapv(|v| v as f32);
         let fls: Vec<Array3<f32>> = lives.iter().map(|l| l.features.mapv(|v| v as f32)).collect();
         let v32: Vec<LiveView<'_, f32>> =
             fls.iter().zip(&lives).map(|(f, l)| LiveView { features: f.view(), warp: l.warp }).collect();
-        let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            pool.install(|| scale_loss_multi(&c.cfg, fr.view(), &v32, c.depth.view()).unwrap())
-        };
-        let got = run(1);
-        assert!(got.sums.pixels > 0);
-        assert_eq!(got.sums.pixels, want.sums.pixels);
-        assert_eq!(got.sums.delta125_wta, want.sums.delta125_wta);
-        let (lg, lw) = (got.sums.mean(), want.sums.mean());
-        assert!((lg - lw).abs() <= 1e-5 * lw.abs().max(1.0), "loss {lg} vs {lw}");
-        for (g, w) in std::iter::once((&got.d_ref, &want.d_ref)).chain(got.d_lives.iter().zip(&want.d_lives))
-        {
-            let scale = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            assert!(scale > 0.0);
-            for (a, b) in g.iter().zip(w.iter()) {
-                assert!((f64::from(*a) - b).abs() <= 1e-4 * scale + 1e-12, "{a} vs {b} (max {scale})");
-            }
-        }
-        for n in [2, 3, 8] {
-            let o = run(n);
-            assert_eq!(o.sums, got.sums, "{n} threads");
-            assert!(bits_equal(&o.d_ref, &got.d_ref), "{n} threads d_ref");
-            for (a, b) in o.d_lives.iter().zip(&got.d_lives) {
-                assert!(bits_equal(a, b), "{n} threads d_live");
-            }
-        }
+        assert_fast_multi_matches_reference(&c, &lives, &fr, &v32);
         // One live frame: exactly the pair loss.
         let one = scale_loss_multi(&c.cfg, fr.view(), &v32[..1], c.depth.view()).unwrap();
         let pair = scale_loss(&c.cfg, fr.view(), fls[0].view(), c.depth.view(), &c.warp).unwrap();
@@ -515,44 +540,12 @@ fn seen_rule_reference_gradients_match_finite_differences() {
     assert!(err.contains("--multi-cost") && err.contains("seen"), "{err}");
     let mut c = case(5, 5, 6, 3, 10);
     let extra = more_lives(5, &c, 2);
-    let all = {
-        let lives = views(&c, &extra);
-        scale_loss_multi_reference(&c.cfg, c.f_ref.view(), &lives, c.depth.view()).unwrap()
-    };
+    let all = scale_loss_multi_reference(&c.cfg, c.f_ref.view(), &views(&c, &extra), c.depth.view()).unwrap();
     c.cfg.multi_cost = MultiCost::Seen;
-    let lives = views(&c, &extra);
-    let out = scale_loss_multi_reference(&c.cfg, c.f_ref.view(), &lives, c.depth.view()).unwrap();
+    let out = assert_multi_gradients_match_fd(&c, &views(&c, &extra));
     assert!(out.sums.pixels > all.sums.pixels, "seen {} vs all {}", out.sums.pixels, all.sums.pixels);
-    let loss = |f_ref: &Array3<f64>, lives: &[LiveView<'_, f64>]| {
-        scale_loss_multi_reference(&c.cfg, f_ref.view(), lives, c.depth.view()).unwrap().sums.mean()
-    };
-    let eps = 1e-6;
-    let check = |g: f64, fd: f64, what: &str| {
-        let err = (fd - g).abs() / (1e-4 + g.abs().max(fd.abs()));
-        assert!(err < 1e-4, "{what}: analytic {g}, fd {fd}");
-    };
-    for (idx, &g) in out.d_ref.indexed_iter() {
-        let (mut a, mut b) = (c.f_ref.clone(), c.f_ref.clone());
-        a[idx] += eps;
-        b[idx] -= eps;
-        check(g, (loss(&a, &lives) - loss(&b, &lives)) / (2.0 * eps), &format!("d_ref {idx:?}"));
-    }
-    let live_maps: Vec<Array3<f64>> = lives.iter().map(|l| l.features.to_owned()).collect();
     for (n, d) in out.d_lives.iter().enumerate() {
         assert!(d.iter().any(|v| *v != 0.0), "frame {n} has gradient");
-        for (idx, &g) in d.indexed_iter() {
-            let bumped = |delta: f64| {
-                let mut maps = live_maps.clone();
-                maps[n][idx] += delta;
-                let v: Vec<LiveView<'_, f64>> = maps
-                    .iter()
-                    .zip(&lives)
-                    .map(|(f, l)| LiveView { features: f.view(), warp: l.warp })
-                    .collect();
-                loss(&c.f_ref, &v)
-            };
-            check(g, (bumped(eps) - bumped(-eps)) / (2.0 * eps), &format!("d_live{n} {idx:?}"));
-        }
     }
 }
 
@@ -569,52 +562,22 @@ fn seen_rule_fast_matches_reference_and_ignores_a_frame_that_sees_nothing() {
         c.cfg.multi_cost = MultiCost::Seen;
         let extra = more_lives(9, &c, 2);
         let lives = views(&c, &extra);
-        let rounded: Vec<Array3<f64>> =
-            lives.iter().map(|l| l.features.mapv(|v| f64::from(v as f32))).collect();
-        let rv: Vec<LiveView<'_, f64>> =
-            rounded.iter().zip(&lives).map(|(f, l)| LiveView { features: f.view(), warp: l.warp }).collect();
-        let fr64 = c.f_ref.mapv(|v| f64::from(v as f32));
-        let want = scale_loss_multi_reference(&c.cfg, fr64.view(), &rv, c.depth.view()).unwrap();
         let fr = c.f_ref.mapv(|v| v as f32);
         let fls: Vec<Array3<f32>> = lives.iter().map(|l| l.features.mapv(|v| v as f32)).collect();
         let v32: Vec<LiveView<'_, f32>> =
             fls.iter().zip(&lives).map(|(f, l)| LiveView { features: f.view(), warp: l.warp }).collect();
-        let run = |cfg: &LossConfig, v: &[LiveView<'_, f32>], threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            pool.install(|| scale_loss_multi(cfg, fr.view(), v, c.depth.view()).unwrap())
-        };
-        let got = run(&c.cfg, &v32, 1);
-        let all = run(&LossConfig { multi_cost: MultiCost::All, ..c.cfg }, &v32, 1);
+        let got = assert_fast_multi_matches_reference(&c, &lives, &fr, &v32);
+        let all_cfg = LossConfig { multi_cost: MultiCost::All, ..c.cfg };
+        let all = fast_multi(&all_cfg, &c, &fr, &v32, 1);
         assert!(got.sums.pixels > all.sums.pixels, "seen {} vs all {}", got.sums.pixels, all.sums.pixels);
-        assert_eq!(got.sums.pixels, want.sums.pixels);
-        assert_eq!(got.sums.delta125_wta, want.sums.delta125_wta);
-        let (lg, lw) = (got.sums.mean(), want.sums.mean());
-        assert!((lg - lw).abs() <= 1e-5 * lw.abs().max(1.0), "loss {lg} vs {lw}");
-        for (g, w) in std::iter::once((&got.d_ref, &want.d_ref)).chain(got.d_lives.iter().zip(&want.d_lives))
-        {
-            let scale = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            assert!(scale > 0.0);
-            for (a, b) in g.iter().zip(w.iter()) {
-                assert!((f64::from(*a) - b).abs() <= 1e-4 * scale + 1e-12, "{a} vs {b} (max {scale})");
-            }
-        }
-        for n in [2, 3, 8] {
-            let o = run(&c.cfg, &v32, n);
-            assert_eq!(o.sums, got.sums, "{n} threads");
-            assert!(bits_equal(&o.d_ref, &got.d_ref), "{n} threads d_ref");
-            for (a, b) in o.d_lives.iter().zip(&got.d_lives) {
-                assert!(bits_equal(a, b), "{n} threads d_live");
-            }
-        }
         // A fourth frame that sees nothing.
         let blind = blind_warp(&c);
         let mut with_blind = v32.clone();
         with_blind.push(LiveView { features: fls[0].view(), warp: &blind });
-        let b = run(&c.cfg, &with_blind, 2);
+        let b = fast_multi(&c.cfg, &c, &fr, &with_blind, 2);
         assert_eq!(b.sums, got.sums);
         assert!(bits_equal(&b.d_ref, &got.d_ref));
         assert!(b.d_lives[3].iter().all(|v| *v == 0.0));
-        let b_all = run(&LossConfig { multi_cost: MultiCost::All, ..c.cfg }, &with_blind, 2);
-        assert_eq!(b_all.sums.pixels, 0);
+        assert_eq!(fast_multi(&all_cfg, &c, &fr, &with_blind, 2).sums.pixels, 0);
     }
 }

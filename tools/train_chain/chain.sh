@@ -186,6 +186,8 @@ args_mf4soce=("${args_mf4so[@]}" --regression-weight 0)
 # 0.80, docs/table1/README.md, "The blank wall on the training scenes"). mf4sos - mf4so is the rule's
 # effect.
 args_mf4sos=("${args_mf4so[@]}" --multi-cost seen)
+# mf4sos lost to mf4so on validation (learned-normals -0.0038, worse on 69 of 101 scenes; the real room
+# -0.005) and barely moved its target pixels: not adopted (docs/training/README.md).
 
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were

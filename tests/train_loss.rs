@@ -7,7 +7,7 @@ use densefeat::runtime::CpuFeatureLevel;
 use densefeat::train::loss::{
     pixel_sampled, pixel_terms, scale_loss, scale_loss_multi, scale_loss_multi_reference,
     scale_loss_reference, scale_loss_with, seen_threshold, uses_avx512, LiveView, LossConfig, MultiCost,
-    MultiScaleLoss,
+    MultiScaleLoss, SEEN_MIN_EVIDENCE,
 };
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{Array2, Array3};
@@ -534,6 +534,7 @@ fn blind_warp(c: &Case) -> Warp {
 #[test]
 fn seen_rule_reference_gradients_match_finite_differences() {
     assert_eq!((seen_threshold(0), seen_threshold(1), seen_threshold(4), seen_threshold(5)), (1, 1, 1, 2));
+    assert_eq!(SEEN_MIN_EVIDENCE, densefeat::mapping::keyframe::DEFAULT_MIN_EVIDENCE, "the mapper's default");
     assert_eq!("seen".parse::<MultiCost>().unwrap(), MultiCost::Seen);
     assert_eq!("all".parse::<MultiCost>().unwrap(), MultiCost::All);
     let err = "some".parse::<MultiCost>().expect_err("refused").to_string();

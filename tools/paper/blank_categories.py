@@ -58,20 +58,24 @@ def leaves_a_frame(seq, kf, z, valid, window=30):
     k = np.loadtxt(f"{seq}/K.txt")
     h, w = z.shape
     ys, xs = np.nonzero(valid)
-    rays = np.linalg.solve(k, np.stack([xs, ys, np.ones(xs.size)]).astype(float))
-    world = poses[kf][:3, :3] @ (rays * z[ys, xs]) + poses[kf][:3, 3:4]
     out = np.zeros(xs.size, bool)
     for n in range(max(0, kf - window), min(len(poses), kf + window + 1)):
-        if n == kf:
-            continue
-        w2c = np.linalg.inv(poses[n])
-        uvw = k @ (w2c[:3, :3] @ world + w2c[:3, 3:4])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u, v = uvw[0] / uvw[2], uvw[1] / uvw[2]
-        out |= ~((uvw[2] > 0) & (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1))
+        if n != kf:
+            out |= ~match_inside(k, poses[kf], np.linalg.inv(poses[n]), xs, ys, z[ys, xs], w, h)
     mask = np.zeros_like(valid)
     mask[ys, xs] = out
     return mask
+
+
+def match_inside(k, c2w_ref, w2c_live, xs, ys, depth, w, h):
+    """Whether reference pixels (xs, ys) at `depth` (camera K `k`, both cameras `w x h`) project in
+    front of the live camera and inside its image."""
+    rays = np.linalg.solve(k, np.stack([xs, ys, np.ones(xs.size)]).astype(float))
+    world = c2w_ref[:3, :3] @ (rays * depth) + c2w_ref[:3, 3:4]
+    uvw = k @ (w2c_live[:3, :3] @ world + w2c_live[:3, 3:4])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = uvw[0] / uvw[2], uvw[1] / uvw[2]
+    return (uvw[2] > 0) & (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
 
 
 def main(argv):

@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(__file__))
-from blank_categories import categories  # noqa: E402
+from blank_categories import categories, match_inside  # noqa: E402
 
 BIN = os.environ.get("BIN", "target/release/densefeat")
 RHO = np.linspace(0.0, 4.0, 256)
@@ -67,8 +67,7 @@ def main(argv):
         sys.exit(__doc__)
     seq, ref, lives = argv[0], int(argv[1]), [int(v) for v in argv[2].split(",")]
     poses = np.loadtxt(f"{seq}/poses.txt").reshape(-1, 4, 4)
-    k0 = np.loadtxt(f"{seq}/K.txt")
-    k = k0.copy()
+    k = np.loadtxt(f"{seq}/K.txt")
     k[:2] *= 0.5  # level 1 (SPEC §2.6: fx/2, cx/2)
     frame = f"{ref:05d}"
     z0, cats0 = categories(seq, frame)
@@ -99,7 +98,7 @@ def main(argv):
                 e = np.abs(diff).sum(-1) if COST == "l1" else (diff ** 2).sum(-1)
                 energy[sl] += np.where(inside, e, 10.0)
             # The true match inside this frame (the loss's mask).
-            keep &= inside_true(k, poses[ref], np.linalg.inv(poses[n]), xs, ys, rho_star, w, h)
+            keep &= match_inside(k, poses[ref], np.linalg.inv(poses[n]), xs, ys, 1.0 / rho_star, w, h)
         energy /= len(lives)
         e = -energy
         e -= e.max(1, keepdims=True)
@@ -120,17 +119,6 @@ def main(argv):
                 cells.append(f"{name}: P±2 {near[sel].mean():.3f}, -lnP* {nll[sel].mean():.2f}, "
                              f"wta {ok_w[sel].mean():.3f}, exp {ok_e[sel].mean():.3f} ({sel.sum()})")
         print(f"{scene} ref {ref} lives {argv[2]} {tag}: " + " | ".join(cells))
-
-
-def inside_true(k, c2w_ref, w2c_live, xs, ys, rho_star, w, h):
-    ray = np.linalg.solve(k, np.stack([xs.astype(float), ys.astype(float), np.ones(xs.size)]))
-    pts = ray / rho_star[None, :]
-    cam = w2c_live[:3, :3] @ (c2w_ref[:3, :3] @ pts + c2w_ref[:3, 3:4]) + w2c_live[:3, 3:4]
-    uvw = k @ cam
-    ok = uvw[2] > 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u, v = uvw[0] / uvw[2], uvw[1] / uvw[2]
-    return ok & (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
 
 
 if __name__ == "__main__":

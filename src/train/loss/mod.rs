@@ -31,6 +31,7 @@ pub use reference::{scale_loss_multi_reference, scale_loss_reference};
 
 use ndarray::{Array3, ArrayView2, ArrayView3};
 
+use crate::costvolume::evidence_threshold;
 use crate::error::{Error, Result};
 use crate::geometry::{InverseDepthBins, Warp};
 use crate::image::is_valid_depth;
@@ -92,9 +93,10 @@ impl std::str::FromStr for MultiCost {
 pub const SEEN_MIN_EVIDENCE: f64 = 0.25;
 
 /// Under [`MultiCost::Seen`], the least number of live frames a hypothesis must be seen by to
-/// compete, given the most any hypothesis of the pixel is seen by (`max(1, ⌈0.25 c_max⌉)`, §9.10).
+/// compete, given the most any hypothesis of the pixel is seen by: the mapper's
+/// [`evidence_threshold`] (`max(1, ⌈0.25 c_max⌉)`, §9.10).
 pub fn seen_threshold(c_max: usize) -> usize {
-    ((SEEN_MIN_EVIDENCE * c_max as f64).ceil() as usize).max(1)
+    usize::from(evidence_threshold(u16::try_from(c_max).unwrap_or(u16::MAX), SEEN_MIN_EVIDENCE))
 }
 
 impl Default for LossConfig {

@@ -464,3 +464,47 @@ fn live_crops_cut_at_the_reference_window_keep_its_coordinates() {
     assert!(shifted > 0, "the flow crops never moved");
     assert!(inside * 2 > valid, "{inside} of {valid} matches inside the live crop");
 }
+
+#[test]
+fn final_supervision_trains_the_aggregated_features_alone_and_is_its_own_configuration() {
+    // `--supervision final` (SPEC.md §13.2): the objective is L alone; the block columns of the
+    // log stay empty; the run is deterministic for any thread count; a deep run's checkpoint is
+    // refused; bad values are refused naming the flag.
+    let fin: Supervision = "final".parse().unwrap();
+    assert_eq!(fin, Supervision { deep: false, aggregated: true });
+    assert_eq!("deep".parse::<Supervision>().unwrap(), Supervision::default());
+    let err = "blocks".parse::<Supervision>().unwrap_err().to_string();
+    assert!(err.contains("--supervision") && err.contains("blocks"), "{err}");
+
+    let cfg = TrainConfig { supervision: fin, ..tiny() };
+    let a = tempfile::tempdir().unwrap();
+    let w1 = run(&cfg, a.path(), 1, None, None);
+    for threads in [2, 3, 8] {
+        let b = tempfile::tempdir().unwrap();
+        assert_eq!(bits(&w1), bits(&run(&cfg, b.path(), threads, None, None)), "{threads} threads");
+    }
+    let deep_dir = tempfile::tempdir().unwrap();
+    let deep = run(&tiny(), deep_dir.path(), 2, None, None);
+    assert_ne!(bits(&w1), bits(&deep), "the objective differs, so do the weights");
+    let csv = std::fs::read_to_string(a.path().join("log.csv")).unwrap();
+    for row in csv.lines().skip(1) {
+        let cols: Vec<&str> = row.split(',').collect();
+        // The objective is the aggregated scale's loss, and no block scale was computed.
+        let (loss, loss_l): (f64, f64) = (cols[2].parse().unwrap(), cols[3].parse().unwrap());
+        assert!(loss > 0.0 && (loss - loss_l).abs() <= 1e-6 * loss, "{row}");
+        assert!(cols[4..9].iter().all(|c| c.is_empty()), "{row}");
+    }
+    let deep_csv = std::fs::read_to_string(deep_dir.path().join("log.csv")).unwrap();
+    let first = deep_csv.lines().nth(1).unwrap().split(',').collect::<Vec<_>>();
+    assert!(first[4].parse::<f64>().is_ok(), "a deep run logs its block scales: {first:?}");
+    // The same pairs at step 1 from the same initialisation: the deep objective adds the blocks'.
+    let fin_first = csv.lines().nth(1).unwrap().split(',').collect::<Vec<_>>();
+    assert_eq!(fin_first[3], first[3], "L at step 1 is the same scale on the same pairs");
+    assert!(first[2].parse::<f64>().unwrap() > fin_first[2].parse::<f64>().unwrap());
+
+    let ck = deep_dir.path().join("checkpoint.safetensors");
+    let err = train(&cfg, deep_dir.path(), Some(&ck), None, &mut densefeat::progress::Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("different configuration"), "{err}");
+}

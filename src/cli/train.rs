@@ -142,6 +142,11 @@ pub struct TrainArgs {
     /// frames that see it, with §9.10's evidence minimum 0.25; a pixel whenever its true bin passes it)
     #[arg(long, default_value = "all")]
     pub multi_cost: String,
+    /// Which outputs the loss supervises (SPEC.md §13.2): `deep` (the block outputs L1..Ln and the
+    /// aggregated features L, the paper's deep supervision) or `final` (L alone, the features the
+    /// mapper matches)
+    #[arg(long, default_value = "deep")]
+    pub supervision: String,
     /// Weight of the loss's regression term against the paper's (SPEC.md §13.1 step 5):
     /// λ_ρ = 5 W, λ_d = W. 1: the paper's loss; 0: the cross-entropy alone
     #[arg(long, default_value_t = 1.0)]
@@ -204,7 +209,7 @@ impl TrainArgs {
                 ..LossConfig::default()
             }
             .with_regression_weight(self.regression_weight)?,
-            supervision: Supervision::default(),
+            supervision: self.supervision.parse()?,
             data: DataConfig {
                 crop: validate::size("crop", &self.crop)?,
                 rule: PairRule {

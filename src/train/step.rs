@@ -101,6 +101,18 @@ impl Default for Supervision {
     }
 }
 
+/// `--supervision`: `deep` (the paper's: `L1..Ln` and `L`) or `final` (`L` alone; SPEC.md §13.2).
+impl std::str::FromStr for Supervision {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "deep" => Ok(Supervision { deep: true, aggregated: true }),
+            "final" => Ok(Supervision { deep: false, aggregated: true }),
+            _ => Err(Error::invalid_argument("--supervision", format!("{s:?}: expected deep or final"))),
+        }
+    }
+}
+
 /// Loss sums of one pair: `blocks[k]` for `L_{k+1}`, `aggregated` for `L`.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PairLoss {

@@ -189,6 +189,14 @@ args_mf4sos=("${args_mf4so[@]}" --multi-cost seen)
 # mf4sos lost to mf4so on validation (learned-normals -0.0038, worse on 69 of 101 scenes; the real room
 # -0.005) and barely moved its target pixels: not adopted (docs/training/README.md).
 
+# mf4sof is mf4so (mf4l's final weights, 5 000 steps, data seed 4, same-window crops, the mask) with the
+# loss on the aggregated features alone (--supervision final, SPEC.md §13.2), so mf4sof - mf4so is deep
+# supervision's effect. On a blank wall beside a box the wall's features follow the box's parallax
+# through the coarse blocks (docs/table1/README.md, "The blank wall's cost curves"), and deep
+# supervision asks each coarse block's output to be a matching feature of its own, which at that scale
+# means encoding the box; without it the blocks are free to serve only the features the mapper matches.
+args_mf4sof=("${args_mf4so[@]}" --supervision final)
+
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were
 # about 2 px off, docs/training/README.md): does cleaner real supervision help the real room, where

@@ -268,11 +268,34 @@ fn shipped_chain_end(name: &str, b1_stride: usize, steps: usize) -> Vec<u8> {
 
 #[test]
 fn shipped_trained_weights_load_and_are_the_built_in_default() {
-    // Chain mf4so: chain mf4sc's 5 000 steps x 4 tuples (the multi-frame loss, same-window live
-    // crops, from chain mf4l's end, the same data draws) with occlusion masking (SPEC.md §13.1c,
-    // §13.8).
-    let bytes = shipped_chain_end("featurenet_trained_mf4so.safetensors", 2, 5000);
+    // Chain mf8so: chain mf4so's end trained 5 000 more steps with 8 live frames per reference
+    // (the mask and same-window crops kept, data seed 10; SPEC.md §13.8).
+    let bytes = shipped_chain_end("featurenet_trained_mf8so.safetensors", 2, 5000);
     assert_eq!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
+    let w = NetworkWeights::from_safetensors_bytes(&bytes, Path::new("mf8so")).unwrap();
+    assert!(
+        w.provenance.contains("live_frames: 8, live_crop: Same, occlusion_tolerance: 0.05"),
+        "{}",
+        w.provenance
+    );
+    assert!(w.provenance.contains("seed=10 "), "{}", w.provenance);
+    assert!(w.provenance.contains("supervision=Supervision { deep: true, aggregated: true }"));
+    assert!(w.provenance.contains("init_weights=docs/training/chain_mf4so/weights.safetensors"));
+}
+
+#[test]
+fn shipped_masked_four_frame_weights_load_and_are_the_end_of_their_chain() {
+    // Chain mf4so: chain mf4sc's 5 000 steps x 4 tuples (the multi-frame loss, same-window live
+    // crops, from chain mf4l's end, the same data draws) with occlusion masking (SPEC.md §13.1c);
+    // the default on 2026-12-06 and mf8so's start (its weights are the bytes of
+    // docs/training/chain_mf4so/weights.safetensors).
+    let bytes = shipped_chain_end("featurenet_trained_mf4so.safetensors", 2, 5000);
+    assert_ne!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
+    let start = std::fs::read(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("docs/training/chain_mf4so/weights.safetensors"),
+    )
+    .unwrap();
+    assert_eq!(bytes, start);
     let w = NetworkWeights::from_safetensors_bytes(&bytes, Path::new("mf4so")).unwrap();
     assert!(
         w.provenance.contains("live_frames: 4, live_crop: Same, occlusion_tolerance: 0.05"),
@@ -285,7 +308,7 @@ fn shipped_trained_weights_load_and_are_the_built_in_default() {
 
 #[test]
 fn shipped_unmasked_weights_load_and_are_the_end_of_their_chain() {
-    // Chain mf4sc: the same fine-tune without occlusion masking; the default from 2026-12-05 to
+    // Chain mf4sc: mf4so's fine-tune without occlusion masking; the default from 2026-12-05 to
     // 2026-12-06 and mf4so's control.
     let bytes = shipped_chain_end("featurenet_trained_mf4sc.safetensors", 2, 5000);
     assert_ne!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);

@@ -205,6 +205,12 @@ args_mf4sof=("${args_mf4so[@]}" --supervision final)
 # from the better start?
 derive args_mf8sof args_mf8so --init-weights docs/training/chain_mf8so/weights.safetensors --seed 12
 args_mf8sof+=(--supervision final)
+# mf8sof on validation against mf8so: learned-WTA +0.0055 (71 of 101), the real room +0.014 / +0.012
+# (normals / TV), the renders' regularised rows lower (learned-normals -0.0011 on the 101): as mf4sof.
+# mf8sod is its control at equal steps: the same start (mf8so's final weights), schedule and data
+# draws (--seed 12) with deep supervision, so mf8sof - mf8sod is the supervision alone, and mf8sod -
+# mf8so is 5 000 more steps.
+derive args_mf8sod args_mf8so --init-weights docs/training/chain_mf8so/weights.safetensors --seed 12
 
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were

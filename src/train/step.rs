@@ -106,7 +106,7 @@ impl std::str::FromStr for Supervision {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
         match s {
-            "deep" => Ok(Supervision { deep: true, aggregated: true }),
+            "deep" => Ok(Supervision::default()),
             "final" => Ok(Supervision { deep: false, aggregated: true }),
             _ => Err(Error::invalid_argument("--supervision", format!("{s:?}: expected deep or final"))),
         }

@@ -348,8 +348,10 @@ pub fn train(
         }
         let mut per_scale = vec![losses.iter().map(|l| l.aggregated.mean()).sum::<f64>() / cfg.batch as f64];
         // Without deep supervision the block columns stay empty (they were not computed).
-        for k in (0..cfg.network.blocks).filter(|_| cfg.supervision.deep) {
-            per_scale.push(losses.iter().map(|l| l.blocks[k].mean()).sum::<f64>() / cfg.batch as f64);
+        if cfg.supervision.deep {
+            for k in 0..cfg.network.blocks {
+                per_scale.push(losses.iter().map(|l| l.blocks[k].mean()).sum::<f64>() / cfg.batch as f64);
+            }
         }
         let pairs_per_s = cfg.batch as f64 / t0.elapsed().as_secs_f64();
         let val_now = step % cfg.val_every == 0 || step == cfg.steps;

@@ -199,7 +199,7 @@ args_mf4sof=("${args_mf4so[@]}" --supervision final)
 
 # mf4sof on validation: learned-WTA +0.0070 (better on 72 of 101 scenes, the real room +0.009), the
 # regularised rows flat (learned-normals -0.0007, learned-TV -0.0021; the real room +0.007): not adopted
-# (docs/training/README.md). mf8so (below its definition above) was adopted instead. mf8sof continues the
+# (docs/training/README.md). mf8so (defined above) was adopted instead. mf8sof continues the
 # new default, mf8so's final weights, with the loss on L alone and mf8so's 8 live frames, 5 000 steps,
 # its own data draws (--seed 12): does the WTA gain of final supervision carry to the regularised rows
 # from the better start?

@@ -5,9 +5,9 @@
 use densefeat::geometry::{InverseDepthBins, PinholeCamera, Pose, Warp};
 use densefeat::runtime::CpuFeatureLevel;
 use densefeat::train::loss::{
-    pixel_sampled, pixel_terms, scale_loss, scale_loss_multi, scale_loss_multi_reference,
-    scale_loss_reference, scale_loss_with, seen_threshold, uses_avx512, LiveView, LossConfig, MultiCost,
-    MultiScaleLoss, SEEN_MIN_EVIDENCE,
+    loss_kernels, pixel_sampled, pixel_terms, scale_loss, scale_loss_multi, scale_loss_multi_reference,
+    scale_loss_reference, scale_loss_with, seen_threshold, uses_avx512, LiveView, LossConfig, LossKernels,
+    MultiCost, MultiScaleLoss, SEEN_MIN_EVIDENCE,
 };
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use ndarray::{Array2, Array3};
@@ -198,13 +198,19 @@ fn bits_equal(a: &Array3<f32>, b: &Array3<f32>) -> bool {
     a.iter().zip(b.iter()).all(|(x, y)| x.to_bits() == y.to_bits())
 }
 
-/// 32 channels (the network's): the AVX-512 kernels where the CPU has them. Budget against the
-/// reference, the portable kernels' bits, and thread-count determinism.
+/// 32 channels (the network's): the AVX-512 or AVX2 kernels where the CPU has them. Budget against
+/// the reference, the portable kernels' bits (and each vector build the CPU has), and thread-count
+/// determinism.
 #[test]
 fn fast_loss_with_32_channels_matches_reference_portable_and_threads() {
     let c = case(11, 14, 18, 32, 40);
-    eprintln!("AVX-512 kernels: {}", uses_avx512(CpuFeatureLevel::get(), 32));
+    eprintln!("loss kernels: {:?}", loss_kernels(CpuFeatureLevel::get(), 32));
     assert!(!uses_avx512(CpuFeatureLevel::Portable, 32) && !uses_avx512(CpuFeatureLevel::get(), 8));
+    assert_eq!(loss_kernels(CpuFeatureLevel::Portable, 32), LossKernels::Portable);
+    assert_eq!(loss_kernels(CpuFeatureLevel::get(), 8), LossKernels::Portable);
+    if CpuFeatureLevel::detected() >= CpuFeatureLevel::Avx2 {
+        assert_eq!(loss_kernels(CpuFeatureLevel::Avx2, 32), LossKernels::Avx2);
+    }
     let fr = c.f_ref.mapv(|v| v as f32);
     let fl = c.f_live.mapv(|v| v as f32);
     let want = scale_loss_reference(
@@ -237,6 +243,9 @@ fn fast_loss_with_32_channels_matches_reference_portable_and_threads() {
         (2, CpuFeatureLevel::get()),
         (3, CpuFeatureLevel::Portable),
         (8, CpuFeatureLevel::get()),
+        (1, CpuFeatureLevel::Avx2),
+        (3, CpuFeatureLevel::Avx2),
+        (2, CpuFeatureLevel::Avx512),
     ] {
         let o = run(n, k);
         assert_eq!(o.sums, got.sums, "{n} threads, {k:?}");

@@ -55,8 +55,8 @@ pub fn exp_nonpositive(x: f64) -> f64 {
     }
 }
 
-/// `out[l] = exp_nonpositive(shift − values[l])`, elementwise (AVX-512 where `level` and the CPU
-/// have it; the same bits either way).
+/// `out[l] = exp_nonpositive(shift − values[l])`, elementwise (compiled for AVX-512 or AVX2 where
+/// `level` and the CPU have it; the same bits either way).
 pub fn exp_shifted(values: &[f64], shift: f64, out: &mut [f64], level: crate::runtime::CpuFeatureLevel) {
     #[cfg(target_arch = "x86_64")]
     if level.avx512f() {
@@ -64,6 +64,18 @@ pub fn exp_shifted(values: &[f64], shift: f64, out: &mut [f64], level: crate::ru
         unsafe { exp_shifted_avx512(values, shift, out) };
         return;
     }
+    #[cfg(target_arch = "x86_64")]
+    if level.avx2_fma() {
+        // SAFETY: the CPU has AVX2 and FMA.
+        unsafe { exp_shifted_avx2(values, shift, out) };
+        return;
+    }
+    exp_shifted_body(values, shift, out);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn exp_shifted_avx2(values: &[f64], shift: f64, out: &mut [f64]) {
     exp_shifted_body(values, shift, out);
 }
 
@@ -112,9 +124,11 @@ mod tests {
         let shift = values.iter().copied().fold(f64::INFINITY, f64::min);
         let mut a = vec![0.0; values.len()];
         let mut b = vec![0.0; values.len()];
-        exp_shifted(&values, shift, &mut a, crate::runtime::CpuFeatureLevel::get());
         exp_shifted_body(&values, shift, &mut b);
-        assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+        for level in crate::runtime::CpuFeatureLevel::ALL {
+            exp_shifted(&values, shift, &mut a, level);
+            assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()), "{level:?}");
+        }
         assert!(a
             .iter()
             .zip(&values)

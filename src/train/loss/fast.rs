@@ -106,7 +106,7 @@ pub fn scale_loss_multi_with(
     }
     let (h, w, c) = f_ref.dim();
     let n_live = lives.len();
-    let avx512 = kernel::uses_avx512(level, c);
+    let kernels = kernel::loss_kernels(level, c);
     let f_ref = f_ref.as_standard_layout();
     let Some(fr) = f_ref.as_slice() else { unreachable!("standard-layout arrays are contiguous") };
     let live_maps: Vec<_> = lives.iter().map(|l| l.features.as_standard_layout()).collect();
@@ -132,7 +132,12 @@ pub fn scale_loss_multi_with(
                 let (rho_star, target) = any_target(cfg, lives, x, y, z)?;
                 counts.fill(0);
                 for (live, &(hl, wl)) in lives.iter().zip(&dims) {
-                    taps::hypothesis_taps(avx512, &PixelRay::new(live.warp, x, y, wl, hl, c), &rhos, tap_buf);
+                    taps::hypothesis_taps(
+                        kernels,
+                        &PixelRay::new(live.warp, x, y, wl, hl, c),
+                        &rhos,
+                        tap_buf,
+                    );
                     for tap in tap_buf.iter() {
                         counts[tap.bin as usize] += 1;
                     }
@@ -184,8 +189,8 @@ pub fn scale_loss_multi_with(
                     for (((live, pl), fl), &(hl, wl)) in lives.iter().zip(&mut per_live).zip(&fls).zip(&dims)
                     {
                         let ray = PixelRay::new(live.warp, x, y, wl, hl, c);
-                        taps::hypothesis_taps(avx512, &ray, &rhos, &mut pl.taps);
-                        kernel::costs(avx512, f_u, fl, wl * c, &pl.taps, &mut pl.resid, &mut pl.e32);
+                        taps::hypothesis_taps(kernels, &ray, &rhos, &mut pl.taps);
+                        kernel::costs(kernels, f_u, fl, wl * c, &pl.taps, &mut pl.resid, &mut pl.e32);
                     }
                     // E_l = (Σ_n E_l^(n)) / N, in f64, live frames in order (m outside a frame);
                     // under `Seen` the sum over the frames that see bin l, over their count.
@@ -237,7 +242,7 @@ pub fn scale_loss_multi_with(
                                 0.0
                             };
                         }
-                        kernel::backward(avx512, &pl.taps, &coefs, &pl.resid, d_u, dl);
+                        kernel::backward(kernels, &pl.taps, &coefs, &pl.resid, d_u, dl);
                     }
                 }
             }

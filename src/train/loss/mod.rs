@@ -25,7 +25,7 @@ mod reference;
 mod taps;
 
 pub use fast::{scale_loss, scale_loss_multi, scale_loss_multi_with, scale_loss_with};
-pub use kernel::uses_avx512;
+pub use kernel::{loss_kernels, uses_avx512, LossKernels};
 
 pub use reference::{scale_loss_multi_reference, scale_loss_reference};
 
@@ -363,6 +363,11 @@ pub fn pixel_terms_with(
         // SAFETY: the CPU has AVX-512F (`CpuFeatureLevel::avx512f` checks it).
         return unsafe { pixel_terms_avx512(cfg, energies, target, rho_star, grad, rho, inv_q, level) };
     }
+    #[cfg(target_arch = "x86_64")]
+    if level.avx2_fma() {
+        // SAFETY: the CPU has AVX2 and FMA (`CpuFeatureLevel::avx2_fma` checks it).
+        return unsafe { pixel_terms_avx2(cfg, energies, target, rho_star, grad, rho, inv_q, level) };
+    }
     pixel_terms_body(cfg, energies, target, rho_star, grad, rho, inv_q, level)
 }
 
@@ -391,6 +396,24 @@ fn lane_sum(x: &[f64], y: &[f64], f: impl Fn(f64, f64) -> f64) -> f64 {
 #[target_feature(enable = "avx512f")]
 #[allow(clippy::too_many_arguments)]
 unsafe fn pixel_terms_avx512(
+    cfg: &LossConfig,
+    energies: &[f64],
+    target: usize,
+    rho_star: f64,
+    grad: &mut [f64],
+    rho: &[f64],
+    inv_q: &mut [f64],
+    level: CpuFeatureLevel,
+) -> PixelTerms {
+    pixel_terms_body(cfg, energies, target, rho_star, grad, rho, inv_q, level)
+}
+
+/// [`pixel_terms_body`] compiled for AVX2 (the compiler's vectorisation; Rust never fuses a
+/// product and a sum unless asked, so the bits are the portable build's).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn pixel_terms_avx2(
     cfg: &LossConfig,
     energies: &[f64],
     target: usize,
@@ -597,7 +620,8 @@ mod tests {
     use super::*;
     use crate::util::rng::SplitMix64;
 
-    /// The AVX-512 build of the per-pixel terms gives the portable build's bits.
+    /// The AVX-512 and AVX2 builds of the per-pixel terms give the portable build's bits (each
+    /// level the CPU has).
     #[test]
     fn pixel_terms_avx512_and_portable_give_the_same_bits() {
         let cfg = LossConfig::default();
@@ -625,23 +649,20 @@ mod tests {
                 &mut q1,
                 CpuFeatureLevel::Portable,
             );
-            let mut scratch = PixelScratch::default();
-            let b = pixel_terms_with(
-                &cfg,
-                &energies,
-                target,
-                rho_star,
-                &mut g2,
-                &mut scratch,
-                CpuFeatureLevel::get(),
-            );
-            assert_eq!(
-                [a.ce, a.rho, a.depth, a.rho_hat].map(f64::to_bits),
-                [b.ce, b.rho, b.depth, b.rho_hat].map(f64::to_bits),
-                "case {case}"
-            );
-            assert_eq!(a.wta, b.wta);
-            assert!(g1.iter().zip(&g2).all(|(x, y)| x.to_bits() == y.to_bits()), "case {case}");
+            for level in [CpuFeatureLevel::Avx2, CpuFeatureLevel::Avx512] {
+                let mut scratch = PixelScratch::default();
+                let b = pixel_terms_with(&cfg, &energies, target, rho_star, &mut g2, &mut scratch, level);
+                assert_eq!(
+                    [a.ce, a.rho, a.depth, a.rho_hat].map(f64::to_bits),
+                    [b.ce, b.rho, b.depth, b.rho_hat].map(f64::to_bits),
+                    "case {case}, {level:?}"
+                );
+                assert_eq!(a.wta, b.wta);
+                assert!(
+                    g1.iter().zip(&g2).all(|(x, y)| x.to_bits() == y.to_bits()),
+                    "case {case}, {level:?}"
+                );
+            }
         }
     }
 }

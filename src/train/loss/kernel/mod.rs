@@ -2,10 +2,13 @@
 //! hypotheses of one reference pixel, and the backward of those costs into the reference pixel and
 //! the live map. Two implementations with the same operation order (16 channel lanes, products
 //! and sums unfused, a fixed tree for the lane reduction), so they give the same bits: a portable
-//! one and an AVX-512 one (x86-64, chosen at run time when the CPU has AVX-512F and `C % 16 == 0`).
+//! one, an AVX-512 one and an AVX2 one (x86-64, chosen at run time by [`loss_kernels`]: the
+//! highest the CPU and the requested level have, when `C % 16 == 0`).
 
 use crate::runtime::CpuFeatureLevel;
 
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 #[cfg(target_arch = "x86_64")]
 mod avx512;
 mod portable;
@@ -37,18 +40,43 @@ impl Tap {
     }
 }
 
-/// Whether the loss kernels use AVX-512 for `c` channels at the CPU-feature level `level`: the
-/// level (and the CPU) has AVX-512F and `c` is a multiple of 16.
-pub fn uses_avx512(level: CpuFeatureLevel, c: usize) -> bool {
+/// Which build of the loss kernels runs (the same bits from each).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LossKernels {
+    /// Plain Rust.
+    Portable,
+    /// AVX2, two 8-lane registers per 16 channel lanes (x86-64).
+    Avx2,
+    /// AVX-512F, one register per 16 channel lanes (x86-64).
+    Avx512,
+}
+
+/// The build of the loss kernels for `c` channels at the CPU-feature level `level`: AVX-512 when
+/// the level (and the CPU) has AVX-512F, else AVX2 when it has AVX2 and FMA, else portable; the
+/// two vector builds need `c` a multiple of 16.
+pub fn loss_kernels(level: CpuFeatureLevel, c: usize) -> LossKernels {
     #[cfg(target_arch = "x86_64")]
     {
-        c.is_multiple_of(LANES) && level.avx512f()
+        if !c.is_multiple_of(LANES) {
+            LossKernels::Portable
+        } else if level.avx512f() {
+            LossKernels::Avx512
+        } else if level.avx2_fma() {
+            LossKernels::Avx2
+        } else {
+            LossKernels::Portable
+        }
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
         let _ = (level, c);
-        false
+        LossKernels::Portable
     }
+}
+
+/// Whether the loss kernels use AVX-512 for `c` channels at the CPU-feature level `level`.
+pub fn uses_avx512(level: CpuFeatureLevel, c: usize) -> bool {
+    loss_kernels(level, c) == LossKernels::Avx512
 }
 
 /// The fixed lane reduction: halves added pairwise (for 16 lanes 8, 4, 2, 1), any lane count that
@@ -70,7 +98,7 @@ pub(super) fn lane_tree<T: Copy + std::ops::AddAssign, const N: usize>(mut acc: 
 /// residuals `f_u − sample` into `resid[j*C..]`. `fl` is the live map, `row` its row length
 /// (`W' * C`).
 pub(super) fn costs(
-    avx512: bool,
+    kernels: LossKernels,
     fu: &[f32],
     fl: &[f32],
     row: usize,
@@ -78,14 +106,14 @@ pub(super) fn costs(
     resid: &mut [f32],
     energies: &mut [f32],
 ) {
-    #[cfg(target_arch = "x86_64")]
-    if avx512 {
-        // SAFETY: `uses_avx512` checked the CPU feature and `C % 16 == 0`.
-        unsafe { avx512::costs(fu, fl, row, taps, resid, energies) };
-        return;
+    match kernels {
+        // SAFETY (both): `loss_kernels` checked the CPU feature and `C % 16 == 0`.
+        #[cfg(target_arch = "x86_64")]
+        LossKernels::Avx512 => unsafe { avx512::costs(fu, fl, row, taps, resid, energies) },
+        #[cfg(target_arch = "x86_64")]
+        LossKernels::Avx2 => unsafe { avx2::costs(fu, fl, row, taps, resid, energies) },
+        _ => portable::costs(fu, fl, row, taps, resid, energies),
     }
-    let _ = avx512;
-    portable::costs(fu, fl, row, taps, resid, energies);
 }
 
 /// Pixels per tile of [`LiveRows`].
@@ -138,19 +166,19 @@ impl LiveRows {
 /// Backward of the costs: for every tap `j` with `coef[j] ≠ 0` (the scaled `2 ∂loss/∂E_j`), in
 /// order, `d_u += coef r_j` and `d_live(corner_t) += (−coef w_t) r_j`.
 pub(super) fn backward(
-    avx512: bool,
+    kernels: LossKernels,
     taps: &[Tap],
     coefs: &[f32],
     resid: &[f32],
     d_u: &mut [f32],
     live: &mut LiveRows,
 ) {
-    #[cfg(target_arch = "x86_64")]
-    if avx512 {
-        // SAFETY: `uses_avx512` checked the CPU feature and `C % 16 == 0`.
-        unsafe { avx512::backward(taps, coefs, resid, d_u, live) };
-        return;
+    match kernels {
+        // SAFETY (both): `loss_kernels` checked the CPU feature and `C % 16 == 0`.
+        #[cfg(target_arch = "x86_64")]
+        LossKernels::Avx512 => unsafe { avx512::backward(taps, coefs, resid, d_u, live) },
+        #[cfg(target_arch = "x86_64")]
+        LossKernels::Avx2 => unsafe { avx2::backward(taps, coefs, resid, d_u, live) },
+        _ => portable::backward(taps, coefs, resid, d_u, live),
     }
-    let _ = avx512;
-    portable::backward(taps, coefs, resid, d_u, live);
 }

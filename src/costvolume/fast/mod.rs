@@ -68,8 +68,9 @@ impl Scratch {
 
 /// Which kernel [`CostVolumeImpl::Fast`](super::CostVolumeImpl::Fast) runs on this CPU:
 /// `"avx512-blocks"` (AVX-512 F/BW/VL/DQ: the 16-hypothesis block kernels for RGB and 16·N
-/// channels, the per-hypothesis row kernel otherwise), `"avx512"` (AVX-512F only: the row kernel)
-/// or `"portable"`. Maps too large for 32-bit gather offsets fall back to the row kernel.
+/// channels, the per-hypothesis row kernel otherwise), `"avx512"` (AVX-512F only: the row kernel),
+/// `"avx2"` (AVX2 and FMA: the row kernel compiled for them) or `"portable"`. Maps too large for
+/// 32-bit gather offsets fall back to the row kernel.
 pub fn fast_kernel_name() -> &'static str {
     fast_kernel_name_at(CpuFeatureLevel::get())
 }
@@ -82,9 +83,31 @@ pub fn fast_kernel_name_at(level: CpuFeatureLevel) -> &'static str {
     }
     if level.avx512f() {
         "avx512"
+    } else if level.avx2_fma() {
+        "avx2"
     } else {
         "portable"
     }
+}
+
+/// The row kernel compiled for AVX2 and FMA (the compiler's vectorisation of the same lanes and
+/// expressions; Rust never fuses a product and a sum on its own, so the bits are the portable
+/// build's).
+///
+/// # Safety
+/// The CPU has AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn row_avx2(
+    geo: &Geometry,
+    feats: &Slices,
+    rhos: &[f64],
+    y: usize,
+    sum_row: &mut [f32],
+    count_row: &mut [u16],
+    scratch: &mut Scratch,
+) {
+    row_any(geo, feats, rhos, y, sum_row, count_row, scratch);
 }
 
 /// Add one live frame into `sums` / `counts` (`[H, W, K]`), with the SIMD builds `level` allows.
@@ -99,6 +122,7 @@ pub(super) fn add_frame(
     let (w, k_count) = (geo.camera.width, rhos.len());
     let row_cells = w * k_count;
     let use_avx512 = level.avx512f();
+    let use_avx2 = level.avx2_fma();
     #[cfg(target_arch = "x86_64")]
     let use_blocks = level.avx512_bw_vl_dq()
         && avx512::fits_i32(w, geo.camera.height, feats.channels)
@@ -143,7 +167,13 @@ pub(super) fn add_frame(
                 unsafe { avx512::row_generic(geo, feats, rhos, y, sum_row, count_row, scratch) };
                 return;
             }
-            let _ = use_avx512;
+            #[cfg(target_arch = "x86_64")]
+            if use_avx2 {
+                // SAFETY: `avx2_fma()` reported AVX2 and FMA on this CPU.
+                unsafe { row_avx2(geo, feats, rhos, y, sum_row, count_row, scratch) };
+                return;
+            }
+            let _ = (use_avx512, use_avx2);
             row_any(geo, feats, rhos, y, sum_row, count_row, scratch);
         },
     );

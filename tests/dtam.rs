@@ -63,7 +63,7 @@ proptest! {
         });
         let range = CostRange::new(costs.view());
         let full = exhaustive_search_full(costs.view(), &bins, d.view(), theta, 1.0);
-        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
+        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Avx2, CpuFeatureLevel::Portable] {
             let got = exhaustive_search_with(costs.view(), &range, &bins, d.view(), theta, 1.0, dispatch);
             prop_assert_eq!(got.mapv(f32::to_bits), full.mapv(f32::to_bits), "{:?}", dispatch);
         }
@@ -86,7 +86,7 @@ proptest! {
         };
         let problem = DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params);
         let reference = fingerprint(solve_reference(&problem).unwrap());
-        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
+        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Avx2, CpuFeatureLevel::Portable] {
             let got = solve_with(&problem, dispatch).unwrap();
             prop_assert_eq!(&fingerprint(got), &reference, "{:?}", dispatch);
         }
@@ -155,7 +155,7 @@ proptest! {
             let full = exhaustive_search_full(costs.view(), &bins, d.view(), theta, lambda);
             prop_assert_eq!(definition.mapv(f32::to_bits), full.mapv(f32::to_bits));
         }
-        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
+        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Avx2, CpuFeatureLevel::Portable] {
             let got = exhaustive_search_with(costs.view(), &range, &bins, d.view(), theta, lambda, dispatch);
             prop_assert_eq!(got.mapv(f32::to_bits), definition.mapv(f32::to_bits), "{:?}", dispatch);
         }
@@ -176,7 +176,7 @@ proptest! {
         };
         let problem = DtamProblem::new(costs.view(), &bins, grey.view(), init.view(), &params);
         let reference = fingerprint(solve_reference(&problem).unwrap());
-        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
+        for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Avx2, CpuFeatureLevel::Portable] {
             let got = solve_with(&problem, dispatch).unwrap();
             prop_assert_eq!(&fingerprint(got), &reference, "{:?}", dispatch);
         }
@@ -224,7 +224,7 @@ fn fused_solve_equals_the_reference_on_every_thread_count() {
             .unwrap()
             .install(|| fingerprint(solve_reference(&problem).unwrap()));
         for n in [1, 2, 3, 8] {
-            for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
+            for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Avx2, CpuFeatureLevel::Portable] {
                 let got = rayon::ThreadPoolBuilder::new()
                     .num_threads(n)
                     .build()
@@ -255,7 +255,7 @@ fn fused_pass_equals_the_reference_functions() {
                 exhaustive_search_reference(costs.view(), &range, &bins, tv.primal(), theta, lambda);
             let e = total_energy(&tv, costs.view(), &bins, reference.view(), theta, lambda);
             let g = rms_gap(tv.primal(), reference.view());
-            for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Portable] {
+            for dispatch in [CpuFeatureLevel::get(), CpuFeatureLevel::Avx2, CpuFeatureLevel::Portable] {
                 let m = search_with_energy(costs.view(), &range, &bins, &tv, theta, lambda, &mut a, dispatch);
                 assert_eq!(a.mapv(f32::to_bits), reference.mapv(f32::to_bits), "seed {seed}, θ {theta}");
                 assert_eq!(m.energy.to_bits(), e.to_bits(), "seed {seed}, θ {theta}: {} vs {e}", m.energy);

@@ -91,7 +91,6 @@ pub fn search_with_energy(
     assert_eq!(ranges.len(), h * w, "the cost range must match the cost volume");
     let p = SearchParams::new(bins, theta, lambda);
     let minima = range.minima();
-    let avx512 = level.avx512f();
     let eps = tv.epsilon();
     let out = a.as_slice_mut().expect("owned arrays are contiguous");
     let rows: Vec<RowSums> = out
@@ -109,7 +108,7 @@ pub fn search_with_energy(
                 tgv: tv.tgv_rows(y),
                 eps,
             };
-            fused_row(&row, &p, a_row, avx512)
+            fused_row(&row, &p, a_row, level)
         })
         .collect();
     // The reference's sums over rows: `Iterator::sum` for the regulariser and the gap, `+=` from
@@ -127,13 +126,24 @@ pub fn search_with_energy(
     }
 }
 
-fn fused_row(row: &Row, p: &SearchParams, a: &mut [f32], avx512: bool) -> RowSums {
+fn fused_row(row: &Row, p: &SearchParams, a: &mut [f32], level: CpuFeatureLevel) -> RowSums {
     #[cfg(target_arch = "x86_64")]
-    if avx512 {
-        // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`CpuFeatureLevel::avx512f`).
+    if level.avx512f() {
+        // SAFETY: `avx512f()` reported AVX-512F on this CPU.
         return unsafe { fused_row_avx512(row, p, a) };
     }
-    let _ = avx512;
+    #[cfg(target_arch = "x86_64")]
+    if level.avx2_fma() {
+        // SAFETY: `avx2_fma()` reported AVX2 and FMA on this CPU.
+        return unsafe { fused_row_avx2(row, p, a) };
+    }
+    fused_row_any::<false>(row, p, a)
+}
+
+/// The portable fused row compiled for AVX2 and FMA (no fused multiply-add is formed: the same bits).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn fused_row_avx2(row: &Row, p: &SearchParams, a: &mut [f32]) -> RowSums {
     fused_row_any::<false>(row, p, a)
 }
 

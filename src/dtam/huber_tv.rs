@@ -266,7 +266,6 @@ impl HuberTv {
             self.tgv_steps(a, theta, n);
             return;
         }
-        let avx512 = level.avx512f();
         let k = Coefficients::new(self.eps, theta);
         let mut a_term = std::mem::take(&mut self.a_term);
         a_term.resize(h * w, 0.0);
@@ -276,13 +275,13 @@ impl HuberTv {
             }
         });
         for _ in 0..n {
-            self.one_step(&a_term, &k, avx512);
+            self.one_step(&a_term, &k, level);
         }
         self.a_term = a_term;
     }
 
     /// One step of [`HuberTv::steps_with`] (`a_term` = `(τ a) / θ`, row-major).
-    fn one_step(&mut self, a_term: &[f64], k: &Coefficients, avx512: bool) {
+    fn one_step(&mut self, a_term: &[f64], k: &Coefficients, level: CpuFeatureLevel) {
         let (h, w) = self.d.dim();
         let (d_bar, g) = (self.d_bar.as_slice().expect("contiguous"), self.g.as_slice().expect("contiguous"));
         let qx = self.qx.as_slice_mut().expect("owned arrays are contiguous");
@@ -290,7 +289,7 @@ impl HuberTv {
         qx.par_chunks_mut(w).zip(qy.par_chunks_mut(w)).enumerate().for_each(|(y, (rx, ry))| {
             let below = (y + 1 < h).then(|| &d_bar[(y + 1) * w..][..w]);
             let rows = DualRows { qx: rx, qy: ry, d_bar: &d_bar[y * w..][..w], below, g: &g[y * w..][..w] };
-            kernels::dual_row(rows, k, avx512);
+            kernels::dual_row(rows, k, level);
         });
         let (qx, qy) = (self.qx.as_slice().expect("contiguous"), self.qy.as_slice().expect("contiguous"));
         let d = self.d.as_slice_mut().expect("owned arrays are contiguous");
@@ -310,7 +309,7 @@ impl HuberTv {
                 has_below: y + 1 < h,
                 a_term: row(a_term, y, w),
             };
-            kernels::primal_row(rows, k, avx512);
+            kernels::primal_row(rows, k, level);
         });
     }
 
@@ -491,32 +490,59 @@ struct PrimalRows<'a> {
     a_term: &'a [f64],
 }
 
-/// The row kernels of [`HuberTv::step_with`]: generic bodies (`#[inline(always)]`) instantiated once
-/// for the baseline target and once inside an `avx512f` function, so the compiler may vectorise
-/// the latter 8 lanes wide. Each pixel's result is a fixed sequence of IEEE operations (no
+/// The row kernels of [`HuberTv::step_with`]: generic bodies (`#[inline(always)]`) instantiated
+/// for the baseline target, inside an `avx512f` function and inside an `avx2,fma` one, so the
+/// compiler may vectorise the latter two 8 and 4 lanes wide. Each pixel's result is a fixed sequence of IEEE operations (no
 /// reductions across pixels, no fused multiply-adds), hence the same bits in both builds.
 mod kernels {
     use super::{Coefficients, DualRows, PrimalRows, STEP};
+    use crate::runtime::CpuFeatureLevel;
 
-    pub(super) fn dual_row(rows: DualRows, k: &Coefficients, avx512: bool) {
+    pub(super) fn dual_row(rows: DualRows, k: &Coefficients, level: CpuFeatureLevel) {
         #[cfg(target_arch = "x86_64")]
-        if avx512 {
+        if level.avx512f() {
             // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`CpuFeatureLevel::avx512f`).
             unsafe { dual_row_avx512(rows, k) };
             return;
         }
-        let _ = avx512;
+        #[cfg(target_arch = "x86_64")]
+        if level.avx2_fma() {
+            // SAFETY: `avx2_fma()` reported AVX2 and FMA on this CPU.
+            unsafe { dual_row_avx2(rows, k) };
+            return;
+        }
+        let _ = level;
         dual_row_any(rows, k);
     }
 
-    pub(super) fn primal_row(rows: PrimalRows, k: &Coefficients, avx512: bool) {
+    pub(super) fn primal_row(rows: PrimalRows, k: &Coefficients, level: CpuFeatureLevel) {
         #[cfg(target_arch = "x86_64")]
-        if avx512 {
+        if level.avx512f() {
             // SAFETY: as in `dual_row`.
             unsafe { primal_row_avx512(rows, k) };
             return;
         }
-        let _ = avx512;
+        #[cfg(target_arch = "x86_64")]
+        if level.avx2_fma() {
+            // SAFETY: `avx2_fma()` reported AVX2 and FMA on this CPU.
+            unsafe { primal_row_avx2(rows, k) };
+            return;
+        }
+        let _ = level;
+        primal_row_any(rows, k);
+    }
+
+    /// [`dual_row_any`] compiled for AVX2 and FMA (no fused multiply-add is formed: the same bits).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn dual_row_avx2(rows: DualRows, k: &Coefficients) {
+        dual_row_any(rows, k);
+    }
+
+    /// [`primal_row_any`] compiled for AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn primal_row_avx2(rows: PrimalRows, k: &Coefficients) {
         primal_row_any(rows, k);
     }
 

@@ -213,7 +213,6 @@ pub fn exhaustive_search_with(
     let d = d.as_standard_layout();
     let d = d.as_slice().expect("standard layout is contiguous");
     let p = SearchParams::new(bins, theta, lambda);
-    let avx512 = level.avx512f();
     let ranges = range.as_slice();
     let (minima, g) = (range.minima(), p.blocks);
     let out = a.as_slice_mut().expect("owned arrays are contiguous");
@@ -224,7 +223,7 @@ pub fn exhaustive_search_with(
             minima: &minima[y * w * g..][..w * g],
             d: &d[y * w..][..w],
         };
-        search_row(&rows, &p, row, avx512);
+        search_row(&rows, &p, row, level);
     });
     a
 }
@@ -294,14 +293,26 @@ pub(crate) struct SearchRow<'a> {
     pub d: &'a [f32],
 }
 
-fn search_row(rows: &SearchRow, p: &SearchParams, out: &mut [f32], avx512: bool) {
+fn search_row(rows: &SearchRow, p: &SearchParams, out: &mut [f32], level: CpuFeatureLevel) {
     #[cfg(target_arch = "x86_64")]
-    if avx512 {
-        // SAFETY: `avx512` is only set when the CPU reported AVX-512F (`CpuFeatureLevel::avx512f`).
+    if level.avx512f() {
+        // SAFETY: `avx512f()` reported AVX-512F on this CPU.
         unsafe { search_row_avx512(rows, p, out) };
         return;
     }
-    let _ = avx512;
+    #[cfg(target_arch = "x86_64")]
+    if level.avx2_fma() {
+        // SAFETY: `avx2_fma()` reported AVX2 and FMA on this CPU.
+        unsafe { search_row_avx2(rows, p, out) };
+        return;
+    }
+    for_each_group::<false>(rows, p, &mut Output(out));
+}
+
+/// The portable search compiled for AVX2 and FMA (no fused multiply-add is formed: the same bits).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn search_row_avx2(rows: &SearchRow, p: &SearchParams, out: &mut [f32]) {
     for_each_group::<false>(rows, p, &mut Output(out));
 }
 

@@ -52,7 +52,8 @@ pub(super) unsafe fn costs(
     }
 }
 
-/// AVX2 [`super::backward`]; `d_u.len()` must be a multiple of 16.
+/// AVX2 [`super::backward`]: the 32-channel kernel below for the network's maps; other multiples
+/// of 16 take the portable kernel (the same bits).
 #[target_feature(enable = "avx2")]
 pub(super) unsafe fn backward(
     taps: &[Tap],
@@ -61,25 +62,11 @@ pub(super) unsafe fn backward(
     d_u: &mut [f32],
     live: &mut LiveRows,
 ) {
-    let c = d_u.len();
-    if c == 2 * LANES {
+    if d_u.len() == 2 * LANES {
         // SAFETY: as this function's.
         unsafe { backward_32(taps, coefs, resid, d_u, live) };
-        return;
-    }
-    for (j, tap) in taps.iter().enumerate() {
-        let coef = coefs[j];
-        if coef == 0.0 {
-            continue;
-        }
-        let r = &resid[j * c..][..c];
-        // SAFETY: the caller checked the CPU feature and `C % 16 == 0`.
-        unsafe { axpy(coef, r, d_u) };
-        for (t, (y, x)) in tap.corners().into_iter().enumerate() {
-            let cw = -coef * tap.w[t];
-            // SAFETY: as above.
-            unsafe { axpy(cw, r, live.at_mut(y, x, c)) };
-        }
+    } else {
+        super::portable::backward(taps, coefs, resid, d_u, live);
     }
 }
 
@@ -140,22 +127,5 @@ unsafe fn backward_32(taps: &[Tap], coefs: &[f32], resid: &[f32], d_u: &mut [f32
     for (i, &ui) in u.iter().enumerate() {
         // SAFETY: d_u holds 32 f32.
         unsafe { _mm256_storeu_ps(d_u.as_mut_ptr().add(i * HALF), ui) };
-    }
-}
-
-/// `y += a x` (products and sums unfused); equal lengths, a multiple of 8.
-#[target_feature(enable = "avx2")]
-#[inline]
-unsafe fn axpy(a: f32, x: &[f32], y: &mut [f32]) {
-    assert_eq!(x.len(), y.len());
-    let av = _mm256_set1_ps(a);
-    for blk in (0..x.len()).step_by(HALF) {
-        // SAFETY: blk + 8 <= len, both slices have that length.
-        unsafe {
-            let p = y.as_mut_ptr().add(blk);
-            let v =
-                _mm256_add_ps(_mm256_loadu_ps(p), _mm256_mul_ps(av, _mm256_loadu_ps(x.as_ptr().add(blk))));
-            _mm256_storeu_ps(p, v);
-        }
     }
 }

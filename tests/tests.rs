@@ -42,6 +42,7 @@ mod refine;
 mod reliability;
 mod synth;
 mod synth_real;
+mod train_augment;
 mod train_backprop;
 mod train_loop;
 mod train_loss;

@@ -13,7 +13,7 @@ use densefeat::geometry::InverseDepthBins;
 use densefeat::io::write_npy_f32;
 use densefeat::nn::{FeatureNet, NetworkWeights};
 use densefeat::ops::NetworkConfig;
-use densefeat::train::data::{DataConfig, DataSet, PairRule};
+use densefeat::train::data::{Augment, DataConfig, DataSet, PairRule};
 use densefeat::train::loss::LossConfig;
 use densefeat::train::optim::OptimConfig;
 use densefeat::train::step::{batch_step, pair_step, pair_step_timed, StepTimes, Supervision, TrainingPair};
@@ -136,6 +136,14 @@ pub struct TrainArgs {
     /// depth (a point hidden by a nearer surface, whose "match" is the occluder). 0: off (the paper)
     #[arg(long, default_value_t = 0.0)]
     pub occlusion_mask: f64,
+    /// Motion-blur augmentation (SPEC.md §13.5): each training crop is blurred along a line of
+    /// length uniform in [0, L] pixels in a uniform direction, as a hand-held camera blurs. 0: off
+    #[arg(long, default_value_t = 0.0)]
+    pub augment_blur: f64,
+    /// Gamma augmentation (SPEC.md §13.5): each training crop goes through 255 (I/255)^γ with ln γ
+    /// uniform in [-G, G], a camera's tone curve. 0: off
+    #[arg(long, default_value_t = 0.0)]
+    pub augment_gamma: f64,
     /// How the multi-frame loss treats live frames that do not all see a hypothesis (SPEC.md
     /// §13.1d): `all` (§13.1b: every frame counts, m outside it, and a pixel only when its true
     /// match is inside every frame) or `seen` (the mapper's rule: per hypothesis the mean over the
@@ -228,6 +236,11 @@ impl TrainArgs {
                 live_frames: self.live_frames,
                 live_crop: self.live_crop.parse()?,
                 occlusion_tolerance: self.occlusion_mask,
+                augment: Augment {
+                    blur: check_augment("augment-blur", self.augment_blur, 16.0)?,
+                    gamma: check_augment("augment-gamma", self.augment_gamma, 1.0)?,
+                    ..Augment::default()
+                },
                 ..DataConfig::default()
             },
             val_every: self.val_every,
@@ -240,6 +253,15 @@ impl TrainArgs {
 }
 
 use densefeat::runtime::thread_pool as pool;
+
+/// An augmentation range must be finite and in `0..=max`.
+fn check_augment(name: &str, v: f64, max: f64) -> Result<f64> {
+    if v.is_finite() && (0.0..=max).contains(&v) {
+        Ok(v)
+    } else {
+        Err(validate::flag(name, format!("{v}: must be between 0 and {max}")))
+    }
+}
 
 /// `--loss-sample-stride` must be 1..=64.
 fn check_sample_stride(s: usize) -> Result<()> {

@@ -41,8 +41,10 @@ impl Default for PairRule {
     }
 }
 
-/// Photometric augmentation, drawn independently for each frame: `clamp(g · I + b + n, 0, 255)`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Photometric augmentation, drawn independently for each frame (SPEC.md §13.5):
+/// `clamp(g · T(I) + b + n, 0, 255)`, where `T` is the optional sensor part (a motion blur, then a
+/// gamma curve; off by default) and `g`, `b`, `n` the gain, offset and noise.
+#[derive(Clone, Copy, PartialEq)]
 pub struct Augment {
     /// `g` uniform in `[1 - gain, 1 + gain]`.
     pub gain: f64,
@@ -50,11 +52,31 @@ pub struct Augment {
     pub bias: f64,
     /// Per-value noise, uniform in `[-noise, noise] · √3` (standard deviation `noise`).
     pub noise: f64,
+    /// Longest linear motion blur, pixels: length uniform in `[0, blur]`, direction uniform; 0: off.
+    pub blur: f64,
+    /// Gamma curve `255 (I/255)^γ` with `ln γ` uniform in `[-gamma, gamma]`; 0: off.
+    pub gamma: f64,
 }
 
 impl Default for Augment {
     fn default() -> Self {
-        Augment { gain: 0.2, bias: 15.0, noise: 2.0 }
+        Augment { gain: 0.2, bias: 15.0, noise: 2.0, blur: 0.0, gamma: 0.0 }
+    }
+}
+
+// Written by hand so that the sensor part appears only when it is on: the checkpoint fingerprint
+// (SPEC.md §13.6) holds this text, and runs from before 2026-12-07 must stay resumable.
+impl std::fmt::Debug for Augment {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("Augment");
+        d.field("gain", &self.gain).field("bias", &self.bias).field("noise", &self.noise);
+        if self.blur != 0.0 {
+            d.field("blur", &self.blur);
+        }
+        if self.gamma != 0.0 {
+            d.field("gamma", &self.gamma);
+        }
+        d.finish()
     }
 }
 
@@ -330,14 +352,75 @@ fn render(scene: &Scene, i: usize) -> Result<Frame> {
     Ok(Frame::new(f.rgb, f.depth, f.pose, scene.camera()))
 }
 
-/// `clamp(g I + b + n, 0, 255)` with `g`, `b` drawn once and `n` per value.
+/// `clamp(g T(I) + b + n, 0, 255)` with `g`, `b` drawn once and `n` per value; `T` the motion blur
+/// and the gamma curve when they are on (each drawn first, only when on: with both off the draws
+/// are the same as before they existed).
 fn augment(img: &mut Array3<f32>, a: &Augment, rng: &mut SplitMix64) {
+    if a.blur > 0.0 {
+        let length = rng.range(0.0, a.blur);
+        let angle = rng.range(0.0, std::f64::consts::PI);
+        motion_blur(img, length, angle);
+    }
+    if a.gamma > 0.0 {
+        let gamma = rng.range(-a.gamma, a.gamma).exp();
+        for v in img.iter_mut() {
+            *v = (255.0 * (f64::from(v.clamp(0.0, 255.0)) / 255.0).powf(gamma)) as f32;
+        }
+    }
     let g = rng.range(1.0 - a.gain, 1.0 + a.gain) as f32;
     let b = rng.range(-a.bias, a.bias) as f32;
     let amp = (a.noise * 3f64.sqrt()) as f32;
     for v in img.iter_mut() {
         let n = if amp > 0.0 { amp * (2.0 * rng.unit() as f32 - 1.0) } else { 0.0 };
         *v = (g * *v + b + n).clamp(0.0, 255.0);
+    }
+}
+
+/// A linear motion blur of `length` pixels at `angle` (radians from the x axis), centred on each
+/// pixel: the mean of `n = ⌈length⌉ + 1` bilinear samples at offsets `(i/(n-1) - 1/2) · length ·
+/// (cos, sin)`, `i = 0..n`, the image extended by its edge values (SPEC.md §13.5). Below 0.5 pixel
+/// it does nothing.
+pub fn motion_blur(img: &mut Array3<f32>, length: f64, angle: f64) {
+    if length < 0.5 {
+        return;
+    }
+    let (h, w, c) = img.dim();
+    let n = length.ceil() as usize + 1;
+    let (dx, dy) = (angle.cos() * length, angle.sin() * length);
+    let src = img.as_standard_layout().into_owned();
+    let src = src.as_slice().expect("standard layout is contiguous");
+    // Every sample of the line is the same bilinear blend of four shifted copies of the image, so
+    // the blur is a sum of 4n shifted copies, each added whole (the order: offsets ascending, then
+    // the corners top-left, top-right, bottom-left, bottom-right).
+    let mut acc = vec![0.0f64; h * w * c];
+    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+    for i in 0..n {
+        let t = i as f64 / (n - 1) as f64 - 0.5;
+        let (ox, oy) = (t * dx, t * dy);
+        let (x0, y0) = (ox.floor(), oy.floor());
+        let (fx, fy) = (ox - x0, oy - y0);
+        let (x0, y0) = (x0 as isize, y0 as isize);
+        for (sy, wy) in [(y0, 1.0 - fy), (y0 + 1, fy)] {
+            for (sx, wx) in [(x0, 1.0 - fx), (x0 + 1, fx)] {
+                let weight = wy * wx / n as f64;
+                if weight == 0.0 {
+                    continue;
+                }
+                let cols: Vec<usize> = (0..w).map(|x| clamp(x as isize + sx, w)).collect();
+                for y in 0..h {
+                    let row = &src[clamp(y as isize + sy, h) * w * c..][..w * c];
+                    let out = &mut acc[y * w * c..][..w * c];
+                    for (x, &col) in cols.iter().enumerate() {
+                        for ch in 0..c {
+                            out[x * c + ch] += weight * f64::from(row[col * c + ch]);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    for (v, a) in img.iter_mut().zip(acc) {
+        *v = a as f32;
     }
 }
 

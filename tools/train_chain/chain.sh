@@ -211,6 +211,12 @@ args_mf8sof+=(--supervision final)
 # draws (--seed 12) with deep supervision, so mf8sof - mf8sod is the supervision alone, and mf8sod -
 # mf8so is 5 000 more steps.
 derive args_mf8sod args_mf8so --init-weights docs/training/chain_mf8so/weights.safetensors --seed 12
+# mf8soa: mf8sod with the sensor augmentation of SPEC.md §13.5 (a motion blur of up to 3 px in any
+# direction and a gamma curve, ln γ within ±0.25, on every training crop, drawn per crop): the same
+# start, schedule, pairs and crops, so mf8soa - mf8sod is the augmentation alone. Every fine-tune
+# trained on sharp renders gained on them and not on the real room; real cameras blur and bend tones.
+derive args_mf8soa args_mf8sod
+args_mf8soa+=(--augment-blur 3 --augment-gamma 0.25)
 
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were

@@ -241,7 +241,6 @@ impl TrainArgs {
                     gamma: check_augment("augment-gamma", self.augment_gamma, 1.0)?,
                     ..Augment::default()
                 },
-                ..DataConfig::default()
             },
             val_every: self.val_every,
             val_per_source: self.val_per_source,

@@ -137,29 +137,30 @@ fn fused_row(row: &Row, p: &SearchParams, a: &mut [f32], level: CpuFeatureLevel)
         // SAFETY: `avx2_fma()` reported AVX2 and FMA on this CPU.
         return unsafe { fused_row_avx2(row, p, a) };
     }
-    fused_row_any::<false>(row, p, a)
+    fused_row_any::<{ lanes::PORTABLE }>(row, p, a)
 }
 
-/// The portable fused row compiled for AVX2 and FMA (no fused multiply-add is formed: the same bits).
+/// The fused row compiled for AVX2 and FMA: the AVX2 lane scan, the rest portable (no fused
+/// multiply-add is formed: the same bits).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn fused_row_avx2(row: &Row, p: &SearchParams, a: &mut [f32]) -> RowSums {
-    fused_row_any::<false>(row, p, a)
+    fused_row_any::<{ lanes::AVX2 }>(row, p, a)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 unsafe fn fused_row_avx512(row: &Row, p: &SearchParams, a: &mut [f32]) -> RowSums {
-    fused_row_any::<true>(row, p, a)
+    fused_row_any::<{ lanes::AVX512 }>(row, p, a)
 }
 
 #[inline(always)]
-fn fused_row_any<const AVX512: bool>(row: &Row, p: &SearchParams, a: &mut [f32]) -> RowSums {
+fn fused_row_any<const ISA: u8>(row: &Row, p: &SearchParams, a: &mut [f32]) -> RowSums {
     let w = a.len();
     let d = &row.d[..w];
     let search = SearchRow { costs: row.costs, range: row.range, minima: row.minima, d };
-    let mut sink = Terms::<AVX512> { a, d, costs: &row.costs[..w * p.k], p, coupling: 0.0, data: 0.0 };
-    for_each_group::<AVX512>(&search, p, &mut sink);
+    let mut sink = Terms::<ISA> { a, d, costs: &row.costs[..w * p.k], p, coupling: 0.0, data: 0.0 };
+    for_each_group::<ISA>(&search, p, &mut sink);
     let Terms { a, coupling, data, .. } = sink;
     // `rms_gap`'s row sum.
     let gap = d.iter().zip(a.iter()).map(|(&d, &a)| (f64::from(d) - f64::from(a)).powi(2)).sum();
@@ -174,7 +175,7 @@ fn fused_row_any<const AVX512: bool>(row: &Row, p: &SearchParams, a: &mut [f32])
 /// Writes `a` and adds `total_energy`'s per-pixel coupling and data terms while the group's curves
 /// are in cache: the terms are computed lane-wise ([`lanes::terms`]), then
 /// added one pixel at a time, `x` ascending.
-struct Terms<'a, const AVX512: bool> {
+struct Terms<'a, const ISA: u8> {
     a: &'a mut [f32],
     d: &'a [f32],
     costs: &'a [f32],
@@ -183,7 +184,7 @@ struct Terms<'a, const AVX512: bool> {
     data: f64,
 }
 
-impl<const AVX512: bool> GroupSink for Terms<'_, AVX512> {
+impl<const ISA: u8> GroupSink for Terms<'_, ISA> {
     #[inline(always)]
     fn group(&mut self, x0: usize, n: usize, a: &[f64; LANES]) {
         let (k, w) = (self.p.k, self.d.len());
@@ -191,7 +192,7 @@ impl<const AVX512: bool> GroupSink for Terms<'_, AVX512> {
         let x = |j: usize| (x0 + j).min(w - 1);
         let off: [usize; LANES] = std::array::from_fn(|j| x(j) * k);
         let d: [f64; LANES] = std::array::from_fn(|j| self.d[x(j)] as f64);
-        let (a32, coupling, data, seen) = lanes::terms::<AVX512>(self.costs, self.p, &off, &d, a);
+        let (a32, coupling, data, seen) = lanes::terms::<ISA>(self.costs, self.p, &off, &d, a);
         for j in 0..n {
             self.a[x0 + j] = a32[j];
             self.coupling += coupling[j];

@@ -306,20 +306,21 @@ fn search_row(rows: &SearchRow, p: &SearchParams, out: &mut [f32], level: CpuFea
         unsafe { search_row_avx2(rows, p, out) };
         return;
     }
-    for_each_group::<false>(rows, p, &mut Output(out));
+    for_each_group::<{ lanes::PORTABLE }>(rows, p, &mut Output(out));
 }
 
-/// The portable search compiled for AVX2 and FMA (no fused multiply-add is formed: the same bits).
+/// The search compiled for AVX2 and FMA: the AVX2 lane scan, the rest portable (no fused
+/// multiply-add is formed: the same bits).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn search_row_avx2(rows: &SearchRow, p: &SearchParams, out: &mut [f32]) {
-    for_each_group::<false>(rows, p, &mut Output(out));
+    for_each_group::<{ lanes::AVX2 }>(rows, p, &mut Output(out));
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 unsafe fn search_row_avx512(rows: &SearchRow, p: &SearchParams, out: &mut [f32]) {
-    for_each_group::<true>(rows, p, &mut Output(out));
+    for_each_group::<{ lanes::AVX512 }>(rows, p, &mut Output(out));
 }
 
 /// Pixels per block of the row pipeline: a block's pixels are planned (and their cost-curve cache
@@ -348,32 +349,29 @@ impl GroupSink for Output<'_> {
 }
 
 /// Run the a-search on every pixel of a row, in groups of [`LANES`] consecutive pixels, `x`
-/// ascending, handing each group's results to `sink`. `AVX512`: use the AVX-512 lane search (only
-/// inside a function built with AVX-512F).
+/// ascending, handing each group's results to `sink`. `ISA`: which lane kernels
+/// (`lanes::PORTABLE`, `lanes::AVX2`, `lanes::AVX512`; the latter two only inside a function built
+/// with that instruction set).
 ///
 /// Software-pipelined: the search bounds of the next [`BLOCK`] pixels are computed (a loop across
 /// pixels that vectorises), and the cache lines their searches will read requested, before the
 /// current block is searched. The curves are `K` floats apart and each search reads a few lines at
 /// a position that depends on `d`, which the hardware prefetcher cannot follow.
 #[inline(always)]
-pub(crate) fn for_each_group<const AVX512: bool>(
-    rows: &SearchRow,
-    p: &SearchParams,
-    sink: &mut impl GroupSink,
-) {
+pub(crate) fn for_each_group<const ISA: u8>(rows: &SearchRow, p: &SearchParams, sink: &mut impl GroupSink) {
     let w = rows.d.len();
     let mut plans = [Plans::default(); 2];
-    plan_block::<AVX512>(&mut plans[0], rows, p, 0);
+    plan_block::<ISA>(&mut plans[0], rows, p, 0);
     for (b, start) in (0..w).step_by(BLOCK).enumerate() {
         if start + BLOCK < w {
-            plan_block::<AVX512>(&mut plans[(b + 1) % 2], rows, p, start + BLOCK);
+            plan_block::<ISA>(&mut plans[(b + 1) % 2], rows, p, start + BLOCK);
         }
         for g in (0..BLOCK).step_by(LANES) {
             let x0 = start + g;
             if x0 >= w {
                 break;
             }
-            let a = search_group::<AVX512>(rows, p, &plans[b % 2], g, x0);
+            let a = search_group::<ISA>(rows, p, &plans[b % 2], g, x0);
             sink.group(x0, LANES.min(w - x0), &a);
         }
     }
@@ -392,7 +390,7 @@ struct Plans {
 
 /// Plan pixels `start..start + BLOCK` (clipped to the row) and prefetch their curves' lines.
 #[inline(always)]
-fn plan_block<const AVX512: bool>(plans: &mut Plans, rows: &SearchRow, p: &SearchParams, start: usize) {
+fn plan_block<const ISA: u8>(plans: &mut Plans, rows: &SearchRow, p: &SearchParams, start: usize) {
     let end = (start + BLOCK).min(rows.d.len());
     let (range, d) = (&rows.range[start..end], &rows.d[start..end]);
     if end - start == BLOCK {
@@ -417,8 +415,7 @@ fn plan_block<const AVX512: bool>(plans: &mut Plans, rows: &SearchRow, p: &Searc
         let curve = &rows.costs[x * p.k..][..p.k];
         let (lo, hi) = (plans.lo[i] as usize, plans.hi[i] as usize);
         if hi - lo >= NARROW {
-            let at =
-                lanes::least_block::<AVX512>(&rows.minima[x * p.blocks..][..p.blocks]) * bounds::BLOCK_BINS;
+            let at = lanes::least_block::<ISA>(&rows.minima[x * p.blocks..][..p.blocks]) * bounds::BLOCK_BINS;
             // SAFETY: a prefetch is a hint; it never faults, and `at < K` is inside the curve.
             unsafe { _mm_prefetch::<_MM_HINT_T0>(curve[at..].as_ptr().cast()) };
         } else {
@@ -496,7 +493,7 @@ impl Lanes {
 /// the longest range is at most [`NARROW`], else by each lane's bounded search ([`bounded_group`]);
 /// then the parabola refinement of all lanes at once ([`lanes::refine`]); lanes past the row's end hold junk.
 #[inline(always)]
-fn search_group<const AVX512: bool>(
+fn search_group<const ISA: u8>(
     rows: &SearchRow,
     p: &SearchParams,
     plans: &Plans,
@@ -507,11 +504,11 @@ fn search_group<const AVX512: bool>(
     let costs = &rows.costs[..w * k];
     let lanes = Lanes::new(rows, p, plans, i0, x0);
     let scan = if lanes.span <= NARROW {
-        lanes::scan::<AVX512>(costs, p, &lanes)
+        lanes::scan::<ISA>(costs, p, &lanes)
     } else {
-        bounded_group::<AVX512>(rows, p, &lanes, x0)
+        bounded_group::<ISA>(rows, p, &lanes, x0)
     };
-    let mut a = lanes::refine::<AVX512>(costs, p, &lanes, &scan);
+    let mut a = lanes::refine::<ISA>(costs, p, &lanes, &scan);
     for (j, a) in a.iter_mut().enumerate().take(LANES.min(w - x0)) {
         if !lanes.flat[j] && !lanes.full[j] && !scan.found[j] {
             // A pruned range with nothing seen in it cannot happen (it holds the seen nearest
@@ -525,7 +522,7 @@ fn search_group<const AVX512: bool>(
 
 /// The bounded search of each live lane of a group ([`lanes::bounded`]).
 #[inline(always)]
-fn bounded_group<const AVX512: bool>(rows: &SearchRow, p: &SearchParams, lanes: &Lanes, x0: usize) -> Scan {
+fn bounded_group<const ISA: u8>(rows: &SearchRow, p: &SearchParams, lanes: &Lanes, x0: usize) -> Scan {
     let (k, w) = (p.k, rows.d.len());
     let mut scan = Scan { best: [f64::INFINITY; LANES], arg: [0; LANES], found: [false; LANES] };
     for j in 0..LANES.min(w - x0) {
@@ -535,7 +532,7 @@ fn bounded_group<const AVX512: bool>(rows: &SearchRow, p: &SearchParams, lanes: 
         let x = x0 + j;
         let (curve, minima) = (&rows.costs[x * k..][..k], &rows.minima[x * p.blocks..][..p.blocks]);
         let (d, lo, hi) = (lanes.d[j], lanes.lo[j], lanes.hi[j]);
-        let found = lanes::bounded::<AVX512>(curve, minima, p, d, lo, hi);
+        let found = lanes::bounded::<ISA>(curve, minima, p, d, lo, hi);
         if let Some((kk, e)) = found {
             (scan.best[j], scan.arg[j], scan.found[j]) = (e, kk, true);
         }

@@ -192,6 +192,20 @@ fn regression_13_train_bad_crop_names_the_flag_and_writes_nothing() {
     }
 }
 
+#[test]
+fn train_bad_augmentation_names_the_flag_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    for (flag, value) in [("--augment-blur", "-1"), ("--augment-blur", "17"), ("--augment-gamma", "NaN")] {
+        let bad = format!("{flag}={value}");
+        let args = ["train", "--out", s(&out), &bad, "--steps", "1", "--quiet"];
+        let (o, killed) = run_capped(&args, Duration::from_secs(60));
+        let (e, left) = (stderr(&o), names(dir.path()));
+        let ok = !killed && o.status.code() == Some(1) && e.contains(flag) && left.is_empty();
+        assert!(ok, "{flag} {value}: {:?}, killed at deadline {killed}, left {left:?}, stderr: {e}", o.status);
+    }
+}
+
 /// `--lambda-sweep` was already checked up front before issue 13 (docs/reliability/
 /// regressions_old_vs_new.md); `--lambda-learned` was checked only after the RGB evaluation, with
 /// a message naming no flag.

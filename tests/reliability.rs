@@ -202,7 +202,11 @@ fn train_bad_augmentation_names_the_flag_and_writes_nothing() {
         let (o, killed) = run_capped(&args, Duration::from_secs(60));
         let (e, left) = (stderr(&o), names(dir.path()));
         let ok = !killed && o.status.code() == Some(1) && e.contains(flag) && left.is_empty();
-        assert!(ok, "{flag} {value}: {:?}, killed at deadline {killed}, left {left:?}, stderr: {e}", o.status);
+        assert!(
+            ok,
+            "{flag} {value}: {:?}, killed at deadline {killed}, left {left:?}, stderr: {e}",
+            o.status
+        );
     }
 }
 

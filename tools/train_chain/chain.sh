@@ -211,6 +211,8 @@ args_mf8sof+=(--supervision final)
 # draws (--seed 12) with deep supervision, so mf8sof - mf8sod is the supervision alone, and mf8sod -
 # mf8so is 5 000 more steps.
 derive args_mf8sod args_mf8so --init-weights docs/training/chain_mf8so/weights.safetensors --seed 12
+# mf8sod on validation (2026-12-07): flat against mf8so (learned-normals +0.0004, the real room -0.002),
+# not adopted; mf8sof - mf8sod: WTA +0.0051, the real room +0.016, the realistic renders -0.003.
 # mf8soa: mf8sod with the sensor augmentation of SPEC.md §13.5 (a motion blur of up to 3 px in any
 # direction and a gamma curve, ln γ within ±0.25, on every training crop, drawn per crop): the same
 # start, schedule, pairs and crops, so mf8soa - mf8sod is the augmentation alone. Every fine-tune

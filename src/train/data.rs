@@ -393,20 +393,21 @@ pub fn motion_blur(img: &mut Array3<f32>, length: f64, angle: f64) {
     // the blur is a sum of 4n shifted copies, each added whole (the order: offsets ascending, then
     // the corners top-left, top-right, bottom-left, bottom-right).
     let mut acc = vec![0.0f64; h * w * c];
-    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+    let clamp = |v: isize, len: usize| v.clamp(0, len as isize - 1) as usize;
     for i in 0..n {
         let t = i as f64 / (n - 1) as f64 - 0.5;
         let (ox, oy) = (t * dx, t * dy);
         let (x0, y0) = (ox.floor(), oy.floor());
         let (fx, fy) = (ox - x0, oy - y0);
         let (x0, y0) = (x0 as isize, y0 as isize);
+        // The source columns of the two column shifts, made once per sample.
+        let cols = [x0, x0 + 1].map(|sx| (0..w).map(|x| clamp(x as isize + sx, w)).collect::<Vec<_>>());
         for (sy, wy) in [(y0, 1.0 - fy), (y0 + 1, fy)] {
-            for (sx, wx) in [(x0, 1.0 - fx), (x0 + 1, fx)] {
+            for (cols, wx) in cols.iter().zip([1.0 - fx, fx]) {
                 let weight = wy * wx / n as f64;
                 if weight == 0.0 {
                     continue;
                 }
-                let cols: Vec<usize> = (0..w).map(|x| clamp(x as isize + sx, w)).collect();
                 for y in 0..h {
                     let row = &src[clamp(y as isize + sy, h) * w * c..][..w * c];
                     let out = &mut acc[y * w * c..][..w * c];

@@ -27,10 +27,10 @@ unsafe fn load_idx(v: &[usize; LANES], h: usize) -> __m256i {
     _mm256_loadu_si256(v.as_ptr().add(h * HALF).cast())
 }
 
-/// Four `bool` as an all-ones / all-zeros lane mask.
+/// The lanes that are not flat, as an all-ones / all-zeros lane mask.
 #[inline(always)]
-unsafe fn mask(v: &[bool; LANES], h: usize) -> __m256i {
-    let m = |j: usize| -i64::from(v[h * HALF + j]);
+unsafe fn live(flat: &[bool; LANES], h: usize) -> __m256i {
+    let m = |j: usize| -i64::from(!flat[h * HALF + j]);
     _mm256_setr_epi64x(m(0), m(1), m(2), m(3))
 }
 
@@ -90,7 +90,7 @@ impl Half {
             lo: load_idx(&l.lo, h),
             hi: load_idx(&l.hi, h),
             d: _mm256_loadu_pd(l.d.as_ptr().add(h * HALF)),
-            live: _mm256_xor_si256(mask(&l.flat, h), _mm256_set1_epi64x(-1)),
+            live: live(&l.flat, h),
             best: splat(f64::INFINITY),
             arg: _mm256_setzero_si256(),
             found: _mm256_setzero_si256(),

@@ -55,8 +55,8 @@ pub(crate) struct Scan {
     pub found: [bool; LANES],
 }
 
-/// The scan of each live lane over its `lo..=hi` ([`portable::scan_lanes`] or its AVX-512 build):
-/// the first seen hypothesis, then any with a strictly lower energy.
+/// The scan of each live lane over its `lo..=hi` ([`portable::scan_lanes`] or its AVX-512 or AVX2
+/// build): the first seen hypothesis, then any with a strictly lower energy.
 #[inline(always)]
 pub(crate) fn scan<const ISA: u8>(costs: &[f32], p: &SearchParams, lanes: &Lanes) -> Scan {
     #[cfg(target_arch = "x86_64")]

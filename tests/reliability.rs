@@ -193,10 +193,16 @@ fn regression_13_train_bad_crop_names_the_flag_and_writes_nothing() {
 }
 
 #[test]
-fn train_bad_augmentation_names_the_flag_and_writes_nothing() {
+fn train_bad_augmentation_or_ranking_term_names_the_flag_and_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    for (flag, value) in [("--augment-blur", "-1"), ("--augment-blur", "17"), ("--augment-gamma", "NaN")] {
+    for (flag, value) in [
+        ("--augment-blur", "-1"),
+        ("--augment-blur", "17"),
+        ("--augment-gamma", "NaN"),
+        ("--hinge-weight", "-1"),
+        ("--hinge-margin", "inf"),
+    ] {
         let bad = format!("{flag}={value}");
         let args = ["train", "--out", s(&out), &bad, "--steps", "1", "--quiet"];
         let (o, killed) = run_capped(&args, Duration::from_secs(60));

@@ -15,7 +15,7 @@ use densefeat::train::optim::OptimConfig;
 use densefeat::train::step::Supervision;
 use densefeat::train::trainer::{train, TrainConfig};
 
-fn tiny() -> TrainConfig {
+pub(crate) fn tiny() -> TrainConfig {
     TrainConfig {
         network: NetworkConfig { blocks: 2, channels: 4, b1_stride: 2, input_mean: [110.0; 3] },
         init_seed: 3,

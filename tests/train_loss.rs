@@ -14,20 +14,20 @@ use ndarray::{Array2, Array3};
 use proptest::prelude::*;
 
 /// Values in [-1, 1) from SplitMix64.
-fn rng(seed: u64) -> impl FnMut() -> f64 {
+pub(crate) fn rng(seed: u64) -> impl FnMut() -> f64 {
     let mut r = densefeat::util::rng::SplitMix64::new(seed);
     move || r.range(-1.0, 1.0)
 }
 
-struct Case {
-    cfg: LossConfig,
-    f_ref: Array3<f64>,
-    f_live: Array3<f64>,
-    depth: Array2<f32>,
-    warp: Warp,
+pub(crate) struct Case {
+    pub(crate) cfg: LossConfig,
+    pub(crate) f_ref: Array3<f64>,
+    pub(crate) f_live: Array3<f64>,
+    pub(crate) depth: Array2<f32>,
+    pub(crate) warp: Warp,
 }
 
-fn case(seed: u64, h: usize, w: usize, c: usize, k: usize) -> Case {
+pub(crate) fn case(seed: u64, h: usize, w: usize, c: usize, k: usize) -> Case {
     let mut r = rng(seed);
     let cam =
         PinholeCamera::new(w as f64, w as f64, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0, w, h).unwrap();
@@ -43,7 +43,7 @@ fn case(seed: u64, h: usize, w: usize, c: usize, k: usize) -> Case {
     Case { cfg, f_ref, f_live, depth, warp }
 }
 
-fn loss_of(c: &Case, f_ref: &Array3<f64>, f_live: &Array3<f64>) -> f64 {
+pub(crate) fn loss_of(c: &Case, f_ref: &Array3<f64>, f_live: &Array3<f64>) -> f64 {
     scale_loss_reference(&c.cfg, f_ref.view(), f_live.view(), c.depth.view(), &c.warp).unwrap().sums.mean()
 }
 

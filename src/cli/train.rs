@@ -159,6 +159,14 @@ pub struct TrainArgs {
     /// λ_ρ = 5 W, λ_d = W. 1: the paper's loss; 0: the cross-entropy alone
     #[arg(long, default_value_t = 1.0)]
     pub regression_weight: f64,
+    /// Weight of the ranking term (SPEC.md §13.1e): per pixel w max(0, μ + E_true − min E), the
+    /// minimum over the hypotheses more than 2 bins from the true one, so the lowest cost (the
+    /// mapper's winner) is asked to lie at the truth. 0: off, the paper's loss
+    #[arg(long, default_value_t = 0.0)]
+    pub hinge_weight: f64,
+    /// The ranking term's margin μ, in the cost's units (SPEC.md §13.1e)
+    #[arg(long, default_value_t = 1.0)]
+    pub hinge_margin: f64,
     /// Loss pixel sampling (SPEC.md §13.1a): evaluate one pixel per SxS block at the finest
     /// supervised level (S/2 one level coarser, ...), weighted S²: unbiased; 1 evaluates every
     /// pixel (the paper).
@@ -216,7 +224,8 @@ impl TrainArgs {
                 multi_cost: self.multi_cost.parse()?,
                 ..LossConfig::default()
             }
-            .with_regression_weight(self.regression_weight)?,
+            .with_regression_weight(self.regression_weight)?
+            .with_hinge(self.hinge_weight, self.hinge_margin)?,
             supervision: self.supervision.parse()?,
             data: DataConfig {
                 crop: validate::size("crop", &self.crop)?,

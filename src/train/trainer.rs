@@ -68,7 +68,13 @@ impl TrainConfig {
         let data = data.strip_suffix(", live_crop: Flow }").map_or(data.clone(), |d| format!("{d} }}"));
         let data = data.strip_suffix(", live_frames: 1 }").map_or(data.clone(), |d| format!("{d} }}"));
         // `multi_cost` (2026-12-06) joined LossConfig likewise: written only when it is not `All`.
+        // `hinge_weight` and `hinge_margin` (2026-12-07) likewise: written only when the ranking term
+        // is on (a margin without weight changes nothing).
         let loss = format!("{:?}", self.loss);
+        let loss = match loss.find(", hinge_weight: 0.0, hinge_margin: ") {
+            Some(i) => format!("{} }}", &loss[..i]),
+            None => loss,
+        };
         let loss = loss.strip_suffix(", multi_cost: All }").map_or(loss.clone(), |l| format!("{l} }}"));
         let mut f = format!(
             "network={:?} init_seed={} seed={} steps={} batch={} optim={:?} loss={loss} supervision={:?} data={data}",

@@ -61,7 +61,17 @@ pub struct LossConfig {
     pub sample_seed: u64,
     /// How the multi-frame loss treats a hypothesis that leaves some live frames (SPEC.md §13.1d).
     pub multi_cost: MultiCost,
+    /// Weight `w_h` of the ranking term (SPEC.md §13.1e): `w_h max(0, μ + E_{l*} − min E_l)`, the
+    /// minimum over the bins more than [`HINGE_RADIUS`] from the target. 0 (the default): off, the
+    /// paper's loss.
+    pub hinge_weight: f64,
+    /// The ranking term's margin `μ` (in the cost's units, nats of the softmax).
+    pub hinge_margin: f64,
 }
+
+/// Bins on either side of the target that the ranking term (SPEC.md §13.1e) leaves out: a winner
+/// this near the truth is not a wrong answer.
+pub const HINGE_RADIUS: usize = 2;
 
 /// How the multi-frame loss (SPEC.md §13.1b) combines live frames that do not all see a hypothesis
 /// (`--multi-cost`; SPEC.md §13.1d).
@@ -111,6 +121,8 @@ impl Default for LossConfig {
             sample_stride: 1,
             sample_seed: 0,
             multi_cost: MultiCost::All,
+            hinge_weight: 0.0,
+            hinge_margin: 1.0,
         }
     }
 }
@@ -131,6 +143,29 @@ impl LossConfig {
         }
         let paper = LossConfig::default();
         Ok(LossConfig { lambda_rho: paper.lambda_rho * w, lambda_d: paper.lambda_d * w, ..self })
+    }
+
+    /// This configuration with the ranking term of SPEC.md §13.1e at weight `w` and margin `margin`
+    /// (`--hinge-weight`, `--hinge-margin`); `w = 0` is the paper's loss (the same fields as the
+    /// default when the margin is the default's, so the same fingerprint).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `--hinge-weight` unless `w` is finite and `>= 0`, or
+    /// `--hinge-margin` unless `margin` is finite and `>= 0`.
+    pub fn with_hinge(self, w: f64, margin: f64) -> Result<Self> {
+        if !(w.is_finite() && w >= 0.0) {
+            return Err(Error::invalid_argument(
+                "--hinge-weight",
+                format!("{w}: must be a finite number >= 0 (0: off, the paper's loss)"),
+            ));
+        }
+        if !(margin.is_finite() && margin >= 0.0) {
+            return Err(Error::invalid_argument(
+                "--hinge-margin",
+                format!("{margin}: must be a finite number >= 0"),
+            ));
+        }
+        Ok(LossConfig { hinge_weight: w, hinge_margin: margin, ..self })
     }
 
     /// Checks that every field is finite and in range.
@@ -157,6 +192,12 @@ impl LossConfig {
         if !(1..=64).contains(&self.sample_stride) {
             return Err(bad("sample_stride", self.sample_stride as f64));
         }
+        if !(self.hinge_weight.is_finite() && self.hinge_weight >= 0.0) {
+            return Err(bad("hinge_weight", self.hinge_weight));
+        }
+        if !(self.hinge_margin.is_finite() && self.hinge_margin >= 0.0) {
+            return Err(bad("hinge_margin", self.hinge_margin));
+        }
         Ok(())
     }
 }
@@ -172,6 +213,8 @@ pub struct LossSums {
     pub rho: f64,
     /// Σ `λ_d (d̂ − z*)²`.
     pub depth: f64,
+    /// Σ ranking term (SPEC.md §13.1e; 0 when it is off).
+    pub hinge: f64,
     /// Pixels whose expected depth `d̂` is within a factor 1.25 of `z*`.
     pub delta125_expected: usize,
     /// Pixels whose winner-take-all depth (`1/ρ` of the lowest-cost bin) is within 1.25 of `z*`.
@@ -179,12 +222,15 @@ pub struct LossSums {
 }
 
 impl LossSums {
-    /// The scale's loss: `(ce + rho + depth) / pixels` (0 with no pixels).
+    /// The scale's loss: `(ce + rho + depth + hinge) / pixels` (0 with no pixels; the hinge sum
+    /// is added only when it is not 0, so the paper's loss keeps its bits).
     pub fn mean(&self) -> f64 {
         if self.pixels == 0 {
             0.0
-        } else {
+        } else if self.hinge == 0.0 {
             (self.ce + self.rho + self.depth) / self.pixels as f64
+        } else {
+            (self.ce + self.rho + self.depth + self.hinge) / self.pixels as f64
         }
     }
 
@@ -198,6 +244,7 @@ impl LossSums {
         self.ce += mf * terms.ce;
         self.rho += mf * terms.rho;
         self.depth += mf * terms.depth;
+        self.hinge += mf * terms.hinge;
         self.delta125_expected += m * usize::from(within_125(1.0 / terms.rho_hat.max(cfg.rho_floor), z_star));
         self.delta125_wta += m * usize::from(within_125(1.0 / cfg.bins.rho(terms.wta), z_star));
     }
@@ -208,6 +255,7 @@ impl LossSums {
         self.ce += o.ce;
         self.rho += o.rho;
         self.depth += o.depth;
+        self.hinge += o.hinge;
         self.delta125_expected += o.delta125_expected;
         self.delta125_wta += o.delta125_wta;
     }
@@ -304,6 +352,8 @@ pub struct PixelTerms {
     pub rho: f64,
     /// `λ_d (d̂ − z*)²`.
     pub depth: f64,
+    /// The ranking term `w_h max(0, μ + E_{l*} − min_{|l − l*| > r} E_l)` (SPEC.md §13.1e).
+    pub hinge: f64,
     /// `ρ̂`.
     pub rho_hat: f64,
     /// The lowest-cost bin (the first on ties).
@@ -509,7 +559,30 @@ fn pixel_terms_body(
         grad[l] = -(ds_ce + ds_rho);
     }
     grad[target] = -((-1.0 - p_target * gp_sum) + p_target * (rho[target] - rho_hat) * dl_drho);
-    PixelTerms { ce, rho: rho_term, depth: depth_term, rho_hat, wta }
+    let hinge = if cfg.hinge_weight > 0.0 { hinge_term(cfg, energies, target, grad) } else { 0.0 };
+    PixelTerms { ce, rho: rho_term, depth: depth_term, hinge, rho_hat, wta }
+}
+
+/// The ranking term of SPEC.md §13.1e: with `j` the first bin of lowest cost among those more
+/// than [`HINGE_RADIUS`] from `target` (none: no term), `h = μ + E_{l*} − E_j`; where `h > 0`
+/// the term is `w_h h` and `grad` gains `w_h` at the target and `−w_h` at `j`.
+fn hinge_term(cfg: &LossConfig, energies: &[f64], target: usize, grad: &mut [f64]) -> f64 {
+    let far = |l: &usize| l.abs_diff(target) > HINGE_RADIUS;
+    let mut best: Option<usize> = None;
+    for l in (0..energies.len()).filter(far) {
+        if best.is_none_or(|b| energies[l] < energies[b]) {
+            best = Some(l);
+        }
+    }
+    let Some(j) = best else { return 0.0 };
+    let h = cfg.hinge_margin + energies[target] - energies[j];
+    if h > 0.0 {
+        grad[target] += cfg.hinge_weight;
+        grad[j] -= cfg.hinge_weight;
+        cfg.hinge_weight * h
+    } else {
+        0.0
+    }
 }
 
 /// Whether pixel `(x, y)` is evaluated under `cfg`'s sampling (SPEC.md §13.1a): always for

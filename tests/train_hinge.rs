@@ -4,12 +4,12 @@
 //! against the reference with it on, and bad values refused naming the flag.
 
 use densefeat::geometry::InverseDepthBins;
-use densefeat::train::loss::{pixel_terms, scale_loss, scale_loss_reference, LossConfig, HINGE_RADIUS};
+use densefeat::train::loss::{pixel_terms, scale_loss_reference, LossConfig, HINGE_RADIUS};
 use densefeat::train::trainer::TrainConfig;
 use proptest::prelude::*;
 
 use crate::train_loop::tiny;
-use crate::train_loss::{case, loss_of, rng, Case};
+use crate::train_loss::{case, fast_within_budget, loss_of, rng, Case};
 
 fn cfg12(w: f64, margin: f64) -> LossConfig {
     LossConfig { bins: InverseDepthBins::new(0.0, 2.0, 12).unwrap(), ..LossConfig::default() }
@@ -115,19 +115,7 @@ proptest! {
     fn fast_matches_reference_with_the_ranking_term(seed in 0u64..1000) {
         let mut c = case(seed, 12, 16, 8, 32);
         c.cfg = c.cfg.with_hinge(0.5, 1.0).unwrap();
-        let fr = c.f_ref.mapv(|v| v as f32);
-        let fl = c.f_live.mapv(|v| v as f32);
-        let want = scale_loss_reference(&c.cfg, fr.mapv(f64::from).view(), fl.mapv(f64::from).view(), c.depth.view(), &c.warp).unwrap();
-        let got = scale_loss(&c.cfg, fr.view(), fl.view(), c.depth.view(), &c.warp).unwrap();
-        prop_assert!(want.sums.hinge > 0.0);
-        let (lg, lw) = (got.sums.mean(), want.sums.mean());
-        prop_assert!((lg - lw).abs() <= 1e-5 * lw.abs().max(1.0), "loss {lg} vs {lw}");
-        for (g, w) in [(&got.d_ref, &want.d_ref), (&got.d_live, &want.d_live)] {
-            let scale = w.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            for (a, b) in g.iter().zip(w.iter()) {
-                prop_assert!((f64::from(*a) - b).abs() <= 1e-4 * scale + 1e-12, "{a} vs {b} (max {scale})");
-            }
-        }
+        prop_assert!(fast_within_budget(&c)?.hinge > 0.0);
     }
 }
 

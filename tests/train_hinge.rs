@@ -9,7 +9,7 @@ use densefeat::train::trainer::TrainConfig;
 use proptest::prelude::*;
 
 use crate::train_loop::tiny;
-use crate::train_loss::{case, fast_within_budget, loss_of, rng, Case};
+use crate::train_loss::{case, fast_within_budget, pixel_terms_match_fd, ref_gradient_matches_fd, rng, Case};
 
 fn cfg12(w: f64, margin: f64) -> LossConfig {
     LossConfig { bins: InverseDepthBins::new(0.0, 2.0, 12).unwrap(), ..LossConfig::default() }
@@ -94,20 +94,7 @@ proptest! {
         sorted.sort_by(f64::total_cmp);
         prop_assume!(sorted[1] - sorted[0] > 1e-4 && (cfg.hinge_margin + e[target] - sorted[0]).abs() > 1e-4);
         let rho_star = 0.3 + 0.5 * (r() + 1.0);
-        let mut g = vec![0.0; 12];
-        pixel_terms(&cfg, &e, target, rho_star, &mut g);
-        let total = |e: &[f64]| {
-            let mut s = vec![0.0; 12];
-            let t = pixel_terms(&cfg, e, target, rho_star, &mut s);
-            t.ce + t.rho + t.depth + t.hinge
-        };
-        for l in 0..12 {
-            let (mut a, mut b) = (e.clone(), e.clone());
-            a[l] += 1e-6;
-            b[l] -= 1e-6;
-            let fd = (total(&a) - total(&b)) / 2e-6;
-            prop_assert!((fd - g[l]).abs() < 1e-6 + 1e-5 * fd.abs(), "bin {l}: analytic {}, fd {fd}", g[l]);
-        }
+        pixel_terms_match_fd(&cfg, &e, target, rho_star)?;
     }
 
     /// Fast f32 against the f64 reference with the ranking term on, within §13.3's budgets.
@@ -137,14 +124,5 @@ fn the_reference_loss_with_the_ranking_term_matches_finite_differences() {
         (paper.sums.ce.to_bits(), paper.sums.rho.to_bits())
     );
     assert!(g.sums.mean() > paper.sums.mean());
-    let h = 1e-6;
-    for idx in [(0, 0, 0), (2, 3, 1), (5, 6, 2), (3, 1, 0), (4, 4, 2)] {
-        let (mut plus, mut minus) = (c.f_ref.clone(), c.f_ref.clone());
-        plus[idx] += h;
-        minus[idx] -= h;
-        let fd = (loss_of(&c, &plus, &c.f_live) - loss_of(&c, &minus, &c.f_live)) / (2.0 * h);
-        let an = g.d_ref[idx];
-        let err = (fd - an).abs() / (1e-4 + an.abs().max(fd.abs()));
-        assert!(err < 1e-4, "{idx:?}: analytic {an}, fd {fd}");
-    }
+    ref_gradient_matches_fd(&c, &g.d_ref, &[(0, 0, 0), (2, 3, 1), (5, 6, 2), (3, 1, 0), (4, 4, 2)]);
 }

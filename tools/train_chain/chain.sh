@@ -7,6 +7,10 @@
 #   tools/train_chain/chain.sh save NAME    # copy the run's latest checkpoint, log and curves to
 #                                          # docs/training/chain_NAME/ (then commit that folder)
 #   tools/train_chain/chain.sh status NAME  # last log line and steps done
+#   tools/train_chain/chain.sh finish NAME  # wait for the run to end; save it with its final weights,
+#                                          # run the 101-scene validation of the learned rows and
+#                                          # compare it with the chains named in COMPARE (default
+#                                          # "mf8so"); then commit docs/training/ by hand
 #
 # The configuration of each chain is below; changing it starts a new chain (the checkpoint's
 # fingerprint would no longer match, and `densefeat train --resume` refuses it).
@@ -268,8 +272,29 @@ case "${1:-}" in
     tail -1 "$run/log.csv" 2>/dev/null || echo "no log yet"
     tail -3 "$run/train.out" 2>/dev/null || true
     ;;
+  finish)
+    var="args_${name}[@]"
+    args=("${!var}")
+    steps=""
+    for i in "${!args[@]}"; do [ "${args[$i]}" = "--steps" ] && steps=${args[$((i + 1))]}; done
+    while pgrep -f "$run/densefeat train" > /dev/null; do sleep 60; done
+    last=$(tail -1 "$run/log.csv" | cut -d, -f1)
+    if [ "$last" != "$steps" ]; then
+      echo "chain.sh finish: $run has reached step $last of $steps; start it again first" >&2
+      exit 1
+    fi
+    "$0" save "$name"
+    cp "$run/weights.safetensors" "$kept/"
+    METHODS=learned-wta,learned-tv,learned-normals tools/train_chain/wide_validation.sh "$name" "$kept/weights.safetensors"
+    cp "runs/valwide/$name/all.csv" "docs/training/wide_validation/$name.csv"
+    for other in ${COMPARE:-mf8so}; do
+      echo "== $other -> $name"
+      python3 tools/train_chain/compare_pair.py "docs/training/wide_validation/$other.csv" \
+        "docs/training/wide_validation/$name.csv" --scene s200001 --scene sun3d_studyroom_f0935
+    done
+    ;;
   *)
-    echo "usage: $0 start|save|status NAME" >&2
+    echo "usage: $0 start|save|status|finish NAME" >&2
     exit 2
     ;;
 esac

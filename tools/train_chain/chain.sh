@@ -225,9 +225,10 @@ derive args_mf8soa args_mf8sod
 args_mf8soa+=(--augment-blur 3 --augment-gamma 0.25)
 # mf8sohs: mf8sod with the mapper's rule for partially seen hypotheses (SPEC.md §13.1d) and the
 # ranking term (§13.1e, weight 1, margin 1): on one training room (docs/table1/README.md, "The ranking
-# term on one room") the two together fitted the blank pixels the mapper fails on best of every
-# fine-tune (+0.047 over the paper's loss), while neither alone did and the regularised depth did not
-# move; a long run on the full mix is the test that remains. Not started yet: after mf8soa.
+# term on one room") the two together fitted the room's blank pixels best of every fine-tune (mapper
+# WTA 0.687 against 0.640 with the paper's loss; the rule alone 0.667, the term alone 0.606), while its
+# regularised depth did not move; a long run on the full mix is the test that remains (weak evidence).
+# Not started yet: after mf8soa.
 derive args_mf8sohs args_mf8sod
 args_mf8sohs+=(--multi-cost seen --hinge-weight 1 --hinge-margin 1)
 

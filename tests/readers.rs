@@ -5,6 +5,8 @@
 use crate::common;
 #[path = "readers/record3d.rs"]
 mod record3d;
+#[path = "readers/scannet.rs"]
+mod scannet;
 
 use common::data_dir;
 use densefeat::eval::photometric_warp_check;

@@ -7,12 +7,15 @@
 //! | `transforms.json`                              | [`Format::Nerfstudio`]       |
 //! | `metadata.json` and `rgb/` (or `rgbd/`)        | [`Format::Record3d`]         |
 //! | `images/` and a COLMAP model in `sparse/0`, `sparse` or `.` | [`Format::Colmap`] |
+//! | `color/`, `pose/` and `intrinsic/intrinsic_color.txt` | [`Format::ScanNet`]   |
 //! | `frame-*.color.png`                            | [`Format::SevenScenes`]      |
 //! | `imL.png` + `imR.png`, or `im0.png` + `im1.png` | [`Format::Stereo`]           |
 
 use std::path::Path;
 
-use super::{colmap, dvmvs, nerfstudio, record3d, sevenscenes, stereo, tum, CameraChoice, Format, Sequence};
+use super::{
+    colmap, dvmvs, nerfstudio, record3d, scannet, sevenscenes, stereo, tum, CameraChoice, Format, Sequence,
+};
 use crate::error::{Error, Result};
 
 /// Default largest rgb-depth timestamp difference for TUM association, seconds (TUM's own
@@ -82,6 +85,8 @@ pub fn detect(path: &Path) -> Option<Format> {
         Some(Format::Nerfstudio)
     } else if record3d::looks_like(path) {
         Some(Format::Record3d)
+    } else if scannet::looks_like(path) {
+        Some(Format::ScanNet)
     } else if colmap::find_model(path).is_some() {
         Some(Format::Colmap)
     } else if sevenscenes::looks_like(path) {
@@ -118,6 +123,7 @@ pub fn open_with(path: impl AsRef<Path>, options: &OpenOptions) -> Result<Sequen
         Some(Format::Colmap) => colmap::read(path, options),
         Some(Format::SevenScenes) => sevenscenes::read(path, options),
         Some(Format::Record3d) => record3d::read(path, options),
+        Some(Format::ScanNet) => scannet::read(path, options),
         _ => Err(no_format(path)),
     }?;
     if let Some(s) = options.scale {
@@ -130,7 +136,8 @@ fn no_format(path: &Path) -> Error {
     let mut what = String::from(
         "not a sequence in any known format: looked for rgb.txt or associations.txt (TUM RGB-D / \
          ICL-NUIM), images/ with poses.txt and K.txt (DeepVideoMVS / 7-Scenes), transforms.json \
-         (nerfstudio / instant-ngp), metadata.json with rgb/ (Record3D EXR + JPG export), images/ with cameras + images .bin/.txt in sparse/0, sparse or \
+         (nerfstudio / instant-ngp), metadata.json with rgb/ (Record3D EXR + JPG export), color/ with pose/ and \
+         intrinsic/intrinsic_color.txt (ScanNet SensReader export), images/ with cameras + images .bin/.txt in sparse/0, sparse or \
          the folder (COLMAP), frame-*.color.png (7-Scenes), imL.png + imR.png or im0.png + im1.png, \
          each also as .jpg/.jpeg (rectified stereo pair)",
     );

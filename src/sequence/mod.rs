@@ -35,6 +35,8 @@ pub enum Format {
     /// Record3D's "EXR + JPG" export: `metadata.json`, `rgb/<i>.jpg`, `depth/<i>.exr` (ARKit poses,
     /// OpenGL camera axes, metres).
     Record3d,
+    /// ScanNet's SensReader export: `color/<i>.jpg`, `depth/<i>.png`, `pose/<i>.txt`, `intrinsic/`.
+    ScanNet,
 }
 
 impl std::fmt::Display for Format {
@@ -47,6 +49,7 @@ impl std::fmt::Display for Format {
             Format::Nerfstudio => "nerfstudio / instant-ngp transforms.json",
             Format::SevenScenes => "7-Scenes (native layout)",
             Format::Record3d => "Record3D (EXR + JPG export)",
+            Format::ScanNet => "ScanNet (SensReader export)",
         })
     }
 }
@@ -102,6 +105,21 @@ pub enum DepthSource {
         /// The camera's height.
         height: usize,
     },
+    /// A 16-bit grey PNG from a depth camera that shares the colour camera's centre and axes but
+    /// not its intrinsics (ScanNet): `z = value * metres_per_unit`, 0 = no depth, registered to the
+    /// colour camera by nearest neighbour: colour pixel `(x, y)` reads depth pixel
+    /// `(round(f'x (x - cx) / fx + c'x), round(f'y (y - cy) / fy + c'y))` (primes: the depth
+    /// camera), 0 where that falls outside it (SPEC.md §4a).
+    Png16Reprojected {
+        /// The file.
+        path: PathBuf,
+        /// Metres per stored unit.
+        metres_per_unit: f64,
+        /// The depth camera (its size is the file's).
+        depth_camera: PinholeCamera,
+        /// The colour camera the depth is registered to.
+        colour_camera: PinholeCamera,
+    },
     /// A disparity map, converted with `z = focal_baseline / (d + doffs)` (`focal_baseline = f b`, in metres
     /// times pixels, or in baseline units when uncalibrated).
     Disparity {
@@ -123,6 +141,7 @@ impl DepthSource {
             DepthSource::Png16 { path, .. }
             | DepthSource::Png16Upsampled { path, .. }
             | DepthSource::Exr { path, .. }
+            | DepthSource::Png16Reprojected { path, .. }
             | DepthSource::Disparity { path, .. } => path,
         }
     }
@@ -260,11 +279,16 @@ impl Sequence {
                 if d_is_pfm(path)
                     || matches!(
                         &f.depth,
-                        Some(DepthSource::Png16Upsampled { path: p, .. } | DepthSource::Exr { path: p, .. })
-                            if p == path
+                        Some(
+                            DepthSource::Png16Upsampled { path: p, .. }
+                                | DepthSource::Exr { path: p, .. }
+                                | DepthSource::Png16Reprojected { path: p, .. }
+                        ) if p == path
                     )
                 {
-                    continue; // PFM sizes are checked when loaded; upsampled and EXR depth by its reader
+                    // PFM sizes are checked when loaded; upsampled, reprojected and EXR depth by its
+                    // reader.
+                    continue;
                 }
                 let (w, h) = image::read_dimensions(path)?;
                 if (w, h) != (k.width, k.height) {
@@ -366,6 +390,7 @@ impl Sequence {
                 Some(
                     DepthSource::Png16 { metres_per_unit, .. }
                     | DepthSource::Png16Upsampled { metres_per_unit, .. }
+                    | DepthSource::Png16Reprojected { metres_per_unit, .. }
                     | DepthSource::Exr { metres_per_unit, .. },
                 ) => *metres_per_unit *= scale,
                 Some(DepthSource::Disparity { focal_baseline, .. }) => *focal_baseline *= scale,
@@ -477,6 +502,22 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
                 if *metres_per_unit == 1.0 { d } else { d.mapv(|z| (f64::from(z) * metres_per_unit) as f32) };
             Ok(upsample_nearest(&d, *width, *height))
         }
+        DepthSource::Png16Reprojected { path, metres_per_unit, depth_camera: d, colour_camera: c } => {
+            let z = image::load_depth_png(path, *metres_per_unit, None)?;
+            if z.dim() != (d.height, d.width) {
+                return Err(Error::bad_file(
+                    path,
+                    format!(
+                        "depth image is {}x{}, but its camera is {}x{}",
+                        z.dim().1,
+                        z.dim().0,
+                        d.width,
+                        d.height
+                    ),
+                ));
+            }
+            Ok(reproject_nearest(&z, d, c))
+        }
         DepthSource::Disparity { path, encoding, focal_baseline, doffs } => {
             let d = disparity::load_disparity(path, *encoding)?;
             Ok(d.mapv(|v| {
@@ -489,6 +530,23 @@ pub fn load_depth(src: &DepthSource) -> Result<DepthMap> {
             }))
         }
     }
+}
+
+/// Depth `z` of camera `d` registered to camera `c` of the same centre and axes, by nearest
+/// neighbour: colour pixel `(x, y)` reads `z` at `(round(d.fx (x - c.cx) / c.fx + d.cx),
+/// round(d.fy (y - c.cy) / c.fy + d.cy))` (half away from zero), 0 outside it.
+pub fn reproject_nearest(z: &DepthMap, d: &PinholeCamera, c: &PinholeCamera) -> DepthMap {
+    let (hd, wd) = z.dim();
+    let src = |v: f64, f_d: f64, c_d: f64, f_c: f64, c_c: f64, n: usize| {
+        let s = (f_d * (v - c_c) / f_c + c_d).round();
+        (s >= 0.0 && s <= (n - 1) as f64).then_some(s as usize)
+    };
+    Array2::from_shape_fn((c.height, c.width), |(y, x)| {
+        match (src(x as f64, d.fx, d.cx, c.fx, c.cx, wd), src(y as f64, d.fy, d.cy, c.fy, c.cy, hd)) {
+            (Some(u), Some(v)) => z[[v, u]],
+            _ => 0.0,
+        }
+    })
 }
 
 /// `d` resampled to `width x height` by nearest neighbour with pixel centres aligned: output pixel
@@ -513,6 +571,7 @@ pub mod inspect;
 mod nerfstudio;
 pub mod nerfstudio_write;
 mod record3d;
+mod scannet;
 mod sevenscenes;
 pub mod sevenscenes_write;
 mod stereo;

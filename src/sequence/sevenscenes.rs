@@ -13,9 +13,7 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::Matrix4;
-
-use super::text::{data_lines, list_files_with};
+use super::text::{list_files_with, read_matrix4};
 use super::{Format, FrameInfo, OpenOptions, Sequence, WARNING_NOTE};
 use crate::error::{Error, Result};
 use crate::geometry::{pose_from_matrix, Camera, PinholeCamera, Pose};
@@ -97,26 +95,9 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
     )
 }
 
-/// `frame-XXXXXX.pose.txt`: four lines of four numbers, row-major `T_wc`.
+/// `frame-XXXXXX.pose.txt`: four lines of four numbers, row-major `T_wc`, every entry finite.
 fn read_pose(path: &Path) -> Result<Pose> {
-    let lines = data_lines(path)?;
-    if lines.len() != 4 {
-        return Err(Error::bad_file(
-            path,
-            format!("expected 4 lines of 4 numbers (a 4x4 pose), found {} lines", lines.len()),
-        ));
-    }
-    let mut v = [0.0; 16];
-    for (r, l) in lines.iter().enumerate() {
-        if l.fields.len() != 4 {
-            return Err(Error::parse(
-                path,
-                l.number,
-                format!("expected 4 numbers, found {}", l.fields.len()),
-            ));
-        }
-        let row: [f64; 4] = l.floats(path, 0, "pose matrix entry")?;
-        v[4 * r..4 * r + 4].copy_from_slice(&row);
-    }
-    pose_from_matrix(&Matrix4::from_row_slice(&v)).map_err(|e| Error::parse(path, lines[0].number, e))
+    let m = read_matrix4(path)?
+        .ok_or_else(|| Error::bad_file(path, "the pose matrix has an entry that is not finite"))?;
+    pose_from_matrix(&m).map_err(|e| Error::parse(path, 1, e))
 }

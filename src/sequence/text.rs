@@ -188,3 +188,32 @@ pub(crate) fn check_depth_png16(path: &Path) -> Result<()> {
 pub(crate) fn stem(p: &Path) -> String {
     p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
 }
+
+/// A 4x4 matrix stored as four lines of four numbers (7-Scenes and ScanNet poses, ScanNet's
+/// intrinsics), row-major; `Ok(None)` when some entry is not finite (ScanNet marks lost frames with
+/// `-inf`). Errors name the file and line.
+pub(crate) fn read_matrix4(path: &Path) -> Result<Option<nalgebra::Matrix4<f64>>> {
+    let lines = data_lines(path)?;
+    if lines.len() != 4 {
+        return Err(Error::bad_file(
+            path,
+            format!("expected 4 lines of 4 numbers (a 4x4 matrix), found {} lines", lines.len()),
+        ));
+    }
+    let mut v = [0.0f64; 16];
+    for (r, l) in lines.iter().enumerate() {
+        if l.fields.len() != 4 {
+            return Err(Error::parse(
+                path,
+                l.number,
+                format!("expected 4 numbers, found {}", l.fields.len()),
+            ));
+        }
+        for (c, s) in l.fields.iter().enumerate() {
+            v[4 * r + c] = s.parse().map_err(|_| {
+                Error::parse(path, l.number, format!("matrix entry (field {}) is {s:?}, not a number", c + 1))
+            })?;
+        }
+    }
+    Ok(v.iter().all(|x: &f64| x.is_finite()).then(|| nalgebra::Matrix4::from_row_slice(&v)))
+}

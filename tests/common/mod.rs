@@ -3,6 +3,7 @@
 
 pub mod dtam_cases;
 pub mod record3d;
+pub mod scannet;
 
 use std::path::{Path, PathBuf};
 

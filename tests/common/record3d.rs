@@ -27,13 +27,9 @@ pub struct Record3dFixture {
     pub depth_factor: usize,
 }
 
-/// Render `frames` frames of a classic synthetic room at `width x height`.
-pub fn render(
-    width: usize,
-    height: usize,
-    frames: usize,
-) -> (PinholeCamera, Vec<(RgbImage, DepthMap, Pose)>) {
-    let cfg = SceneConfig {
+/// The fixtures' scene: a classic room of seed 5, one sample per pixel, no photometric changes.
+pub fn scene_config(width: usize, height: usize, frames: usize) -> SceneConfig {
+    SceneConfig {
         seed: 5,
         width,
         height,
@@ -41,8 +37,16 @@ pub fn render(
         samples_per_axis: 1,
         photometric: PhotometricConfig::none(),
         ..SceneConfig::default()
-    };
-    let scene = Scene::generate(&cfg).unwrap();
+    }
+}
+
+/// Render `frames` frames of a classic synthetic room at `width x height`.
+pub fn render(
+    width: usize,
+    height: usize,
+    frames: usize,
+) -> (PinholeCamera, Vec<(RgbImage, DepthMap, Pose)>) {
+    let scene = Scene::generate(&scene_config(width, height, frames)).unwrap();
     let out = (0..frames)
         .map(|i| {
             let pose = scene.pose(i).unwrap();

@@ -320,6 +320,8 @@ fuzz_test!(transforms_json);
 fuzz_test!(sevenscenes_pose);
 fuzz_test!(record3d_metadata);
 fuzz_test!(exr_depth);
+fuzz_test!(scannet_intrinsic);
+fuzz_test!(scannet_pose);
 fuzz_test!(ply_mesh);
 
 /// Every committed input (`tests/fuzz/<target>/*`: at least one per target, rejected mutations and

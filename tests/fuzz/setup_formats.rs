@@ -1,5 +1,6 @@
 //! Seed files of the pose-format targets (issue 34): COLMAP text and binary, `transforms.json`,
-//! native 7-Scenes, Record3D `metadata.json` and its EXR depth, and PLY meshes. Each is a valid file
+//! native 7-Scenes, Record3D `metadata.json` and its EXR depth, ScanNet's intrinsics and poses, and PLY
+//! meshes. Each is a valid file
 //! written by our writers (or by hand, for Record3D) from the same 16x12 synthetic frames.
 
 use std::path::Path;
@@ -64,6 +65,20 @@ pub fn targets(dir: &Path, base: &Path, want: &dyn Fn(&str) -> bool) -> Vec<Targ
         crate::common::record3d::write(&root, 16, 12, 3, 2);
         let s = root.clone();
         out.push(target("record3d_metadata", &root.join("metadata.json"), true, move || open(&s).map(drop)));
+    }
+    for (name, file) in
+        [("scannet_intrinsic", "intrinsic/intrinsic_color.txt"), ("scannet_pose", "pose/1.txt")]
+    {
+        if want(name) {
+            // Through the whole reader and a frame's load (the depth registered with the fuzzed
+            // camera or pose).
+            let root = dir.join(name);
+            crate::common::scannet::write(&root, 16, 12, 3);
+            let s = root.clone();
+            out.push(target(name, &root.join(file), true, move || {
+                open(&s).and_then(|q: Sequence| q.load_frame(0)).map(drop)
+            }));
+        }
     }
     if want("exr_depth") {
         // The EXR through the whole reader: the header checked when the sequence opens, the pixels

@@ -100,7 +100,18 @@ fn record3d_inspect_and_map_make_a_mesh_without_scale() {
         assert!(text.contains(part), "{part:?} missing: {text}");
     }
     assert!(!text.contains("WARNING"), "{text}");
-    let o = d.path().join("map");
+    map_lies_in_front_of_frame_0(&seq, &d.path().join("map"), &fixture.frames[0].2);
+}
+
+/// `densefeat map` (RGB, a small schedule) on `seq` into `o`, then: a mesh of over 100 triangles
+/// whose vertices lie where the rendered surfaces are, 1.7-5.0 m in front of frame 0 (`t_wc0`), from
+/// two keyframes or more. Metric without `--scale`: a wrong scale or axis convention puts the mesh
+/// elsewhere or behind the camera.
+fn map_lies_in_front_of_frame_0(
+    seq: &std::path::Path,
+    o: &std::path::Path,
+    t_wc0: &densefeat::geometry::Pose,
+) {
     let run = densefeat()
         .args(["map", "--features", "rgb", "--bins", "16", "--level", "1", "--window", "3,3"])
         .args([
@@ -114,9 +125,9 @@ fn record3d_inspect_and_map_make_a_mesh_without_scale() {
             "0.1",
         ])
         .arg("--sequence")
-        .arg(&seq)
+        .arg(seq)
         .arg("--out")
-        .arg(&o)
+        .arg(o)
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&run.stdout);
@@ -124,9 +135,7 @@ fn record3d_inspect_and_map_make_a_mesh_without_scale() {
     eprintln!("{stdout}");
     let mesh = densefeat::fusion::ply::read_mesh_ply(&o.join("mesh.ply")).unwrap();
     assert!(mesh.triangles.len() > 100, "{} triangles", mesh.triangles.len());
-    // Metric without --scale: the mesh lies where the rendered surfaces are, 1.7-5.0 m in front of
-    // frame 0 (a wrong scale or axis convention puts it elsewhere or behind the camera).
-    let t_cw = fixture.frames[0].2.inverse();
+    let t_cw = t_wc0.inverse();
     let mut z: Vec<f64> = mesh
         .vertices
         .iter()
@@ -139,6 +148,29 @@ fn record3d_inspect_and_map_make_a_mesh_without_scale() {
     let doc: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(o.join("map.json")).unwrap()).unwrap();
     assert!(doc["keyframes"].as_array().unwrap().len() >= 2, "{doc}");
+}
+
+/// A ScanNet SensReader export (SPEC.md §4a): `inspect` names it, metric, without warnings; `map`
+/// makes a mesh where the rendered surfaces are.
+#[test]
+fn scannet_inspect_and_map_make_a_mesh_without_scale() {
+    let d = tempfile::tempdir().unwrap();
+    let seq = d.path().join("scene0000_00");
+    let fixture = crate::common::scannet::write(&seq, 160, 120, 10);
+    let out = densefeat().arg("inspect").arg(&seq).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    eprintln!("{text}");
+    for part in [
+        "format       ScanNet (SensReader export)",
+        "frames       10 (160x120)",
+        "scale        metric",
+        "registered",
+    ] {
+        assert!(text.contains(part), "{part:?} missing: {text}");
+    }
+    assert!(!text.contains("WARNING"), "{text}");
+    map_lies_in_front_of_frame_0(&seq, &d.path().join("map"), &fixture.frames[0].2);
 }
 
 /// Names in a folder (hidden ones too), sorted.

@@ -86,11 +86,12 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             }
         }
     };
+    // The depth camera when its depth maps register to the colour camera by intrinsics alone.
     let registered = match depth_camera {
-        Some(_) => extrinsics_equal(&calib)?,
-        None => false,
+        Some(d) => extrinsics_equal(&calib)?.then_some(d),
+        None => None,
     };
-    if depth_camera.is_some() && !registered {
+    if depth_camera.is_some() && registered.is_none() {
         notes.push(format!(
             "{WARNING_NOTE}extrinsic_color.txt and extrinsic_depth.txt differ: the depth is not registered to the \
              colour camera by its intrinsics alone; frames carry no ground-truth depth, pass --depth-range"
@@ -111,8 +112,8 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
             lost.push(name);
             continue;
         };
-        let depth = match (depth_camera, registered) {
-            (Some(d), true) => {
+        let depth = match registered {
+            Some(d) => {
                 let path = depth_dir.join(format!("{name}.png"));
                 if !path.is_file() {
                     return Err(Error::bad_sequence(
@@ -131,7 +132,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
                     colour_camera: k,
                 })
             }
-            _ => None,
+            None => None,
         };
         frames.push(FrameInfo {
             name,
@@ -153,7 +154,7 @@ pub(crate) fn read(root: &Path, opt: &OpenOptions) -> Result<Sequence> {
     if frames.is_empty() {
         return Err(Error::bad_sequence(root, "no frame has a finite pose"));
     }
-    if let Some(d) = depth_camera.filter(|_| registered) {
+    if let Some(d) = registered {
         notes.push(format!(
             "depth: {}x{} depth camera (fx {:.2}, fy {:.2}, cx {:.2}, cy {:.2}) registered to the colour camera by its \
              intrinsics (nearest neighbour)",

@@ -193,7 +193,7 @@ fn regression_13_train_bad_crop_names_the_flag_and_writes_nothing() {
 }
 
 #[test]
-fn train_bad_augmentation_or_ranking_term_names_the_flag_and_writes_nothing() {
+fn train_bad_augmentation_ranking_term_or_deep_weight_names_the_flag_and_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     for (flag, value) in [
@@ -202,6 +202,8 @@ fn train_bad_augmentation_or_ranking_term_names_the_flag_and_writes_nothing() {
         ("--augment-gamma", "NaN"),
         ("--hinge-weight", "-1"),
         ("--hinge-margin", "inf"),
+        ("--deep-weight", "0"),
+        ("--deep-weight", "2"),
     ] {
         let bad = format!("{flag}={value}");
         let args = ["train", "--out", s(&out), &bad, "--steps", "1", "--quiet"];

@@ -44,6 +44,7 @@ mod synth;
 mod synth_real;
 mod train_augment;
 mod train_backprop;
+mod train_deep_weight;
 mod train_hinge;
 mod train_loop;
 mod train_loss;

@@ -39,7 +39,7 @@ pub(crate) fn tiny() -> TrainConfig {
     }
 }
 
-fn run(
+pub(crate) fn run(
     cfg: &TrainConfig,
     out: &Path,
     threads: usize,
@@ -50,7 +50,7 @@ fn run(
     pool.install(|| train(cfg, out, resume, stop, &mut densefeat::progress::Silent)).unwrap()
 }
 
-fn bits(w: &NetworkWeights) -> Vec<u32> {
+pub(crate) fn bits(w: &NetworkWeights) -> Vec<u32> {
     w.layers()
         .iter()
         .flat_map(|l| l.weight.iter().chain(l.bias.iter()).map(|v| v.to_bits()).collect::<Vec<_>>())
@@ -471,7 +471,7 @@ fn final_supervision_trains_the_aggregated_features_alone_and_is_its_own_configu
     // log stay empty; the run is deterministic for any thread count; a deep run's checkpoint is
     // refused; bad values are refused naming the flag.
     let fin: Supervision = "final".parse().unwrap();
-    assert_eq!(fin, Supervision { deep: false, aggregated: true });
+    assert_eq!(fin, Supervision::FINAL);
     assert_eq!("deep".parse::<Supervision>().unwrap(), Supervision::default());
     let err = "blocks".parse::<Supervision>().unwrap_err().to_string();
     assert!(err.contains("--supervision") && err.contains("blocks"), "{err}");

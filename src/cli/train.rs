@@ -155,6 +155,11 @@ pub struct TrainArgs {
     /// mapper matches)
     #[arg(long, default_value = "deep")]
     pub supervision: String,
+    /// Weight of each block output's loss (L1..Ln) against the aggregated features' (SPEC.md §13.2),
+    /// in (0, 1]: 1 is the paper's deep supervision (every scale counts alike), smaller values move
+    /// the objective towards `--supervision final`
+    #[arg(long, default_value_t = 1.0)]
+    pub deep_weight: f64,
     /// Weight of the loss's regression term against the paper's (SPEC.md §13.1 step 5):
     /// λ_ρ = 5 W, λ_d = W. 1: the paper's loss; 0: the cross-entropy alone
     #[arg(long, default_value_t = 1.0)]
@@ -226,7 +231,7 @@ impl TrainArgs {
             }
             .with_regression_weight(self.regression_weight)?
             .with_hinge(self.hinge_weight, self.hinge_margin)?,
-            supervision: self.supervision.parse()?,
+            supervision: self.supervision.parse::<Supervision>()?.with_deep_weight(self.deep_weight)?,
             data: DataConfig {
                 crop: validate::size("crop", &self.crop)?,
                 rule: PairRule {

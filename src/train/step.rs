@@ -87,17 +87,59 @@ impl TrainingPair {
 }
 
 /// Which outputs are supervised and how much each scale counts.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, PartialEq)]
 pub struct Supervision {
     /// Supervise every block's output (`L1..Ln`, the paper's deep supervision).
     pub deep: bool,
     /// Supervise the aggregated features (`L`).
     pub aggregated: bool,
+    /// Weight of each block scale's mean in the objective (`--deep-weight`, SPEC.md §13.2); `L`
+    /// keeps weight 1. 1 is the paper's; ignored without `deep`.
+    pub deep_weight: f32,
 }
 
 impl Default for Supervision {
     fn default() -> Self {
-        Supervision { deep: true, aggregated: true }
+        Supervision { deep: true, aggregated: true, deep_weight: 1.0 }
+    }
+}
+
+impl Supervision {
+    /// `L` alone (`--supervision final`).
+    pub const FINAL: Supervision = Supervision { deep: false, aggregated: true, deep_weight: 1.0 };
+
+    /// These scales with the block scales weighted `w` (`--deep-weight W`, SPEC.md §13.2): finite and
+    /// in (0, 1], and only with deep supervision unless it is 1.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `--deep-weight` for a bad value or a weight without block scales.
+    pub fn with_deep_weight(self, w: f64) -> Result<Self> {
+        if !(w > 0.0 && w <= 1.0) {
+            return Err(Error::invalid_argument(
+                "--deep-weight",
+                format!("{w}: expected a number in (0, 1]"),
+            ));
+        }
+        if w != 1.0 && !self.deep {
+            return Err(Error::invalid_argument(
+                "--deep-weight",
+                format!("{w} weighs the block scales, which --supervision final does not supervise"),
+            ));
+        }
+        Ok(Supervision { deep_weight: w as f32, ..self })
+    }
+}
+
+/// The derived form, with `deep_weight` only when it is not 1 (so the paper's configuration keeps
+/// the checkpoint fingerprint it had before the field existed, SPEC.md §13.6).
+impl std::fmt::Debug for Supervision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("Supervision");
+        d.field("deep", &self.deep).field("aggregated", &self.aggregated);
+        if self.deep_weight != 1.0 {
+            d.field("deep_weight", &self.deep_weight);
+        }
+        d.finish()
     }
 }
 
@@ -107,7 +149,7 @@ impl std::str::FromStr for Supervision {
     fn from_str(s: &str) -> Result<Self> {
         match s {
             "deep" => Ok(Supervision::default()),
-            "final" => Ok(Supervision { deep: false, aggregated: true }),
+            "final" => Ok(Supervision::FINAL),
             _ => Err(Error::invalid_argument("--supervision", format!("{s:?}: expected deep or final"))),
         }
     }
@@ -123,9 +165,11 @@ pub struct PairLoss {
 }
 
 impl PairLoss {
-    /// The pair's objective: the sum over supervised scales of each scale's mean.
+    /// The pair's objective: the sum over supervised scales of each scale's mean, each block
+    /// scale's weighted by `sup.deep_weight` (1: the paper's plain sum, the same bits).
     pub fn total(&self, sup: &Supervision) -> f64 {
-        let deep: f64 = if sup.deep { self.blocks.iter().map(LossSums::mean).sum() } else { 0.0 };
+        let w = f64::from(sup.deep_weight);
+        let deep: f64 = if sup.deep { self.blocks.iter().map(|s| s.mean() * w).sum() } else { 0.0 };
         deep + if sup.aggregated { self.aggregated.mean() } else { 0.0 }
     }
 }
@@ -278,7 +322,10 @@ fn pair_step_prepared(
     }
     let t = Instant::now();
     if let Some((g, scale)) = grads {
+        // Block scales carry the deep weight (`scale * 1.0` is `scale`: the paper's bits).
+        let block_scale = scale * sup.deep_weight;
         let scaled = |d: &Option<Array3<f32>>| d.as_ref().map(|a| a * scale);
+        let scaled_block = |d: &Option<Array3<f32>>| d.as_ref().map(|a| a * block_scale);
         let tapes: Vec<&Tape> =
             std::iter::once(&tape_r).chain(live_out.iter().map(|(_, tape)| tape)).collect();
         // Every image's backward at once, each into its own zeroed gradients, then added to `g`
@@ -289,7 +336,7 @@ fn pair_step_prepared(
             .zip(&d_blocks)
             .zip(&d_feat)
             .map(|((tape, db), df)| {
-                let dr: Vec<Option<Array3<f32>>> = db.iter().map(scaled).collect();
+                let dr: Vec<Option<Array3<f32>>> = db.iter().map(scaled_block).collect();
                 let dfr = scaled(df);
                 let mut gi = weights.zeros_like();
                 backward_prepared(net, weights, tape, &views(&dr), dfr.as_ref().map(|a| a.view()), &mut gi)?;

@@ -232,6 +232,14 @@ args_mf8soa+=(--augment-blur 3 --augment-gamma 0.25)
 derive args_mf8sohs args_mf8sod
 args_mf8sohs+=(--multi-cost seen --hinge-weight 1 --hinge-margin 1)
 
+# mf8sow: mf8sod with the block scales weighted 0.2 against L (--deep-weight 0.2, SPEC.md §13.2): the
+# same start, schedule, pairs and crops, so it sits between mf8sod (weight 1, the paper's) and mf8sof
+# (weight 0, L alone). Those two trade the renders' regularised rows (deep) against the data term and
+# the real room (final); 0.2 = 1/5 gives the five block scales together the weight of L (set a priori,
+# not chosen on any scene). Does one objective keep both?
+derive args_mf8sow args_mf8sod
+args_mf8sow+=(--deep-weight 0.2)
+
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were
 # about 2 px off, docs/training/README.md): does cleaner real supervision help the real room, where

@@ -9,7 +9,7 @@ use densefeat::train::data::DataSet;
 use densefeat::train::step::{batch_step, Supervision};
 use densefeat::train::trainer::{training_init, TrainConfig};
 
-use crate::train_loop::{bits, run, tiny};
+use crate::train_loop::{same_bits_and_not_the_papers, tiny};
 
 #[test]
 fn bad_deep_weights_name_the_flag_and_one_is_the_paper() {
@@ -70,15 +70,7 @@ fn the_deep_weight_scales_the_block_scales_share_of_objective_and_gradient() {
 #[test]
 fn a_deep_weight_run_is_the_same_bits_for_any_thread_count_and_its_own_configuration() {
     let cfg = TrainConfig { supervision: Supervision::default().with_deep_weight(0.2).unwrap(), ..tiny() };
-    let a = tempfile::tempdir().unwrap();
-    let w1 = run(&cfg, a.path(), 1, None, None);
-    for threads in [2, 3, 8] {
-        let b = tempfile::tempdir().unwrap();
-        assert_eq!(bits(&w1), bits(&run(&cfg, b.path(), threads, None, None)), "{threads} threads");
-    }
-    let deep_dir = tempfile::tempdir().unwrap();
-    let deep = run(&tiny(), deep_dir.path(), 2, None, None);
-    assert_ne!(bits(&w1), bits(&deep), "the objective differs, so do the weights");
+    let (a, deep_dir) = same_bits_and_not_the_papers(&cfg);
     // The log's objective is L plus 0.2 times the block scales' columns.
     let csv = std::fs::read_to_string(a.path().join("log.csv")).unwrap();
     for row in csv.lines().skip(1) {

@@ -39,7 +39,7 @@ pub(crate) fn tiny() -> TrainConfig {
     }
 }
 
-pub(crate) fn run(
+fn run(
     cfg: &TrainConfig,
     out: &Path,
     threads: usize,
@@ -50,7 +50,7 @@ pub(crate) fn run(
     pool.install(|| train(cfg, out, resume, stop, &mut densefeat::progress::Silent)).unwrap()
 }
 
-pub(crate) fn bits(w: &NetworkWeights) -> Vec<u32> {
+fn bits(w: &NetworkWeights) -> Vec<u32> {
     w.layers()
         .iter()
         .flat_map(|l| l.weight.iter().chain(l.bias.iter()).map(|v| v.to_bits()).collect::<Vec<_>>())
@@ -465,6 +465,21 @@ fn live_crops_cut_at_the_reference_window_keep_its_coordinates() {
     assert!(inside * 2 > valid, "{inside} of {valid} matches inside the live crop");
 }
 
+/// Runs `cfg` on 1, 2, 3 and 8 threads (the same bits) and the paper's configuration (`tiny()`,
+/// other weights); returns the output folders of the 1-thread run and of the paper's.
+pub(crate) fn same_bits_and_not_the_papers(cfg: &TrainConfig) -> (tempfile::TempDir, tempfile::TempDir) {
+    let a = tempfile::tempdir().unwrap();
+    let w1 = run(cfg, a.path(), 1, None, None);
+    for threads in [2, 3, 8] {
+        let b = tempfile::tempdir().unwrap();
+        assert_eq!(bits(&w1), bits(&run(cfg, b.path(), threads, None, None)), "{threads} threads");
+    }
+    let deep_dir = tempfile::tempdir().unwrap();
+    let deep = run(&tiny(), deep_dir.path(), 2, None, None);
+    assert_ne!(bits(&w1), bits(&deep), "the objective differs, so do the weights");
+    (a, deep_dir)
+}
+
 #[test]
 fn final_supervision_trains_the_aggregated_features_alone_and_is_its_own_configuration() {
     // `--supervision final` (SPEC.md §13.2): the objective is L alone; the block columns of the
@@ -477,15 +492,7 @@ fn final_supervision_trains_the_aggregated_features_alone_and_is_its_own_configu
     assert!(err.contains("--supervision") && err.contains("blocks"), "{err}");
 
     let cfg = TrainConfig { supervision: fin, ..tiny() };
-    let a = tempfile::tempdir().unwrap();
-    let w1 = run(&cfg, a.path(), 1, None, None);
-    for threads in [2, 3, 8] {
-        let b = tempfile::tempdir().unwrap();
-        assert_eq!(bits(&w1), bits(&run(&cfg, b.path(), threads, None, None)), "{threads} threads");
-    }
-    let deep_dir = tempfile::tempdir().unwrap();
-    let deep = run(&tiny(), deep_dir.path(), 2, None, None);
-    assert_ne!(bits(&w1), bits(&deep), "the objective differs, so do the weights");
+    let (a, deep_dir) = same_bits_and_not_the_papers(&cfg);
     let csv = std::fs::read_to_string(a.path().join("log.csv")).unwrap();
     for row in csv.lines().skip(1) {
         let cols: Vec<&str> = row.split(',').collect();

@@ -223,6 +223,8 @@ derive args_mf8sod args_mf8so --init-weights docs/training/chain_mf8so/weights.s
 # trained on sharp renders gained on them and not on the real room; real cameras blur and bend tones.
 derive args_mf8soa args_mf8sod
 args_mf8soa+=(--augment-blur 3 --augment-gamma 0.25)
+# mf8soa on validation (2026-12-07): flat against mf8sod (learned-normals -0.0005, learned-TV -0.0012
+# on the 101 scenes; the real room +0.005 / +0.002, inside one chain's spread there): not adopted.
 # mf8sohs: mf8sod with the mapper's rule for partially seen hypotheses (SPEC.md §13.1d) and the
 # ranking term (§13.1e, weight 1, margin 1): on one training room (docs/table1/README.md, "The ranking
 # term on one room") the two together fitted the room's blank pixels best of every fine-tune (mapper

@@ -466,7 +466,8 @@ fn live_crops_cut_at_the_reference_window_keep_its_coordinates() {
 }
 
 /// Runs `cfg` on 1, 2, 3 and 8 threads (the same bits) and the paper's configuration (`tiny()`,
-/// other weights); returns the output folders of the 1-thread run and of the paper's.
+/// other weights), and checks that `cfg` refuses the paper's checkpoint; returns the output folders
+/// of the 1-thread run and of the paper's.
 pub(crate) fn same_bits_and_not_the_papers(cfg: &TrainConfig) -> (tempfile::TempDir, tempfile::TempDir) {
     let a = tempfile::tempdir().unwrap();
     let w1 = run(cfg, a.path(), 1, None, None);
@@ -477,6 +478,12 @@ pub(crate) fn same_bits_and_not_the_papers(cfg: &TrainConfig) -> (tempfile::Temp
     let deep_dir = tempfile::tempdir().unwrap();
     let deep = run(&tiny(), deep_dir.path(), 2, None, None);
     assert_ne!(bits(&w1), bits(&deep), "the objective differs, so do the weights");
+    // Each is its own configuration: the paper's checkpoint is refused.
+    let ck = deep_dir.path().join("checkpoint.safetensors");
+    let err = train(cfg, deep_dir.path(), Some(&ck), None, &mut densefeat::progress::Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("different configuration"), "{err}");
     (a, deep_dir)
 }
 
@@ -508,10 +515,4 @@ fn final_supervision_trains_the_aggregated_features_alone_and_is_its_own_configu
     let fin_first = csv.lines().nth(1).unwrap().split(',').collect::<Vec<_>>();
     assert_eq!(fin_first[3], first[3], "L at step 1 is the same scale on the same pairs");
     assert!(first[2].parse::<f64>().unwrap() > fin_first[2].parse::<f64>().unwrap());
-
-    let ck = deep_dir.path().join("checkpoint.safetensors");
-    let err = train(&cfg, deep_dir.path(), Some(&ck), None, &mut densefeat::progress::Silent)
-        .unwrap_err()
-        .to_string();
-    assert!(err.contains("different configuration"), "{err}");
 }

@@ -1,0 +1,76 @@
+#!/usr/bin/env python3
+"""The bound's own λ on the 101 validation scenes (issue 32 item 4, SPEC.md §10.1a).
+
+Collects a `wide_validation.sh` run of learned-normals with `--normals gt --lambda-sweep L1,L2,...`
+(each scene's table.csv holds the default λ's row, its lambda_sweep.csv the others) and compares
+every λ with the learned-TV rows of a reference csv (wide_validation's all.csv format, the same
+weights): mean δ<1.25 and rms over the scenes, per group, and the scenes the bound wins against
+learned-TV.
+
+    python3 tools/paper/gt_bound_lambda.py RUN_DIR DEFAULT_LAMBDA REFERENCE_CSV OUT_CSV
+"""
+import csv
+import os
+import sys
+from collections import defaultdict
+
+
+def group(scene):
+    if scene.startswith("s2"):
+        return "classic"
+    if scene.startswith("r2"):
+        return "realistic"
+    return "real"
+
+
+def main():
+    run, default_lambda, ref_csv, out_csv = sys.argv[1], float(sys.argv[2]), sys.argv[3], sys.argv[4]
+    tv = {}
+    for r in csv.DictReader(open(ref_csv)):
+        if r["method"] == "learned-tv":
+            tv[r["scene"]] = float(r["delta_1.25"])
+    rows = defaultdict(dict)  # lambda -> scene -> (delta, rms)
+    for scene in sorted(os.listdir(run)):
+        d = os.path.join(run, scene)
+        if not os.path.isdir(d):
+            continue
+        table = os.path.join(d, "table.csv")
+        sweep = os.path.join(d, "lambda_sweep.csv")
+        if not (os.path.exists(table) and os.path.exists(sweep)):
+            sys.exit(f"gt_bound_lambda.py: {d}: table.csv or lambda_sweep.csv missing (run unfinished?)")
+        for r in csv.DictReader(open(table)):
+            if r["method"] == "learned-normals":
+                rows[default_lambda][scene] = (float(r["delta_1.25"]), float(r["rms"]))
+        for r in csv.DictReader(open(sweep)):
+            if r["method"] == "learned-normals":
+                rows[float(r["lambda"])][scene] = (float(r["delta_1.25"]), float(r["rms"]))
+    with open(out_csv, "w") as f:
+        f.write("lambda,scenes,mean_delta_1.25,mean_rms,classic,realistic,real,won,lost_over_0.02,worst_scene,worst_margin\n")
+        for lam in sorted(rows):
+            per = rows[lam]
+            missing = sorted(set(tv) - set(per))
+            if missing:
+                sys.exit(f"gt_bound_lambda.py: λ {lam:g}: no row for {', '.join(missing)}")
+            n = len(per)
+            mean_d = sum(v[0] for v in per.values()) / n
+            mean_r = sum(v[1] for v in per.values()) / n
+            groups = defaultdict(list)
+            for s, v in per.items():
+                groups[group(s)].append(v[0])
+            gm = {g: sum(v) / len(v) for g, v in groups.items()}
+            margins = {s: per[s][0] - tv[s] for s in per}
+            won = sum(1 for m in margins.values() if m > 0)
+            lost = sum(1 for m in margins.values() if m < -0.02)
+            worst = min(margins, key=margins.get)
+            f.write(f"{lam:g},{n},{mean_d:.4f},{mean_r:.4f},{gm.get('classic', float('nan')):.4f},"
+                    f"{gm.get('realistic', float('nan')):.4f},{gm.get('real', float('nan')):.4f},"
+                    f"{won},{lost},{worst},{margins[worst]:+.4f}\n")
+            print(f"λ {lam:<5g} scenes {n}  mean δ<1.25 {mean_d:.4f}  rms {mean_r:.3f}  "
+                  f"classic {gm.get('classic', 0):.4f} realistic {gm.get('realistic', 0):.4f} real {gm.get('real', 0):.4f}  "
+                  f"won {won}/{n}, lost > 0.02 {lost}, worst {worst} {margins[worst]:+.4f}")
+        tv_mean = sum(tv.values()) / len(tv)
+        print(f"learned-TV (reference): mean δ<1.25 {tv_mean:.4f} over {len(tv)} scenes")
+
+
+if __name__ == "__main__":
+    main()

@@ -3,11 +3,14 @@
 
 Collects a `wide_validation.sh` run of learned-normals with `--normals gt --lambda-sweep L1,L2,...`
 (each scene's table.csv holds the default λ's row, its lambda_sweep.csv the others) and compares
-every λ with the learned-TV rows of a reference csv (wide_validation's all.csv format, the same
+every λ with the smoothness rows (learned-TV by default) of a reference csv (wide_validation's all.csv format, the same
 weights): mean δ<1.25 and rms over the scenes, per group, and the scenes the bound wins against
 learned-TV.
 
-    python3 tools/paper/gt_bound_lambda.py RUN_DIR DEFAULT_LAMBDA REFERENCE_CSV OUT_CSV
+    python3 tools/paper/gt_bound_lambda.py RUN_DIR DEFAULT_LAMBDA REFERENCE_CSV OUT_CSV [METHOD REF_METHOD]
+
+METHOD (default learned-normals) is the swept row, REF_METHOD (default learned-tv) the reference's;
+for RGB's bound: rgb-normals rgb-tv.
 """
 import csv
 import os
@@ -25,9 +28,11 @@ def group(scene):
 
 def main():
     run, default_lambda, ref_csv, out_csv = sys.argv[1], float(sys.argv[2]), sys.argv[3], sys.argv[4]
+    method = sys.argv[5] if len(sys.argv) > 5 else "learned-normals"
+    ref_method = sys.argv[6] if len(sys.argv) > 6 else "learned-tv"
     tv = {}
     for r in csv.DictReader(open(ref_csv)):
-        if r["method"] == "learned-tv":
+        if r["method"] == ref_method:
             tv[r["scene"]] = float(r["delta_1.25"])
     rows = defaultdict(dict)  # lambda -> scene -> (delta, rms)
     for scene in sorted(os.listdir(run)):
@@ -39,10 +44,10 @@ def main():
         if not (os.path.exists(table) and os.path.exists(sweep)):
             sys.exit(f"gt_bound_lambda.py: {d}: table.csv or lambda_sweep.csv missing (run unfinished?)")
         for r in csv.DictReader(open(table)):
-            if r["method"] == "learned-normals":
+            if r["method"] == method:
                 rows[default_lambda][scene] = (float(r["delta_1.25"]), float(r["rms"]))
         for r in csv.DictReader(open(sweep)):
-            if r["method"] == "learned-normals":
+            if r["method"] == method:
                 rows[float(r["lambda"])][scene] = (float(r["delta_1.25"]), float(r["rms"]))
     with open(out_csv, "w") as f:
         f.write("lambda,scenes,mean_delta_1.25,mean_rms,classic,realistic,real,won,lost_over_0.02,worst_scene,worst_margin\n")
@@ -69,7 +74,7 @@ def main():
                   f"classic {gm.get('classic', 0):.4f} realistic {gm.get('realistic', 0):.4f} real {gm.get('real', 0):.4f}  "
                   f"won {won}/{n}, lost > 0.02 {lost}, worst {worst} {margins[worst]:+.4f}")
         tv_mean = sum(tv.values()) / len(tv)
-        print(f"learned-TV (reference): mean δ<1.25 {tv_mean:.4f} over {len(tv)} scenes")
+        print(f"{ref_method} (reference): mean δ<1.25 {tv_mean:.4f} over {len(tv)} scenes")
 
 
 if __name__ == "__main__":

@@ -17,13 +17,8 @@ import os
 import sys
 from collections import defaultdict
 
-
-def group(scene):
-    if scene.startswith("s2"):
-        return "classic"
-    if scene.startswith("r2"):
-        return "realistic"
-    return "real"
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "train_chain"))
+from compare_pair import group  # noqa: E402  (classic / realistic / real, as every chain comparison)
 
 
 def main():

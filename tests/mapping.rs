@@ -706,3 +706,25 @@ fn prior_confidence_weights_only_the_normal_prior() {
         assert_eq!(name, "prior-confidence", "{what}");
     }
 }
+
+#[test]
+fn prior_edges_change_only_the_normal_prior() {
+    use densefeat::mapping::normals::NormalsSource;
+    let seq = fixture();
+    let mut cfg = eval_config();
+    cfg.regularizer = Regularizer::TvAndNormals;
+    cfg.normals = Some(NormalsSource::GroundTruth);
+    assert_eq!(cfg.prior_edges_deg(), cfg.features.default_prior_edges());
+    cfg.prior_edges = Some(0.0);
+    let off = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    cfg.prior_edges = Some(20.0);
+    let on = reconstruct(&seq, &cfg, |_, _, _| {}).unwrap();
+    assert_eq!(off.wta.inverse_depth, on.wta.inverse_depth);
+    assert_eq!(off.tv.as_ref().unwrap().inverse_depth, on.tv.as_ref().unwrap().inverse_depth);
+    assert_ne!(off.normals.as_ref().unwrap().inverse_depth, on.normals.as_ref().unwrap().inverse_depth);
+    for bad in [-1.0, f64::NAN] {
+        cfg.prior_edges = Some(bad);
+        let (name, what) = invalid_argument(reconstruct(&seq, &cfg, |_, _, _| {}).unwrap_err());
+        assert_eq!(name, "prior-edges", "{what}");
+    }
+}

@@ -74,6 +74,13 @@ pub struct MappingArgs {
     /// per feature type, chosen on validation (RGB 1.2, the others 0).
     #[arg(long)]
     pub prior_confidence: Option<f64>,
+    /// The normal prior's normal edges (`--regularizer normals`, SPEC.md §10.2), a scale in
+    /// degrees: where a pixel's normal turns from its neighbours' by an angle a (a crease, or one
+    /// surface in front of another), the prior's coupling there is weighted by exp(-(a/SIGMA)^2), as
+    /// DTAM's edge weight does at an image edge. 0: off (the paper's form); default: per feature
+    /// type, chosen on validation (0 for every type).
+    #[arg(long, value_name = "SIGMA")]
+    pub prior_edges: Option<f64>,
     /// Photometric sub-bin refinement of the regularised depth (SPEC.md §10.3): `on` or `off`
     /// [default: off; `map`: on, chosen on validation meshes, §16.9]
     #[arg(long, value_parser = parse_on_off)]
@@ -325,6 +332,7 @@ impl MappingArgs {
             lambda_sweep: Vec::new(),
             border_taper: self.border_taper,
             prior_confidence: self.prior_confidence,
+            prior_edges: self.prior_edges,
             refine: self.refine_params()?,
             backend: self.backend.resolve()?,
             photometric: self.photometric,

@@ -173,13 +173,14 @@ impl HuberTv {
     }
 
     /// [`HuberTv::new`] with the normal prior (SPEC.md §10.2): the regulariser becomes
-    /// `Σ ‖g (∇d − d q)‖_ε` for the slope field `q`, stepped with `σ = τ = 1/(√8 + Q)`.
+    /// `Σ ‖g (∇d − d q)‖_ε` for the slope field `q`, stepped with `σ = τ = 1/(√8 + Q)`; `g` is
+    /// multiplied by the field's normal edge weights if it has them ([`SlopeField::solver_weights`]).
     ///
     /// # Panics
     /// If `g` or the field differ in shape from `d0` (callers validate shapes).
     pub fn with_slope(d0: Array2<f32>, g: Array2<f32>, eps: f64, q: &SlopeField) -> Self {
         assert_eq!(q.dim(), d0.dim(), "the slope field must match the depth map");
-        let mut tv = Self::new(d0, g, eps);
+        let mut tv = Self::new(d0, q.solver_weights(g), eps);
         tv.slope = Some(Slope { sx: q.qx.clone(), sy: q.qy.clone(), step: step_size(q.max_norm) });
         tv
     }

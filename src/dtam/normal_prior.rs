@@ -43,6 +43,9 @@ pub struct SlopeField {
     pub max_norm: f64,
     /// Pixels that fell back to `q = 0` (no normal, or grazing), last row/column excluded.
     pub fallback: usize,
+    /// The normals' edge weights `w(u)` (SPEC.md §10.2, "Normal edges"), which multiply DTAM's `g` in
+    /// the prior's solve; `None`: off (`g` alone, the paper's form).
+    pub edges: Option<Array2<f32>>,
 }
 
 impl SlopeField {
@@ -82,12 +85,48 @@ impl SlopeField {
             }
         }
         let max_norm = largest_norm(&qx, &qy);
-        Ok(Self { qx, qy, max_norm, fallback })
+        Ok(Self { qx, qy, max_norm, fallback, edges: None })
+    }
+
+    /// The field with the normals' edge weights of `normals` (the grid [`SlopeField::new`] took) at
+    /// scale `σ` degrees (SPEC.md §10.2, "Normal edges"): `w(u) = exp(−(a(u)/σ)²)`, `a(u)` the larger
+    /// angle between `u`'s normal and its right and lower neighbours' ([`normal_edge_weights`]).
+    /// `σ = 0` turns them off (the field's bits unchanged).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (`prior-edges`) if `σ` is negative or not finite, or the normals
+    /// are not on the field's grid.
+    pub fn with_normal_edges(self, normals: ArrayView3<f32>, sigma_deg: f64) -> Result<Self> {
+        check_prior_edges(sigma_deg)?;
+        let (h, w) = self.dim();
+        if normals.dim() != (h, w, 3) {
+            return Err(Error::invalid_argument(
+                "prior-edges",
+                format!("{:?} normals for a {:?} slope field", normals.dim(), (h, w)),
+            ));
+        }
+        let edges = (sigma_deg > 0.0).then(|| normal_edge_weights(normals, sigma_deg));
+        Ok(Self { edges, ..self })
+    }
+
+    /// DTAM's edge weights `g` times the normals' edge weights, if on (f32 products; `g` itself
+    /// otherwise): the weights of the prior's solve.
+    ///
+    /// # Panics
+    /// If `g` differs in shape from the field (callers validate shapes).
+    pub fn solver_weights(&self, g: Array2<f32>) -> Array2<f32> {
+        match &self.edges {
+            Some(e) => {
+                assert_eq!(e.dim(), g.dim(), "edge weights must match the image");
+                g * e
+            }
+            None => g,
+        }
     }
 
     /// An all-zero field (plain TV through the normal-prior solver).
     pub fn zeros(h: usize, w: usize) -> Self {
-        Self { qx: Array2::zeros((h, w)), qy: Array2::zeros((h, w)), max_norm: 0.0, fallback: 0 }
+        Self { qx: Array2::zeros((h, w)), qy: Array2::zeros((h, w)), max_norm: 0.0, fallback: 0, edges: None }
     }
 
     /// `[H, W]`.
@@ -122,7 +161,7 @@ impl SlopeField {
         };
         let (qx, qy) = (scale(&self.qx), scale(&self.qy));
         let max_norm = largest_norm(&qx, &qy);
-        Ok(Self { qx, qy, max_norm, fallback: self.fallback })
+        Ok(Self { qx, qy, max_norm, fallback: self.fallback, edges: self.edges.clone() })
     }
 }
 
@@ -144,6 +183,46 @@ pub fn check_prior_confidence(c0: f64) -> Result<()> {
             format!("{c0}: must be a finite number >= 0 (0: off)"),
         ))
     }
+}
+
+/// Checks `--prior-edges`'s `σ` (SPEC.md §10.2): finite and `>= 0` degrees (0: off).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] (`prior-edges`) otherwise.
+pub fn check_prior_edges(sigma_deg: f64) -> Result<()> {
+    if sigma_deg >= 0.0 && sigma_deg.is_finite() {
+        Ok(())
+    } else {
+        Err(Error::invalid_argument(
+            "prior-edges",
+            format!("{sigma_deg}: must be a finite angle in degrees >= 0 (0: off)"),
+        ))
+    }
+}
+
+/// The normals' edge weights `[H, W]` at scale `σ > 0` degrees (SPEC.md §10.2, "Normal edges"), in
+/// f64 rounded to f32 once: `w(u) = exp(−(a(u)/σ)²)` with `a(u) = max(∠(n(u), n(u + x̂)),
+/// ∠(n(u), n(u + ŷ)))`, the angle `acos(clamp(n̂·n̂', −1, 1))` in degrees between unit normals; a
+/// neighbour outside the grid, or a pixel or neighbour without a normal (non-finite or zero), adds
+/// angle 0. Where the normal turns (a crease, or one surface in front of another) the prior's
+/// coupling across that pixel's forward differences falls, as DTAM's `g` does at an image edge.
+pub fn normal_edge_weights(normals: ArrayView3<f32>, sigma_deg: f64) -> Array2<f32> {
+    let (h, w, _) = normals.dim();
+    let unit = |y: usize, x: usize| {
+        let n = [normals[[y, x, 0]] as f64, normals[[y, x, 1]] as f64, normals[[y, x, 2]] as f64];
+        let m = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        (m.is_finite() && m > 0.0).then(|| [n[0] / m, n[1] / m, n[2] / m])
+    };
+    let angle = |a: Option<[f64; 3]>, b: Option<[f64; 3]>| match (a, b) {
+        (Some(a), Some(b)) => (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]).clamp(-1.0, 1.0).acos().to_degrees(),
+        _ => 0.0,
+    };
+    Array2::from_shape_fn((h, w), |(y, x)| {
+        let n = unit(y, x);
+        let ax = if x + 1 < w { angle(n, unit(y, x + 1)) } else { 0.0 };
+        let ay = if y + 1 < h { angle(n, unit(y + 1, x)) } else { 0.0 };
+        (-(ax.max(ay) / sigma_deg).powi(2)).exp() as f32
+    })
 }
 
 /// `q(u)` for the normal `n` at pixel `(u, v)`, `None` where the prior falls back (module docs).
@@ -213,7 +292,8 @@ impl Reference {
         let d = d0.mapv(f64::from);
         let zeros = Array2::zeros(d.dim());
         let step = step_size(q.max_norm);
-        Self { d_bar: d.clone(), d, px: zeros.clone(), py: zeros, g: g.mapv(f64::from), q, eps, step }
+        let g = q.solver_weights(g.to_owned()).mapv(f64::from);
+        Self { d_bar: d.clone(), d, px: zeros.clone(), py: zeros, g, q, eps, step }
     }
 
     /// One step: `p ← Π((p + σ g K_n d̄)/(1 + σε))`, `d' ← (d − τ K_nᵀ(g p) + τ a/θ)/(1 + τ/θ)`,

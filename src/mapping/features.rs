@@ -170,6 +170,18 @@ impl FeatureKind {
         }
     }
 
+    /// The default `σ` (degrees) of the normal prior's normal edges for this kind (SPEC.md §10.2,
+    /// "Normal edges"): 0 (off) for every kind.
+    pub fn default_prior_edges(&self) -> f64 {
+        match self {
+            FeatureKind::Learned(_)
+            | FeatureKind::Rgb
+            | FeatureKind::B1(_)
+            | FeatureKind::Dsift
+            | FeatureKind::Patch7 => 0.0,
+        }
+    }
+
     /// The weights file of a network kind (`None`: the shipped weights, or not a network kind).
     pub fn weights(&self) -> Option<&Path> {
         match self {

@@ -205,6 +205,10 @@ pub struct KeyframeConfig {
     /// scaled by `clamp(conf / c₀, 0, 1)`. 0: off; `None` (the default): the feature kind's
     /// [`FeatureKind::default_prior_confidence`].
     pub prior_confidence: Option<f64>,
+    /// `σ` (degrees) of the normal prior's normal edges (SPEC.md §10.2): DTAM's `g` is multiplied by
+    /// `exp(−(a/σ)²)`, `a` the angle between a pixel's normal and its forward neighbours'. 0: off;
+    /// `None` (the default): the feature kind's [`FeatureKind::default_prior_edges`].
+    pub prior_edges: Option<f64>,
     /// Photometric sub-bin refinement of the regularised estimates (SPEC.md §10.3); `None`: off
     /// (the default; `map` turns it on, §16.9).
     pub refine: Option<RefineParams>,
@@ -245,6 +249,7 @@ impl KeyframeConfig {
             truncation: Truncation::DEFAULT,
             border_taper: None,
             prior_confidence: None,
+            prior_edges: None,
             refine: None,
         }
     }
@@ -288,6 +293,12 @@ impl KeyframeConfig {
         self.prior_confidence.unwrap_or_else(|| self.features.default_prior_confidence())
     }
 
+    /// The normal prior's normal-edge scale `σ` in effect (SPEC.md §10.2), in degrees:
+    /// [`KeyframeConfig::prior_edges`], else the feature kind's default.
+    pub fn prior_edges_deg(&self) -> f64 {
+        self.prior_edges.unwrap_or_else(|| self.features.default_prior_edges())
+    }
+
     fn validate(&self) -> Result<InverseDepthBins> {
         if self.bins < 2 {
             return Err(Error::invalid_argument("bins", format!("{}: need at least 2", self.bins)));
@@ -323,6 +334,9 @@ impl KeyframeConfig {
         }
         if let Some(c0) = self.prior_confidence {
             crate::dtam::normal_prior::check_prior_confidence(c0)?;
+        }
+        if let Some(sigma) = self.prior_edges {
+            crate::dtam::normal_prior::check_prior_edges(sigma)?;
         }
         check_truncation("truncate-rgb", self.truncation.rgb)?;
         check_truncation("truncate-learned", self.truncation.learned)?;
@@ -620,7 +634,10 @@ pub fn reconstruct_cached(
                 _ => None,
             };
             let n = normals::normals_at_level(n0.view(), level);
-            (Some(SlopeField::new(n.view(), &camera)?), error)
+            (
+                Some(SlopeField::new(n.view(), &camera)?.with_normal_edges(n.view(), cfg.prior_edges_deg())?),
+                error,
+            )
         }
         _ => (None, None),
     };

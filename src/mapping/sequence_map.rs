@@ -314,6 +314,10 @@ impl MapConfig {
                 c0 if c0 > 0.0 && c.regularizer.normals() => format!(" prior_confidence={c0}"),
                 _ => String::new(),
             }
+            + &match c.prior_edges_deg() {
+                sigma if sigma > 0.0 && c.regularizer.normals() => format!(" prior_edges={sigma}"),
+                _ => String::new(),
+            }
             + &c.refine.map_or(String::new(), |p| format!(" refine={p:?}"))
             + &if c.regularizer == Regularizer::Tgv {
                 format!(" tgv_beta={}", c.tgv_beta)
@@ -692,6 +696,7 @@ fn map_json(
             "tgv_beta": (cfg.keyframe.regularizer == Regularizer::Tgv).then_some(cfg.keyframe.tgv_beta),
             "border_taper_px": cfg.keyframe.border_taper_px(),
             "prior_confidence": cfg.keyframe.regularizer.normals().then_some(cfg.keyframe.prior_confidence_c0()),
+            "prior_edges_deg": cfg.keyframe.regularizer.normals().then_some(cfg.keyframe.prior_edges_deg()),
             "bins": cfg.keyframe.bins,
             "depth_range_m": [cfg.keyframe.near, cfg.keyframe.far],
             "depth_range_auto": cfg.auto_depth_range,

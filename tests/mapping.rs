@@ -707,9 +707,16 @@ fn prior_confidence_weights_only_the_normal_prior() {
     }
 }
 
+/// SPEC.md §10.2, "Normal edges" in the mapper: the kinds' defaults, `σ` changes the normal prior's
+/// estimate and nothing else, and a bad `σ` is refused naming the flag before any work.
 #[test]
 fn prior_edges_change_only_the_normal_prior() {
+    use densefeat::mapping::features::PRIOR_EDGES_LEARNED;
     use densefeat::mapping::normals::NormalsSource;
+    assert_eq!(FeatureKind::Learned(None).default_prior_edges(), PRIOR_EDGES_LEARNED);
+    for k in [FeatureKind::Rgb, FeatureKind::B1(None), FeatureKind::Dsift, FeatureKind::Patch7] {
+        assert_eq!(k.default_prior_edges(), 0.0, "{k:?}");
+    }
     let seq = fixture();
     let mut cfg = eval_config();
     cfg.regularizer = Regularizer::TvAndNormals;

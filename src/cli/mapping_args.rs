@@ -77,7 +77,8 @@ pub struct MappingArgs {
     /// The normal prior's normal edges (`--regularizer normals`, SPEC.md §10.2), a scale in
     /// degrees: where a pixel's normal turns from its neighbours' by an angle a (a crease, or one
     /// surface in front of another), the prior's coupling there is weighted by exp(-(a/SIGMA)^2), as
-    /// DTAM's edge weight does at an image edge. 0: off (the paper's form); default: per feature
+    /// DTAM's edge weight does at an image edge. Normals from `--normals DIR` should all face the
+    /// camera (a flipped normal reads as an edge). 0: off (the paper's form); default: per feature
     /// type, chosen on validation (the learned features 30, the others 0).
     #[arg(long, value_name = "SIGMA")]
     pub prior_edges: Option<f64>,

@@ -206,6 +206,7 @@ pub fn check_prior_edges(sigma_deg: f64) -> Result<()> {
 /// neighbour outside the grid, or a pixel or neighbour without a normal (non-finite or zero), adds
 /// angle 0. Where the normal turns (a crease, or one surface in front of another) the prior's
 /// coupling across that pixel's forward differences falls, as DTAM's `g` does at an image edge.
+/// The normals' signs count (unlike in `q`): they must be oriented alike, e.g. towards the camera.
 pub fn normal_edge_weights(normals: ArrayView3<f32>, sigma_deg: f64) -> Array2<f32> {
     let (h, w, _) = normals.dim();
     let unit = |y: usize, x: usize| {

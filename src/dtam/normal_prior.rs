@@ -175,14 +175,7 @@ fn largest_norm(qx: &Array2<f32>, qy: &Array2<f32>) -> f64 {
 /// # Errors
 /// [`Error::InvalidArgument`] (`prior-confidence`) otherwise.
 pub fn check_prior_confidence(c0: f64) -> Result<()> {
-    if c0 >= 0.0 && c0.is_finite() {
-        Ok(())
-    } else {
-        Err(Error::invalid_argument(
-            "prior-confidence",
-            format!("{c0}: must be a finite number >= 0 (0: off)"),
-        ))
-    }
+    check_off_or_positive("prior-confidence", c0, "number")
 }
 
 /// Checks `--prior-edges`'s `σ` (SPEC.md §10.2): finite and `>= 0` degrees (0: off).
@@ -190,13 +183,15 @@ pub fn check_prior_confidence(c0: f64) -> Result<()> {
 /// # Errors
 /// [`Error::InvalidArgument`] (`prior-edges`) otherwise.
 pub fn check_prior_edges(sigma_deg: f64) -> Result<()> {
-    if sigma_deg >= 0.0 && sigma_deg.is_finite() {
+    check_off_or_positive("prior-edges", sigma_deg, "angle in degrees")
+}
+
+/// A prior option's value: finite and `>= 0`, 0 meaning off; the error names `flag` and `what` it is.
+fn check_off_or_positive(flag: &str, value: f64, what: &str) -> Result<()> {
+    if value >= 0.0 && value.is_finite() {
         Ok(())
     } else {
-        Err(Error::invalid_argument(
-            "prior-edges",
-            format!("{sigma_deg}: must be a finite angle in degrees >= 0 (0: off)"),
-        ))
+        Err(Error::invalid_argument(flag, format!("{value}: must be a finite {what} >= 0 (0: off)")))
     }
 }
 

@@ -91,7 +91,7 @@ fn features_default_weights_are_the_built_in_shipped_ones() {
         std::fs::read(out_path).unwrap()
     };
     let built_in = run("a.npy", None);
-    let file = run("b.npy", Some(root().join("fixtures/weights/featurenet_trained_mf8so.safetensors")));
+    let file = run("b.npy", Some(root().join("fixtures/weights/featurenet_trained_mf8sow.safetensors")));
     assert!(built_in == file, "built-in and file weights give different features");
     let help = bin().args(["features", "--help"]).output().unwrap();
     let help = String::from_utf8_lossy(&help.stdout);

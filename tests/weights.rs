@@ -268,10 +268,36 @@ fn shipped_chain_end(name: &str, b1_stride: usize, steps: usize) -> Vec<u8> {
 
 #[test]
 fn shipped_trained_weights_load_and_are_the_built_in_default() {
-    // Chain mf8so: chain mf4so's end trained 5 000 more steps with 8 live frames per reference
-    // (the mask and same-window crops kept, data seed 10; SPEC.md §13.8).
-    let bytes = shipped_chain_end("featurenet_trained_mf8so.safetensors", 2, 5000);
+    // Chain mf8sow: chain mf8so's end trained 5 000 more steps with the five block scales' losses
+    // weighted 0.2 against L's 1 (--deep-weight 0.2; 8 live frames, the mask and same-window crops
+    // kept, data seed 12; SPEC.md §13.8).
+    let bytes = shipped_chain_end("featurenet_trained_mf8sow.safetensors", 2, 5000);
     assert_eq!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
+    let w = NetworkWeights::from_safetensors_bytes(&bytes, Path::new("mf8sow")).unwrap();
+    assert!(
+        w.provenance.contains("live_frames: 8, live_crop: Same, occlusion_tolerance: 0.05"),
+        "{}",
+        w.provenance
+    );
+    assert!(w.provenance.contains("seed=12 "), "{}", w.provenance);
+    assert!(w
+        .provenance
+        .contains("supervision=Supervision { deep: true, aggregated: true, deep_weight: 0.2 }"));
+    assert!(w.provenance.contains("init_weights=docs/training/chain_mf8so/weights.safetensors"));
+}
+
+#[test]
+fn shipped_eight_frame_weights_load_and_are_the_end_of_their_chain() {
+    // Chain mf8so: chain mf4so's end trained 5 000 more steps with 8 live frames per reference
+    // (the mask and same-window crops kept, data seed 10); the default on 2026-12-07 until mf8sow
+    // and mf8sow's start (its weights are the bytes of docs/training/chain_mf8so/weights.safetensors).
+    let bytes = shipped_chain_end("featurenet_trained_mf8so.safetensors", 2, 5000);
+    assert_ne!(bytes, densefeat::mapping::features::SHIPPED_WEIGHTS);
+    let start = std::fs::read(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("docs/training/chain_mf8so/weights.safetensors"),
+    )
+    .unwrap();
+    assert_eq!(bytes, start);
     let w = NetworkWeights::from_safetensors_bytes(&bytes, Path::new("mf8so")).unwrap();
     assert!(
         w.provenance.contains("live_frames: 8, live_crop: Same, occlusion_tolerance: 0.05"),
@@ -279,7 +305,6 @@ fn shipped_trained_weights_load_and_are_the_built_in_default() {
         w.provenance
     );
     assert!(w.provenance.contains("seed=10 "), "{}", w.provenance);
-    assert!(w.provenance.contains("supervision=Supervision { deep: true, aggregated: true }"));
     assert!(w.provenance.contains("init_weights=docs/training/chain_mf4so/weights.safetensors"));
 }
 

@@ -22,7 +22,7 @@ pub struct FeaturesArgs {
     /// Input image (8-bit PNG or JPEG).
     pub image: PathBuf,
     /// Weights (`.safetensors`, SPEC.md §8.4). Default: the shipped trained weights
-    /// (fixtures/weights/featurenet_trained_mf8so.safetensors, built into the binary: no file needed).
+    /// (fixtures/weights/featurenet_trained_mf8sow.safetensors, built into the binary: no file needed).
     #[arg(long)]
     pub weights: Option<PathBuf>,
     /// Output `.npy`: `[H_l, W_l, C]` f32, C order, where `l` is block 1's level.

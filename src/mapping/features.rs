@@ -29,10 +29,10 @@ pub use super::resample::{
 /// The weights shipped in `fixtures/weights/`, compiled into the binary so that the demo and
 /// `--features learned` need no file at run time.
 pub const SHIPPED_WEIGHTS: &[u8] =
-    include_bytes!("../../fixtures/weights/featurenet_trained_mf8so.safetensors");
+    include_bytes!("../../fixtures/weights/featurenet_trained_mf8sow.safetensors");
 
 /// Name the shipped weights carry in messages.
-pub const SHIPPED_WEIGHTS_NAME: &str = "fixtures/weights/featurenet_trained_mf8so.safetensors (built in)";
+pub const SHIPPED_WEIGHTS_NAME: &str = "fixtures/weights/featurenet_trained_mf8sow.safetensors (built in)";
 
 /// The weights at `path`, or the shipped ones compiled into the binary for `None`.
 ///

@@ -14,7 +14,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 
 tag=${1:-table1}
-weights=fixtures/weights/featurenet_trained_mf8so.safetensors  # the default (b1s2 until 2026-12-04, mf4l until 2026-12-05, mf4sc and mf4so until 2026-12-06)
+weights=fixtures/weights/featurenet_trained_mf8sow.safetensors  # the default (b1s2 until 2026-12-04, mf4l until 2026-12-05, mf4sc and mf4so until 2026-12-06, mf8so until 2026-12-07)
 # The built-in run also carries the winner-take-all rows, so that it is issue 30's test table too
 # (tools/train_chain/test_table.py on its all.csv): one run of the test scenes serves both issues.
 tools/train_chain/test_scenes.sh "${tag}_builtin" "$weights" \

@@ -241,6 +241,9 @@ args_mf8sohs+=(--multi-cost seen --hinge-weight 1 --hinge-margin 1)
 # not chosen on any scene). Does one objective keep both?
 derive args_mf8sow args_mf8sod
 args_mf8sow+=(--deep-weight 0.2)
+# mf8sow on validation (2026-12-07, session 44): learned-normals +0.0002, the real room +0.0045, WTA
+# +0.0037 (74 of 101) against mf8so; by the rule (the default regulariser's mean and the real room) it
+# became the default (fixtures/weights/featurenet_trained_mf8sow.safetensors). mf8sohs started next.
 
 # mf4rp is mf4sr (the same init, mix, steps and data seed) with the two real training sequences'
 # poses refined to agree with their own depth first (tools/train_chain/refine_poses.py; they were
